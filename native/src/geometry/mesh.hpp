@@ -1,0 +1,49 @@
+// Triangle mesh with its rest (u,v) frame and bending topology.
+//
+// Units: metres. The rest (u,v) coordinates are the flat pattern of the cloth: u runs along the
+// weft/course, v along the warp/wale. For a Cusick specimen (a flat disk) u = x, v = y.
+#pragma once
+#include <Eigen/Core>
+#include <string>
+#include <vector>
+
+namespace drapelab {
+
+using Index = int;
+using MatrixX3d = Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor>;
+using MatrixX2d = Eigen::Matrix<double, Eigen::Dynamic, 2, Eigen::RowMajor>;
+using MatrixX3i = Eigen::Matrix<int, Eigen::Dynamic, 3, Eigen::RowMajor>;
+using MatrixX4i = Eigen::Matrix<int, Eigen::Dynamic, 4, Eigen::RowMajor>;
+
+// An interior edge shared by two faces: vertices (a, b) of the edge, c opposite in face0, d opposite in face1.
+struct BendingEdge {
+  Index a, b, c, d;
+  Index face0, face1;
+};
+
+struct TriangleMesh {
+  MatrixX3d positions;   // rest positions (V x 3), metres
+  MatrixX2d uv;          // rest pattern coordinates (V x 2), metres: u = weft, v = warp
+  MatrixX3i faces;       // (F x 3) vertex indices, counter-clockwise in (u,v)
+
+  Index num_vertices() const { return static_cast<Index>(positions.rows()); }
+  Index num_faces() const { return static_cast<Index>(faces.rows()); }
+};
+
+// Checks shapes, index ranges, finiteness, degenerate faces (rest area <= min_area) and
+// non-manifold edges (shared by more than two faces). Throws InputError naming the first problem.
+void validate_mesh(const TriangleMesh& mesh, double min_area = 1e-14);
+
+// Interior edges with their two opposite vertices, in a deterministic order.
+std::vector<BendingEdge> bending_edges(const TriangleMesh& mesh);
+
+// Rest areas of faces in the (u,v) pattern (m^2), signed: positive for counter-clockwise faces.
+Eigen::VectorXd rest_areas(const TriangleMesh& mesh);
+
+// A mesh whose faces are oriented counter-clockwise in (u,v) (flips clockwise faces).
+void orient_faces_ccw(TriangleMesh& mesh);
+
+// Reorders vertices by `perm` (new index i holds old vertex perm[i]); used to test order independence.
+TriangleMesh permute_vertices(const TriangleMesh& mesh, const std::vector<Index>& perm);
+
+}  // namespace drapelab
