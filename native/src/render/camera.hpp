@@ -20,6 +20,10 @@ class Camera {
   // Image coordinates (col, row) of a point, and d(col,row)/d(x,y,z) (2x3) when jacobian != nullptr.
   virtual Eigen::Vector2d project(const Eigen::Vector3d& p, Eigen::Matrix<double, 2, 3>* jacobian = nullptr) const = 0;
   virtual std::string kind() const = 0;
+  // False when p has no image (a perspective camera: p at or above the eye plane); renderers reject such input.
+  virtual bool in_front(const Eigen::Vector3d& p) const { return true; }
+  // A copy, so renderers can own their measurement model independently of the caller's object.
+  virtual std::unique_ptr<Camera> clone() const = 0;
 };
 
 class OrthographicCamera : public Camera {
@@ -29,6 +33,7 @@ class OrthographicCamera : public Camera {
   int height() const override { return height_; }
   Eigen::Vector2d project(const Eigen::Vector3d& p, Eigen::Matrix<double, 2, 3>* jacobian = nullptr) const override;
   std::string kind() const override { return "ortho"; }
+  std::unique_ptr<Camera> clone() const override { return std::make_unique<OrthographicCamera>(*this); }
   double px_per_m() const { return s_; }
   Eigen::Vector2d centre() const { return {cx_, cy_}; }
 
@@ -44,6 +49,13 @@ class PerspectiveCamera : public Camera {
   int height() const override { return height_; }
   Eigen::Vector2d project(const Eigen::Vector3d& p, Eigen::Matrix<double, 2, 3>* jacobian = nullptr) const override;
   std::string kind() const override { return "perspective"; }
+  // Points closer to the eye plane than min_depth (m) are rejected: their projection blows up.
+  bool in_front(const Eigen::Vector3d& p) const override { return eye_height_ - p.z() > min_depth; }
+  std::unique_ptr<Camera> clone() const override { return std::make_unique<PerspectiveCamera>(*this); }
+  double fov_y() const { return fov_y_; }
+  double eye_height() const { return eye_height_; }
+  double focal_px() const;  // f = (H / 2) / tan(fov_y / 2), pixels
+  static constexpr double min_depth = 1e-6;
 
  private:
   double fov_y_, eye_height_;

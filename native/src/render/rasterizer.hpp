@@ -1,4 +1,5 @@
-// Silhouette rasterizers: hard (for metrics) and soft (differentiable, SoftRas/DIB-R family).
+// Silhouette rasterizers: hard (for metrics) and soft (differentiable, SoftRas/DIB-R family; see
+// render/soft_rasterizer.hpp).
 #pragma once
 #include <memory>
 
@@ -9,6 +10,18 @@
 namespace drapelab {
 
 // Binary silhouette (1 where a pixel centre is covered by any projected triangle).
+// Coverage is closed (a centre exactly on an edge counts) and independent of face orientation;
+// faces whose projection has zero area cover nothing. Image size = camera.width() x camera.height().
 Image hard_silhouette(const Camera& camera, const MatrixX3d& positions, const MatrixX3i& faces);
+
+// Checks renderer input: non-empty, finite positions, face indices in [0, V), every vertex in front of
+// the camera. Throws InputError naming the first offending vertex/face.
+void check_render_input(const Camera& camera, const MatrixX3d& positions, const MatrixX3i& faces);
+
+// Image coordinates (col, row) of every vertex (V x 2, pixels).
+MatrixX2d project_vertices(const Camera& camera, const MatrixX3d& positions);
+
+// Intersection over union of two silhouettes thresholded at 0.5 (1 when both are empty).
+double silhouette_iou(const Image& a, const Image& b);
 
 }  // namespace drapelab
