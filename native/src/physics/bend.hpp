@@ -1,0 +1,112 @@
+// Nonlinear anisotropic bending (Bridson et al. 2003 discrete shells; Wang et al. 2011 data-driven tables).
+//
+// Per interior edge w with rest length L, rest heights h1, h2 of its two faces (h = 2 A / L, from the
+// rest pattern), rest dihedral angle theta_rest (0: cloth is flat at rest) and current signed dihedral
+// angle theta:
+//   E_w = 2 k L / (h1 + h2) (1 - cos((theta - theta_rest) / 2))   [J]
+// so that dE/dtheta = k L / (h1 + h2) sin((theta - theta_rest) / 2), the paper's bending force.
+// k = B(beta, alpha) [N m] interpolates the edge's 3 x 5 table (row-major) bilinearly: rows are bias
+// angles beta = 0, 45, 90 degrees between the rest edge and the weft (u) axis (folded to [0, 90]);
+// columns are curvature samples alpha = k * kBendSampleCurvature, k = 0..4, of
+//   alpha = |sin((theta - theta_rest) / 2)| / (h1 + h2)   [1/m]
+// clamped to the table's range. The energy includes dk/dalpha (conservative forces).
+// Step matrix: Gauss-Newton with r = sin((theta - theta_rest) / 4): E = 4 k L/(h1+h2) r^2, K = 8 k L/(h1+h2) dr dr^T.
+#pragma once
+#include <array>
+#include <vector>
+
+#include "geometry/mesh.hpp"
+#include "physics/element_term.hpp"
+
+namespace drapelab {
+
+constexpr double kBendSampleCurvature = 2.5;  // 1/m between table columns
+
+class BendTerm : public ElementTerm<BendTerm, 4, 15, 1> {
+ public:
+  BendTerm(const TriangleMesh& mesh, const std::vector<BendingEdge>& edges, int parameter_offset, bool shared);
+  std::string name() const override { return "bend"; }
+
+  int num_elements() const { return static_cast<int>(verts_.size()); }
+  const std::array<int, 4>& element_vertices(int e) const { return verts_[e]; }
+  int parameter_offset(int e) const { return offset_ + (shared_ ? 0 : 15 * e); }
+
+  // Signed dihedral angle: 0 when flat, vertices (a, b, c, d) as in BendingEdge.
+  template <class T>
+  static T dihedral_angle(const T* x) {
+    T e[3], ec[3], ed[3];
+    for (int k = 0; k < 3; ++k) {
+      e[k] = x[3 + k] - x[k];
+      ec[k] = x[6 + k] - x[k];
+      ed[k] = x[9 + k] - x[k];
+    }
+    // n1 = e x ec (face a, b, c), n2 = ed x e (face b, a, d), both +z for a flat counter-clockwise pair.
+    T n1[3], n2[3], m[3];
+    cross(e, ec, n1);
+    cross(ed, e, n2);
+    cross(n1, n2, m);
+    const T len = sqrt(e[0] * e[0] + e[1] * e[1] + e[2] * e[2]);
+    const T s = (m[0] * e[0] + m[1] * e[1] + m[2] * e[2]) / len;
+    const T c = n1[0] * n2[0] + n1[1] * n2[1] + n1[2] * n2[2];
+    return atan2(s, c);
+  }
+
+  template <class T>
+  T stiffness(int e, const T& half_angle_sine, const T* p) const {
+    const double hsum = height_sum_[e];
+    T alpha = (value_of(half_angle_sine) >= 0 ? half_angle_sine : -half_angle_sine) / hsum;
+    const T t = alpha / kBendSampleCurvature;
+    const double tv = value_of(t);
+    int k0;
+    T f;
+    if (tv >= 4) {
+      k0 = 3;
+      f = T(1.0);
+    } else {
+      k0 = static_cast<int>(tv);
+      if (k0 > 3) k0 = 3;
+      f = t - static_cast<double>(k0);
+    }
+    const auto& rw = row_weights_[e];
+    T k = T(0.0);
+    for (int r = 0; r < 2; ++r) {
+      const int row = row_index_[e][r];
+      if (rw[r] == 0.0) continue;
+      k += rw[r] * ((1.0 - f) * p[5 * row + k0] + f * p[5 * row + k0 + 1]);
+    }
+    return k;
+  }
+
+  template <class T>
+  T element_energy(int e, const T* x, const T* p) const {
+    const T d = dihedral_angle(x) - rest_angle_[e];
+    const T k = stiffness(e, sin(0.5 * d), p);
+    return 2.0 * k * (rest_length_[e] / height_sum_[e]) * (1.0 - cos(0.5 * d));
+  }
+
+  template <class T>
+  void element_gauss_newton(int e, const T* x, const T* p, T* r, T* S) const {
+    const T d = dihedral_angle(x) - rest_angle_[e];
+    r[0] = sin(0.25 * d);
+    S[0] = 8.0 * stiffness(e, sin(0.5 * d), p) * (rest_length_[e] / height_sum_[e]);
+  }
+
+  double bias_angle(int e) const { return bias_[e]; }
+
+ private:
+  template <class T>
+  static void cross(const T* a, const T* b, T* out) {
+    out[0] = a[1] * b[2] - a[2] * b[1];
+    out[1] = a[2] * b[0] - a[0] * b[2];
+    out[2] = a[0] * b[1] - a[1] * b[0];
+  }
+
+  std::vector<std::array<int, 4>> verts_;
+  std::vector<double> rest_length_, height_sum_, rest_angle_, bias_;
+  std::vector<std::array<int, 2>> row_index_;
+  std::vector<std::array<double, 2>> row_weights_;
+  int offset_;
+  bool shared_;
+};
+
+}  // namespace drapelab

@@ -1,0 +1,268 @@
+// Generic per-element machinery for terms whose energy is a sum over small elements (faces, bending
+// edges, vertices). A term supplies, per element e:
+//   template <class T> T element_energy(int e, const T* x, const T* p) const;        x: 3*kVertices, p: kParams
+//   template <class T> void element_gauss_newton(int e, const T* x, const T* p, T* r, T* S) const;
+//        residuals r (kResiduals, independent of p) and a PSD weight S (kResiduals^2, row-major) such that
+//        the step matrix is K_e = J_r^T S J_r with J_r = dr/dx.
+//   int num_elements(); const std::array<int, kVertices>& element_vertices(int e); int parameter_offset(int e).
+// Every derivative in Term is then derived with forward-mode jets (util/jet.hpp): exact by construction.
+#pragma once
+#include <array>
+#include <vector>
+
+#include "physics/sparse_pattern.hpp"
+#include "physics/term.hpp"
+#include "util/jet.hpp"
+
+namespace drapelab {
+
+template <class Derived, int kVertices, int kParams, int kResiduals>
+class ElementTerm : public Term {
+ public:
+  static constexpr int D = 3 * kVertices;
+
+  std::vector<std::vector<int>> stencils() const override {
+    std::vector<std::vector<int>> s;
+    s.reserve(self().num_elements());
+    for (int e = 0; e < self().num_elements(); ++e) {
+      const auto& v = self().element_vertices(e);
+      s.emplace_back(v.begin(), v.end());
+    }
+    return s;
+  }
+
+  void bind_pattern(const SparsePattern& pattern) override {
+    const int ne = self().num_elements();
+    scatter_.assign(static_cast<size_t>(ne) * D * D, -1);
+    for (int e = 0; e < ne; ++e) {
+      const auto& v = self().element_vertices(e);
+      for (int i = 0; i < D; ++i)
+        for (int j = 0; j < D; ++j) {
+          const int r = 3 * v[i / 3] + i % 3, c = 3 * v[j / 3] + j % 3;
+          if (r <= c) scatter_[(static_cast<size_t>(e) * D + i) * D + j] = pattern.index(r, c);
+        }
+    }
+  }
+
+  double energy(const Eigen::VectorXd& x, const Eigen::VectorXd& p) const override {
+    double E = 0;
+    double xe[D];
+    for (int e = 0; e < self().num_elements(); ++e) {
+      gather(e, x, xe);
+      E += self().template element_energy<double>(e, xe, p.data() + self().parameter_offset(e));
+    }
+    return E;
+  }
+
+  void add_gradient(const Eigen::VectorXd& x, const Eigen::VectorXd& p, Eigen::VectorXd& g) const override {
+    using J = Jet<double, D>;
+    J xe[D], pe[kParams > 0 ? kParams : 1];
+    for (int e = 0; e < self().num_elements(); ++e) {
+      seed_x(e, x, xe);
+      const double* pv = p.data() + self().parameter_offset(e);
+      for (int k = 0; k < kParams; ++k) pe[k] = J(pv[k]);
+      const J E = self().template element_energy<J>(e, xe, pe);
+      scatter_vector(e, E.v.data(), 1.0, g);
+    }
+  }
+
+  void add_step_matrix(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double scale,
+                       Eigen::VectorXd& values) const override {
+    if constexpr (kResiduals > 0) {
+      using J = Jet<double, D>;
+      J xe[D], pe[kParams > 0 ? kParams : 1], r[kResiduals], S[kResiduals * kResiduals];
+      double K[D * D];
+      for (int e = 0; e < self().num_elements(); ++e) {
+        seed_x(e, x, xe);
+        const double* pv = p.data() + self().parameter_offset(e);
+        for (int k = 0; k < kParams; ++k) pe[k] = J(pv[k]);
+        self().template element_gauss_newton<J>(e, xe, pe, r, S);
+        // K = J_r^T S J_r
+        double SJ[kResiduals * D];
+        for (int a = 0; a < kResiduals; ++a)
+          for (int j = 0; j < D; ++j) {
+            double s = 0;
+            for (int b = 0; b < kResiduals; ++b) s += S[a * kResiduals + b].a * r[b].v[j];
+            SJ[a * D + j] = s;
+          }
+        for (int i = 0; i < D; ++i)
+          for (int j = 0; j < D; ++j) {
+            double s = 0;
+            for (int a = 0; a < kResiduals; ++a) s += r[a].v[i] * SJ[a * D + j];
+            K[i * D + j] = s;
+          }
+        scatter_matrix(e, K, scale, values);
+      }
+    }
+  }
+
+  void add_hessian(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double scale,
+                   Eigen::VectorXd& values) const override {
+    using J1 = Jet<double, D>;
+    using J2 = Jet<J1, D>;
+    J2 xe[D], pe[kParams > 0 ? kParams : 1];
+    double H[D * D];
+    for (int e = 0; e < self().num_elements(); ++e) {
+      const auto& v = self().element_vertices(e);
+      for (int i = 0; i < D; ++i) {
+        xe[i] = J2(J1(x[3 * v[i / 3] + i % 3], i));
+        xe[i].v[i] = J1(1.0);
+      }
+      const double* pv = p.data() + self().parameter_offset(e);
+      for (int k = 0; k < kParams; ++k) pe[k] = J2(pv[k]);
+      const J2 E = self().template element_energy<J2>(e, xe, pe);
+      for (int i = 0; i < D; ++i)
+        for (int j = 0; j < D; ++j) H[i * D + j] = E.v[i].v[j];
+      scatter_matrix(e, H, scale, values);
+    }
+  }
+
+  void add_hessian_product(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& dir,
+                           Eigen::VectorXd& out) const override {
+    using J1 = Jet<double, 1>;
+    using J2 = Jet<J1, D>;
+    J2 xe[D], pe[kParams > 0 ? kParams : 1];
+    double Hd[D];
+    for (int e = 0; e < self().num_elements(); ++e) {
+      const auto& v = self().element_vertices(e);
+      for (int i = 0; i < D; ++i) {
+        const int dof = 3 * v[i / 3] + i % 3;
+        J1 inner(x[dof]);
+        inner.v[0] = dir[dof];
+        xe[i] = J2(inner);
+        xe[i].a = inner;
+        xe[i].v[i] = J1(1.0);
+      }
+      const double* pv = p.data() + self().parameter_offset(e);
+      for (int k = 0; k < kParams; ++k) pe[k] = J2(pv[k]);
+      const J2 E = self().template element_energy<J2>(e, xe, pe);
+      for (int i = 0; i < D; ++i) Hd[i] = E.v[i].v[0];
+      scatter_vector(e, Hd, 1.0, out);
+    }
+  }
+
+  void add_energy_parameter_gradient(const Eigen::VectorXd& x, const Eigen::VectorXd& p,
+                                     Eigen::VectorXd& gp) const override {
+    if constexpr (kParams > 0) {
+      using J = Jet<double, kParams>;
+      J xe[D], pe[kParams];
+      for (int e = 0; e < self().num_elements(); ++e) {
+        const auto& v = self().element_vertices(e);
+        for (int i = 0; i < D; ++i) xe[i] = J(x[3 * v[i / 3] + i % 3]);
+        const int off = self().parameter_offset(e);
+        for (int k = 0; k < kParams; ++k) pe[k] = J(p[off + k], k);
+        const J E = self().template element_energy<J>(e, xe, pe);
+        for (int k = 0; k < kParams; ++k) gp[off + k] += E.v[k];
+      }
+    }
+  }
+
+  void add_gradient_parameter_product(const Eigen::VectorXd& x, const Eigen::VectorXd& p,
+                                      const Eigen::VectorXd& lambda, double scale,
+                                      Eigen::VectorXd& gp) const override {
+    if constexpr (kParams > 0) {
+      using J1 = Jet<double, 1>;
+      using J2 = Jet<J1, kParams>;
+      J2 xe[D], pe[kParams];
+      for (int e = 0; e < self().num_elements(); ++e) {
+        const auto& v = self().element_vertices(e);
+        for (int i = 0; i < D; ++i) {
+          const int dof = 3 * v[i / 3] + i % 3;
+          J1 inner(x[dof]);
+          inner.v[0] = lambda[dof];
+          xe[i] = J2(0.0);
+          xe[i].a = inner;
+        }
+        const int off = self().parameter_offset(e);
+        for (int k = 0; k < kParams; ++k) {
+          pe[k] = J2(p[off + k]);
+          pe[k].v[k] = J1(1.0);
+        }
+        const J2 E = self().template element_energy<J2>(e, xe, pe);
+        for (int k = 0; k < kParams; ++k) gp[off + k] += scale * E.v[k].v[0];
+      }
+    }
+  }
+
+  void add_step_matrix_derivatives(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& lambda,
+                                   const Eigen::VectorXd& w, double scale, Eigen::VectorXd& gx,
+                                   Eigen::VectorXd& gp) const override {
+    if constexpr (kResiduals > 0) {
+      using J1 = Jet<double, 2>;
+      using U = Jet<J1, D>;
+      constexpr int M = kResiduals;
+      U xe[D], pe[kParams > 0 ? kParams : 1], r[M], S[M * M];
+      using JP = Jet<double, kParams>;
+      JP xp[D], pp[kParams > 0 ? kParams : 1], rp[M], Sp[M * M];
+      double gxe[D];
+      for (int e = 0; e < self().num_elements(); ++e) {
+        const auto& v = self().element_vertices(e);
+        for (int i = 0; i < D; ++i) {
+          const int dof = 3 * v[i / 3] + i % 3;
+          J1 inner(x[dof]);
+          inner.v[0] = lambda[dof];
+          inner.v[1] = w[dof];
+          xe[i] = U(0.0);
+          xe[i].a = inner;
+          xe[i].v[i] = J1(1.0);
+        }
+        const int off = self().parameter_offset(e);
+        for (int k = 0; k < kParams; ++k) pe[k] = U(p[off + k]);
+        self().template element_gauss_newton<U>(e, xe, pe, r, S);
+        double Jl[M], Jw[M];
+        for (int a = 0; a < M; ++a) {
+          Jl[a] = r[a].a.v[0];
+          Jw[a] = r[a].a.v[1];
+        }
+        for (int j = 0; j < D; ++j) {
+          double s = 0;
+          for (int a = 0; a < M; ++a)
+            for (int b = 0; b < M; ++b) {
+              const double Sab = S[a * M + b].a.a;
+              s += r[a].v[j].v[0] * Sab * Jw[b] + Jl[a] * S[a * M + b].v[j].a * Jw[b] + Jl[a] * Sab * r[b].v[j].v[1];
+            }
+          gxe[j] = s;
+        }
+        scatter_vector(e, gxe, scale, gx);
+        if constexpr (kParams > 0) {
+          for (int i = 0; i < D; ++i) xp[i] = JP(x[3 * v[i / 3] + i % 3]);
+          for (int k = 0; k < kParams; ++k) pp[k] = JP(p[off + k], k);
+          self().template element_gauss_newton<JP>(e, xp, pp, rp, Sp);
+          for (int k = 0; k < kParams; ++k) {
+            double s = 0;
+            for (int a = 0; a < M; ++a)
+              for (int b = 0; b < M; ++b) s += Jl[a] * Sp[a * M + b].v[k] * Jw[b];
+            gp[off + k] += scale * s;
+          }
+        }
+      }
+    }
+  }
+
+ protected:
+  const Derived& self() const { return static_cast<const Derived&>(*this); }
+
+  void gather(int e, const Eigen::VectorXd& x, double* xe) const {
+    const auto& v = self().element_vertices(e);
+    for (int i = 0; i < D; ++i) xe[i] = x[3 * v[i / 3] + i % 3];
+  }
+  template <class J>
+  void seed_x(int e, const Eigen::VectorXd& x, J* xe) const {
+    const auto& v = self().element_vertices(e);
+    for (int i = 0; i < D; ++i) xe[i] = J(x[3 * v[i / 3] + i % 3], i);
+  }
+  void scatter_vector(int e, const double* ge, double scale, Eigen::VectorXd& g) const {
+    const auto& v = self().element_vertices(e);
+    for (int i = 0; i < D; ++i) g[3 * v[i / 3] + i % 3] += scale * ge[i];
+  }
+  void scatter_matrix(int e, const double* K, double scale, Eigen::VectorXd& values) const {
+    const int* map = scatter_.data() + static_cast<size_t>(e) * D * D;
+    for (int k = 0; k < D * D; ++k)
+      if (map[k] >= 0) values[map[k]] += scale * K[k];
+  }
+
+ private:
+  std::vector<int> scatter_;
+};
+
+}  // namespace drapelab

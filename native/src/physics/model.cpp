@@ -1,0 +1,137 @@
+#include "physics/model.hpp"
+
+#include <cmath>
+#include <sstream>
+
+#include "physics/bend.hpp"
+#include "physics/gravity.hpp"
+#include "physics/handle.hpp"
+#include "physics/stretch.hpp"
+#include "util/error.hpp"
+
+namespace drapelab {
+
+StretchTable cotton_blue_stretch_table() {
+  StretchTable t;
+  const double c11[6] = {150.0862, 189.2275, 51.2988, 36.7329, 58.9375, 207.3079};
+  const double c12[6] = {0.3456, 2.3716, 4.9362, 6.3891, 5.1495, 2.2163};
+  const double c22[6] = {150.4856, 200.7334, 60.3071, 32.7261, 49.8735, 193.4768};
+  const double c33[6] = {10.189, 20.905, 25.393, 30.462, 25.055, 20.669};
+  for (int r = 0; r < 6; ++r) t.row(r) << c11[r], c12[r], c22[r], c33[r];
+  return t;
+}
+
+BendTable cotton_blue_bend_table() {
+  BendTable t;
+  t << 1.071e-5, 2.914e-5, 9.287e-5, 9.498e-5, 8.145e-5,  //
+      2.753e-5, 4.838e-5, 3.838e-5, 7.398e-5, 6.982e-5,   //
+      2.460e-5, 1.028e-4, 1.234e-4, 1.002e-4, 1.022e-4;
+  return t;
+}
+
+Model::Model(const TriangleMesh& mesh, const ModelOptions& options) : mesh_(mesh), options_(options) {
+  validate_mesh(mesh_);
+  orient_faces_ccw(mesh_);
+  if (!(options.gravity >= 0) || !std::isfinite(options.gravity)) throw InputError("model: gravity must be >= 0");
+  if (!(options.support_radius > 0)) throw InputError("model: support radius must be > 0");
+  edges_ = drapelab::bending_edges(mesh_);
+  const int nf = mesh_.num_faces(), ne = static_cast<int>(edges_.size()), nv = mesh_.num_vertices();
+  const bool shared = !options.heterogeneous;
+  const int stretch_off = layout_.add("stretch", "N/m", 24, nf, shared);
+  const int bend_off = layout_.add("bend", "N m", 15, ne, shared);
+  const int density_off = layout_.add("density", "kg/m^2", 1, 1, true);
+  const int handle_off = layout_.add("handle_stiffness", "N/m", 1, 1, true);
+
+  const Eigen::VectorXd areas = rest_areas(mesh_);
+  area_weights_.setZero(nv);
+  for (int f = 0; f < nf; ++f)
+    for (int k = 0; k < 3; ++k) area_weights_[mesh_.faces(f, k)] += std::abs(areas[f]) / 3.0;
+
+  std::vector<Eigen::Vector3d> anchors;
+  for (int i = 0; i < nv; ++i)
+    if (mesh_.uv.row(i).norm() < options.support_radius) {
+      handle_vertices_.push_back(i);
+      anchors.push_back(mesh_.positions.row(i).transpose());
+    }
+  if (handle_vertices_.empty()) throw InputError("model: no vertex lies on the support disk (rest radius < support radius)");
+
+  terms_.push_back(std::make_unique<StretchTerm>(mesh_, stretch_off, shared));
+  terms_.push_back(std::make_unique<BendTerm>(mesh_, edges_, bend_off, shared));
+  terms_.push_back(std::make_unique<GravityTerm>(area_weights_, density_off, options.gravity));
+  terms_.push_back(std::make_unique<HandleTerm>(handle_vertices_, anchors, handle_off));
+
+  std::vector<std::vector<int>> stencils;
+  for (const auto& t : terms_) {
+    auto s = t->stencils();
+    stencils.insert(stencils.end(), s.begin(), s.end());
+  }
+  pattern_ = SparsePattern(nv, stencils);
+  for (const auto& t : terms_) t->bind_pattern(pattern_);
+
+  defaults_.setZero(layout_.size());
+  fill_stretch(defaults_, cotton_blue_stretch_table());
+  fill_bend(defaults_, cotton_blue_bend_table());
+  defaults_[density_off] = options.density;
+  defaults_[handle_off] = options.handle_stiffness;
+  validate_parameters(defaults_);
+}
+
+Eigen::VectorXd Model::rest_positions() const {
+  Eigen::VectorXd x(num_dofs());
+  for (int i = 0; i < num_vertices(); ++i) x.segment<3>(3 * i) = mesh_.positions.row(i).transpose();
+  return x;
+}
+
+Eigen::VectorXd Model::masses(const Eigen::VectorXd& p) const {
+  return p[layout_.block("density").offset] * area_weights_;
+}
+
+void Model::fill_stretch(Eigen::VectorXd& p, const StretchTable& table) const {
+  const auto& b = layout_.block("stretch");
+  for (int o = b.offset; o < b.offset + b.size; o += 24)
+    for (int k = 0; k < 24; ++k) p[o + k] = table.data()[k];
+}
+
+void Model::fill_bend(Eigen::VectorXd& p, const BendTable& table) const {
+  const auto& b = layout_.block("bend");
+  for (int o = b.offset; o < b.offset + b.size; o += 15)
+    for (int k = 0; k < 15; ++k) p[o + k] = table.data()[k];
+}
+
+void Model::validate_parameters(const Eigen::VectorXd& p) const {
+  if (p.size() != layout_.size()) {
+    std::ostringstream s;
+    s << "parameters: expected " << layout_.size() << " values, got " << p.size();
+    throw InputError(s.str());
+  }
+  static const char* stretch_names[4] = {"c11", "c12", "c22", "c33"};
+  for (const auto& b : layout_.blocks()) {
+    for (int k = 0; k < b.size; ++k) {
+      const double v = p[b.offset + k];
+      const int element = k / b.entries_per_element, entry = k % b.entries_per_element;
+      std::ostringstream where;
+      where << "parameters: block '" << b.name << "'";
+      if (!b.shared) where << " element " << element;
+      if (b.name == "stretch") where << " row " << entry / 4 << " " << stretch_names[entry % 4];
+      if (b.name == "bend") where << " row " << entry / 5 << " column " << entry % 5;
+      if (!std::isfinite(v)) throw InputError(where.str() + " is not finite (" + std::to_string(v) + ")");
+      const bool may_be_negative = b.name == "stretch" && entry % 4 == 1;  // Poisson coupling c12
+      if (!may_be_negative && v < 0)
+        throw InputError(where.str() + " is negative (" + std::to_string(v) + " " + b.unit + ")");
+      if ((b.name == "density") && !(v > 0))
+        throw InputError(where.str() + " must be > 0 (got " + std::to_string(v) + " kg/m^2)");
+    }
+  }
+}
+
+double Model::energy(const Eigen::VectorXd& x, const Eigen::VectorXd& p) const {
+  double E = 0;
+  for (const auto& t : terms_) E += t->energy(x, p);
+  return E;
+}
+
+void Model::add_gradient(const Eigen::VectorXd& x, const Eigen::VectorXd& p, Eigen::VectorXd& g) const {
+  for (const auto& t : terms_) t->add_gradient(x, p, g);
+}
+
+}  // namespace drapelab

@@ -1,0 +1,76 @@
+// A cloth model: mesh, rest data, lumped masses, the active terms and the flat parameter layout.
+//
+// Parameter blocks (physics/parameters.hpp): "stretch" (6x4 table, N/m), "bend" (3x5 table, N m),
+// "density" (kg/m^2), "handle_stiffness" (N/m). Homogeneous models share one table; heterogeneous models
+// carry one table per face (stretch) and per bending edge (bend).
+#pragma once
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "geometry/mesh.hpp"
+#include "physics/parameters.hpp"
+#include "physics/sparse_pattern.hpp"
+#include "physics/term.hpp"
+
+namespace drapelab {
+
+struct ModelOptions {
+  bool heterogeneous = false;     // one table per element
+  double support_radius = 0.09;   // m: vertices with rest radius below are held by the handle
+  double gravity = 9.8;           // m/s^2, along -z
+  double density = 0.192;         // kg/m^2 (Cotton Blue)
+  double handle_stiffness = 1e3;  // N/m (paper)
+};
+
+using StretchTable = Eigen::Matrix<double, 6, 4, Eigen::RowMajor>;
+using BendTable = Eigen::Matrix<double, 3, 5, Eigen::RowMajor>;
+
+// The published Cotton Blue starting tables (paper's released scripts).
+StretchTable cotton_blue_stretch_table();
+BendTable cotton_blue_bend_table();
+
+class Model {
+ public:
+  Model(const TriangleMesh& mesh, const ModelOptions& options = {});
+
+  const TriangleMesh& mesh() const { return mesh_; }
+  int num_vertices() const { return mesh_.num_vertices(); }
+  int num_dofs() const { return 3 * mesh_.num_vertices(); }
+  const std::vector<BendingEdge>& bending_edges() const { return edges_; }
+  const ModelOptions& options() const { return options_; }
+  const ParameterLayout& layout() const { return layout_; }
+  const SparsePattern& pattern() const { return pattern_; }
+  const std::vector<std::unique_ptr<Term>>& terms() const { return terms_; }
+  const std::vector<int>& handle_vertices() const { return handle_vertices_; }
+
+  // Rest positions, flattened (3V), metres.
+  Eigen::VectorXd rest_positions() const;
+  // Sum of A_f / 3 per vertex (m^2); masses = density * area_weights.
+  const Eigen::VectorXd& area_weights() const { return area_weights_; }
+  Eigen::VectorXd masses(const Eigen::VectorXd& p) const;  // per vertex, kg
+
+  // Default parameters: the Cotton Blue tables on every element, options' density and k_h.
+  const Eigen::VectorXd& default_parameters() const { return defaults_; }
+  // Writes a table into every element of the block.
+  void fill_stretch(Eigen::VectorXd& p, const StretchTable& table) const;
+  void fill_bend(Eigen::VectorXd& p, const BendTable& table) const;
+  // Throws InputError naming the block, element and entry for NaN/inf, negative stiffness,
+  // density <= 0, or a wrong size.
+  void validate_parameters(const Eigen::VectorXd& p) const;
+
+  double energy(const Eigen::VectorXd& x, const Eigen::VectorXd& p) const;
+  void add_gradient(const Eigen::VectorXd& x, const Eigen::VectorXd& p, Eigen::VectorXd& g) const;
+
+ private:
+  TriangleMesh mesh_;
+  ModelOptions options_;
+  std::vector<BendingEdge> edges_;
+  ParameterLayout layout_;
+  Eigen::VectorXd area_weights_, defaults_;
+  std::vector<int> handle_vertices_;
+  std::vector<std::unique_ptr<Term>> terms_;
+  SparsePattern pattern_;
+};
+
+}  // namespace drapelab

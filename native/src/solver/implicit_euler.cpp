@@ -1,0 +1,127 @@
+#include "solver/implicit_euler.hpp"
+
+#include <chrono>
+#include <cmath>
+#include <sstream>
+
+#include "util/error.hpp"
+
+namespace drapelab {
+
+namespace {
+double seconds_since(std::chrono::steady_clock::time_point t0) {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+}
+}  // namespace
+
+ImplicitEuler::ImplicitEuler(const Model& model) : model_(model), solver_(model.pattern()) {}
+
+void ImplicitEuler::step_system(const Eigen::VectorXd& x, const Eigen::VectorXd& v, const Eigen::VectorXd& p,
+                                double h, Eigen::VectorXd& A, Eigen::VectorXd& b) const {
+  const SparsePattern& pattern = model_.pattern();
+  A.setZero(pattern.nnz());
+  for (const auto& t : model_.terms()) t->add_step_matrix(x, p, h * h, A);
+  // b = h F - h^2 K v = -h grad E - (A_K v) with A_K = h^2 K (before adding masses)
+  b = -symmetric_multiply(pattern, A, v);
+  Eigen::VectorXd g = Eigen::VectorXd::Zero(x.size());
+  model_.add_gradient(x, p, g);
+  b -= h * g;
+  const Eigen::VectorXd m = model_.masses(p);
+  for (int i = 0; i < model_.num_vertices(); ++i)
+    for (int k = 0; k < 3; ++k) A[pattern.diagonal(3 * i + k)] += m[i];
+}
+
+Eigen::VectorXd ImplicitEuler::forward(const Eigen::VectorXd& p, const RolloutOptions& options,
+                                       ProgressSink* progress, const Eigen::VectorXd* x0,
+                                       const Eigen::VectorXd* v0) {
+  model_.validate_parameters(p);
+  if (!(options.time_step > 0) || !std::isfinite(options.time_step))
+    throw InputError("rollout: time step must be > 0 s");
+  if (options.steps < 1) throw InputError("rollout: need at least one step");
+  const int n = model_.num_dofs();
+  x_ = x0 ? *x0 : model_.rest_positions();
+  v_ = v0 ? *v0 : Eigen::VectorXd::Zero(n);
+  if (x_.size() != n || v_.size() != n) throw InputError("rollout: initial state has the wrong size");
+  if (!x_.allFinite() || !v_.allFinite()) throw InputError("rollout: initial state is not finite");
+  p_ = p;
+  h_ = options.time_step;
+  tape_.clear();
+  if (options.record) tape_.reserve(options.steps);
+  timing_ = {};
+  Eigen::VectorXd A, b;
+  for (int step = 0; step < options.steps; ++step) {
+    auto t0 = std::chrono::steady_clock::now();
+    step_system(x_, v_, p, h_, A, b);
+    timing_.assemble += seconds_since(t0);
+    t0 = std::chrono::steady_clock::now();
+    if (!solver_.factorize(A)) {
+      std::ostringstream s;
+      s << "rollout: step " << step << " matrix is not positive definite (stiffness tables invalid?)";
+      throw SolverError(s.str());
+    }
+    timing_.factorize += seconds_since(t0);
+    t0 = std::chrono::steady_clock::now();
+    const Eigen::VectorXd y = solver_.solve(b);
+    timing_.solve += seconds_since(t0);
+    Eigen::VectorXd v_next = v_ + y;
+    double max_speed = 0;
+    for (int i = 0; i < model_.num_vertices(); ++i) max_speed = std::max(max_speed, v_next.segment<3>(3 * i).norm());
+    if (!v_next.allFinite() || max_speed > options.max_speed) {
+      std::ostringstream s;
+      s << "rollout: step " << step << " diverged (max vertex speed " << max_speed << " m/s > " << options.max_speed
+        << " m/s); reduce the time step or check the parameters";
+      throw SolverError(s.str());
+    }
+    if (options.record) tape_.push_back({x_, v_, y, solver_.keep_factor()});
+    x_ = x_ + h_ * v_next;
+    v_ = std::move(v_next);
+    if (progress) progress->step(step + 1, options.steps);
+  }
+  return x_;
+}
+
+RolloutGradient ImplicitEuler::backward(const Eigen::VectorXd& dL_dx, const Eigen::VectorXd* dL_dv,
+                                        ProgressSink* progress) {
+  const int n = model_.num_dofs();
+  if (tape_.empty()) throw InputError("backward: run forward with record = true first");
+  if (dL_dx.size() != n) throw InputError("backward: dL/dx has the wrong size");
+  if (!dL_dx.allFinite()) throw InputError("backward: dL/dx is not finite");
+  const SparsePattern& pattern = model_.pattern();
+  const double h = h_;
+  const auto& density_block = model_.layout().block("density");
+  const Eigen::VectorXd& w = model_.area_weights();
+  Eigen::VectorXd gx = dL_dx;
+  Eigen::VectorXd gv = dL_dv ? *dL_dv : Eigen::VectorXd::Zero(n);
+  Eigen::VectorXd gp = Eigen::VectorXd::Zero(p_.size());
+  Eigen::VectorXd K, tmp;
+  const int T = static_cast<int>(tape_.size());
+  for (int t = T - 1; t >= 0; --t) {
+    const StepRecord& r = tape_[t];
+    // x' = x + h v', v' = v + y
+    const Eigen::VectorXd gv_total = gv + h * gx;
+    const Eigen::VectorXd lambda = solver_.solve_with(r.factor, gv_total);
+    const Eigen::VectorXd v_next = r.v + r.y;
+    Eigen::VectorXd gx_prev = gx;
+    Eigen::VectorXd gv_prev = gv_total;
+    // b = h F(x) - h^2 K(x) v and A = M(rho) + h^2 K(x)
+    Eigen::VectorXd Hl = Eigen::VectorXd::Zero(n);
+    for (const auto& term : model_.terms()) {
+      term->add_hessian_product(r.x, p_, lambda, Hl);
+      term->add_step_matrix_derivatives(r.x, p_, lambda, v_next, -h * h, gx_prev, gp);
+      term->add_gradient_parameter_product(r.x, p_, lambda, -h, gp);
+    }
+    gx_prev -= h * Hl;
+    K.setZero(pattern.nnz());
+    for (const auto& term : model_.terms()) term->add_step_matrix(r.x, p_, h * h, K);
+    gv_prev -= symmetric_multiply(pattern, K, lambda);
+    double gdensity = 0;
+    for (int i = 0; i < model_.num_vertices(); ++i) gdensity -= w[i] * lambda.segment<3>(3 * i).dot(r.y.segment<3>(3 * i));
+    gp[density_block.offset] += gdensity;
+    gx = std::move(gx_prev);
+    gv = std::move(gv_prev);
+    if (progress) progress->step(T - t, T);
+  }
+  return {gp, gx, gv};
+}
+
+}  // namespace drapelab

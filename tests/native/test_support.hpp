@@ -1,0 +1,47 @@
+// Shared helpers for the C++ tests: small meshes, perturbed states, data paths.
+#pragma once
+#include <Eigen/Core>
+#include <fstream>
+#include <random>
+#include <string>
+
+#include "geometry/cusick.hpp"
+#include "physics/model.hpp"
+
+namespace drapelab::testing {
+
+inline std::string shared_data_dir() { return std::string(DRAPELAB_SOURCE_DIR) + "/../shared/data/cusick"; }
+inline std::string template_dir() { return shared_data_dir() + "/template_meshes"; }
+inline bool have_shared_data() { return std::ifstream(shared_data_dir() + "/manifest.csv").good(); }
+
+// A state near the draped regime: rest positions plus smooth out-of-plane sag and random noise (m).
+inline Eigen::VectorXd perturbed_positions(const Model& model, double noise, unsigned seed) {
+  std::mt19937 rng(seed);
+  std::normal_distribution<double> n01(0.0, 1.0);
+  Eigen::VectorXd x = model.rest_positions();
+  for (int i = 0; i < model.num_vertices(); ++i) {
+    const double r = x.segment<2>(3 * i).norm();
+    x[3 * i + 2] -= 0.3 * std::max(0.0, r - 0.09);
+    for (int k = 0; k < 3; ++k) x[3 * i + k] += noise * n01(rng);
+  }
+  return x;
+}
+
+inline Eigen::VectorXd random_vector(int n, unsigned seed) {
+  std::mt19937 rng(seed);
+  std::normal_distribution<double> n01(0.0, 1.0);
+  Eigen::VectorXd v(n);
+  for (int i = 0; i < n; ++i) v[i] = n01(rng);
+  return v;
+}
+
+// Heterogeneous parameters: the defaults with every entry scaled by a random factor in [0.7, 1.3].
+inline Eigen::VectorXd jittered_parameters(const Model& model, unsigned seed) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<double> u(0.7, 1.3);
+  Eigen::VectorXd p = model.default_parameters();
+  for (int i = 0; i < p.size(); ++i) p[i] *= u(rng);
+  return p;
+}
+
+}  // namespace drapelab::testing
