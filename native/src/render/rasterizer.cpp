@@ -45,43 +45,49 @@ MatrixX2d project_vertices(const Camera& camera, const MatrixX3d& positions) {
   return image_points;
 }
 
-Image hard_silhouette(const Camera& camera, const MatrixX3d& positions, const MatrixX3i& faces) {
-  check_render_input(camera, positions, faces);
-  const int width = camera.width(), height = camera.height();
-  Image image = Image::Zero(height, width);
-  const MatrixX2d q = project_vertices(camera, positions);
+int first_pixel(double lo, int size) { return static_cast<int>(std::clamp(std::ceil(lo - 0.5), 0.0, double(size))); }
+
+int last_pixel(double hi, int size) { return static_cast<int>(std::clamp(std::floor(hi - 0.5), -1.0, size - 1.0)); }
+
+void fill_covered_pixels(const MatrixX2d& q, const MatrixX3i& faces, Image& image, double value) {
+  const int width = static_cast<int>(image.cols()), height = static_cast<int>(image.rows());
   for (Eigen::Index f = 0; f < faces.rows(); ++f) {
-    const Eigen::Vector2d a = q.row(faces(f, 0)).transpose();
-    const Eigen::Vector2d b = q.row(faces(f, 1)).transpose();
-    const Eigen::Vector2d c = q.row(faces(f, 2)).transpose();
-    const double area2 = (b - a).x() * (c - a).y() - (b - a).y() * (c - a).x();
+    const double x[3] = {q(faces(f, 0), 0), q(faces(f, 1), 0), q(faces(f, 2), 0)};
+    const double y[3] = {q(faces(f, 0), 1), q(faces(f, 1), 1), q(faces(f, 2), 1)};
+    const double area2 = (x[1] - x[0]) * (y[2] - y[0]) - (y[1] - y[0]) * (x[2] - x[0]);
     if (area2 == 0.0) continue;
     const double orient = area2 > 0.0 ? 1.0 : -1.0;
     // Pixel centres (c + 0.5, r + 0.5) inside the triangle's bounding box.
-    const double xmin = std::min({a.x(), b.x(), c.x()}), xmax = std::max({a.x(), b.x(), c.x()});
-    const double ymin = std::min({a.y(), b.y(), c.y()}), ymax = std::max({a.y(), b.y(), c.y()});
-    const int c0 = std::max(0, static_cast<int>(std::ceil(xmin - 0.5)));
-    const int c1 = std::min(width - 1, static_cast<int>(std::floor(xmax - 0.5)));
-    const int r0 = std::max(0, static_cast<int>(std::ceil(ymin - 0.5)));
-    const int r1 = std::min(height - 1, static_cast<int>(std::floor(ymax - 0.5)));
-    if (c0 > c1 || r0 > r1) continue;
-    // Edge functions e_k(p) = cross(v_{k+1} - v_k, p - v_k), all >= 0 (times orient) inside.
-    const Eigen::Vector2d v[3] = {a, b, c};
+    const int c0 = first_pixel(std::min({x[0], x[1], x[2]}), width);
+    const int c1 = last_pixel(std::max({x[0], x[1], x[2]}), width);
+    const int r0 = first_pixel(std::min({y[0], y[1], y[2]}), height);
+    const int r1 = last_pixel(std::max({y[0], y[1], y[2]}), height);
+    // Edge functions e_k(p) = orient * cross(v_{k+1} - v_k, p - v_k) = a_k px + b_k py + c_k, all >= 0 on
+    // the closed triangle.
+    double ea[3], eb[3], ec[3];
+    for (int k = 0; k < 3; ++k) {
+      const int k1 = (k + 1) % 3;
+      const double dx = orient * (x[k1] - x[k]), dy = orient * (y[k1] - y[k]);
+      ea[k] = -dy;
+      eb[k] = dx;
+      ec[k] = dy * x[k] - dx * y[k];
+    }
     for (int r = r0; r <= r1; ++r) {
       const double py = r + 0.5;
+      double* row = image.data() + static_cast<Eigen::Index>(r) * width;
+      const double row0 = eb[0] * py + ec[0], row1 = eb[1] * py + ec[1], row2 = eb[2] * py + ec[2];
       for (int col = c0; col <= c1; ++col) {
         const double px = col + 0.5;
-        bool inside = true;
-        for (int k = 0; k < 3 && inside; ++k) {
-          const Eigen::Vector2d& p0 = v[k];
-          const Eigen::Vector2d& p1 = v[(k + 1) % 3];
-          const double e = (p1.x() - p0.x()) * (py - p0.y()) - (p1.y() - p0.y()) * (px - p0.x());
-          inside = orient * e >= 0.0;
-        }
-        if (inside) image(r, col) = 1.0;
+        if (ea[0] * px + row0 >= 0.0 && ea[1] * px + row1 >= 0.0 && ea[2] * px + row2 >= 0.0) row[col] = value;
       }
     }
   }
+}
+
+Image hard_silhouette(const Camera& camera, const MatrixX3d& positions, const MatrixX3i& faces) {
+  check_render_input(camera, positions, faces);
+  Image image = Image::Zero(camera.height(), camera.width());
+  fill_covered_pixels(project_vertices(camera, positions), faces, image, 1.0);
   return image;
 }
 

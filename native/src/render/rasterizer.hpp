@@ -21,6 +21,15 @@ void check_render_input(const Camera& camera, const MatrixX3d& positions, const 
 // Image coordinates (col, row) of every vertex (V x 2, pixels).
 MatrixX2d project_vertices(const Camera& camera, const MatrixX3d& positions);
 
+// Sets image(r, c) = value at every pixel centre covered by a projected triangle (the coverage rule of
+// hard_silhouette). image_points: (col, row) of every vertex; indices are not checked here.
+void fill_covered_pixels(const MatrixX2d& image_points, const MatrixX3i& faces, Image& image, double value);
+
+// Pixel index range whose centres c + 0.5 lie in [lo, hi], clamped to [0, size) (first > last when empty);
+// safe for any finite coordinate.
+int first_pixel(double lo, int size);
+int last_pixel(double hi, int size);
+
 // Intersection over union of two silhouettes thresholded at 0.5 (1 when both are empty).
 double silhouette_iou(const Image& a, const Image& b);
 

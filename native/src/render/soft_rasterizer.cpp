@@ -1,0 +1,344 @@
+#include "render/soft_rasterizer.hpp"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <sstream>
+#include <vector>
+
+#include "render/rasterizer.hpp"
+#include "util/error.hpp"
+
+namespace drapelab {
+
+namespace {
+
+// Above this x_f the factor 1 - D_f = 1 / (1 + e^x) < 4.3e-18 is taken as 0 (invisible next to 1 in I).
+constexpr double kSaturatedLogit = 40.0;
+// Transmittance below this is flushed to 0 so long products never reach subnormal numbers.
+constexpr double kTinyTransmittance = 1e-200;
+
+// Squared distance from (px, py) to the boundary of the face, the edge k realising it and the
+// parameter t of the closest point v[k] + t e[k]; returns whether the point is inside.
+inline bool closest_edge(const SoftRasterizer::FaceEdges& f, double px, double py, double& d2, int& edge,
+                         double& t) {
+  bool inside = f.orientation != 0.0;
+  d2 = INFINITY;
+  edge = 0;
+  t = 0.0;
+  for (int k = 0; k < 3; ++k) {
+    const double wx = px - f.vx[k], wy = py - f.vy[k];
+    const double cross = f.ex[k] * wy - f.ey[k] * wx;
+    inside = inside && f.orientation * cross >= 0.0;
+    const double tk = std::clamp((wx * f.ex[k] + wy * f.ey[k]) * f.inv_len2[k], 0.0, 1.0);
+    const double rx = wx - tk * f.ex[k], ry = wy - tk * f.ey[k];
+    const double dk = rx * rx + ry * ry;
+    if (dk < d2) {
+      d2 = dk;
+      edge = k;
+      t = tk;
+    }
+  }
+  return inside;
+}
+
+// 1 - exp(-y) for y >= 0, accurate also for tiny y (where 1 - exp(-y) would cancel); exp_neg = exp(-y).
+inline double one_minus_exp_neg(double y, double exp_neg) { return y < 1e-2 ? -std::expm1(-y) : 1.0 - exp_neg; }
+
+// Squared distance and inside flag only (the forward's inner loop).
+inline double signed_sq_distance(const SoftRasterizer::FaceEdges& f, double px, double py) {
+  bool inside = f.orientation != 0.0;
+  double d2 = INFINITY;
+  for (int k = 0; k < 3; ++k) {
+    const double wx = px - f.vx[k], wy = py - f.vy[k];
+    const double cross = f.ex[k] * wy - f.ey[k] * wx;
+    inside = inside && f.orientation * cross >= 0.0;
+    const double tk = std::clamp((wx * f.ex[k] + wy * f.ey[k]) * f.inv_len2[k], 0.0, 1.0);
+    const double rx = wx - tk * f.ex[k], ry = wy - tk * f.ey[k];
+    d2 = std::min(d2, rx * rx + ry * ry);
+  }
+  return inside ? d2 : -d2;
+}
+
+void check_options(const SoftRasterOptions& options) {
+  if (options.profile != SoftProfile::Gaussian && options.profile != SoftProfile::Logistic)
+    throw InputError("SoftRasterizer: unknown profile");
+  if (!std::isfinite(options.sigma) || options.sigma <= 0.0)
+    throw InputError("SoftRasterizer: sigma must be positive and finite (pixels), got " +
+                     std::to_string(options.sigma));
+  if (!(options.epsilon > 0.0 && options.epsilon < 0.5))
+    throw InputError("SoftRasterizer: epsilon must lie in (0, 0.5), got " + std::to_string(options.epsilon));
+}
+
+}  // namespace
+
+SoftProfile soft_profile_from_string(const std::string& name) {
+  if (name == "gaussian") return SoftProfile::Gaussian;
+  if (name == "logistic") return SoftProfile::Logistic;
+  throw InputError("soft rasterizer profile must be 'gaussian' or 'logistic', got '" + name + "'");
+}
+
+std::string to_string(SoftProfile profile) { return profile == SoftProfile::Gaussian ? "gaussian" : "logistic"; }
+
+SoftRasterizer::SoftRasterizer(const Camera& camera, SoftRasterOptions options)
+    : camera_(camera.clone()), options_(options) {
+  check_options(options_);
+  inv_sigma2_ = 1.0 / (options_.sigma * options_.sigma);
+  // Gaussian: D_f < epsilon <=> d^2 > sigma^2 ln(1/epsilon).
+  // Logistic: D_f < epsilon <=> x_f < -ln(1/epsilon - 1) <=> outside with d^2 > sigma^2 ln(1/epsilon - 1).
+  const double log_ratio = options_.profile == SoftProfile::Gaussian ? std::log(1.0 / options_.epsilon)
+                                                                     : std::log(1.0 / options_.epsilon - 1.0);
+  cutoff_d2_ = options_.sigma * options_.sigma * log_ratio;
+  cutoff_radius_ = std::sqrt(cutoff_d2_);
+}
+
+Image SoftRasterizer::forward(const MatrixX3d& positions, const MatrixX3i& faces) {
+  has_forward_ = false;
+  check_render_input(*camera_, positions, faces);
+  const int width = camera_->width(), height = camera_->height();
+  positions_ = positions;
+  faces_ = faces;
+  image_points_.resize(positions.rows(), 2);
+  for (Eigen::Index v = 0; v < positions.rows(); ++v)
+    image_points_.row(v) = camera_->project(positions.row(v).transpose()).transpose();
+
+  const Eigen::Index num_faces = faces.rows();
+  face_edges_.resize(static_cast<size_t>(num_faces));
+  for (Eigen::Index fi = 0; fi < num_faces; ++fi) {
+    FaceEdges& f = face_edges_[static_cast<size_t>(fi)];
+    for (int k = 0; k < 3; ++k) {
+      f.vx[k] = image_points_(faces(fi, k), 0);
+      f.vy[k] = image_points_(faces(fi, k), 1);
+    }
+    for (int k = 0; k < 3; ++k) {
+      f.ex[k] = f.vx[(k + 1) % 3] - f.vx[k];
+      f.ey[k] = f.vy[(k + 1) % 3] - f.vy[k];
+      const double len2 = f.ex[k] * f.ex[k] + f.ey[k] * f.ey[k];
+      f.inv_len2[k] = len2 > 0.0 ? 1.0 / len2 : 0.0;
+    }
+    const double area2 = f.ex[0] * (-f.ey[2]) - f.ey[0] * (-f.ex[2]);  // cross(v1 - v0, v2 - v0)
+    f.orientation = area2 > 0.0 ? 1.0 : (area2 < 0.0 ? -1.0 : 0.0);
+    // Pixel centres c + 0.5 within the bounding box dilated by the cutoff radius.
+    const double xmin = std::min({f.vx[0], f.vx[1], f.vx[2]}) - cutoff_radius_;
+    const double xmax = std::max({f.vx[0], f.vx[1], f.vx[2]}) + cutoff_radius_;
+    const double ymin = std::min({f.vy[0], f.vy[1], f.vy[2]}) - cutoff_radius_;
+    const double ymax = std::max({f.vy[0], f.vy[1], f.vy[2]}) + cutoff_radius_;
+    f.col0 = first_pixel(xmin, width);
+    f.col1 = last_pixel(xmax, width);
+    f.row0 = first_pixel(ymin, height);
+    f.row1 = last_pixel(ymax, height);
+  }
+
+  if (transmittance_.rows() != height || transmittance_.cols() != width) transmittance_.resize(height, width);
+  transmittance_.setOnes();
+  if (options_.profile == SoftProfile::Gaussian)
+    forward_gaussian();
+  else
+    forward_logistic();
+  has_forward_ = true;
+  return 1.0 - transmittance_;
+}
+
+MatrixX3d SoftRasterizer::backward(const Image& grad_image) const {
+  if (!has_forward_) throw InputError("SoftRasterizer::backward: call forward first (no forward state)");
+  const int width = camera_->width(), height = camera_->height();
+  if (grad_image.rows() != height || grad_image.cols() != width) {
+    std::ostringstream os;
+    os << "SoftRasterizer::backward: grad_image is " << grad_image.rows() << "x" << grad_image.cols()
+       << " (rows x cols) but the rendered image is " << height << "x" << width;
+    throw InputError(os.str());
+  }
+  if (!grad_image.allFinite()) throw InputError("SoftRasterizer::backward: grad_image has non-finite values");
+
+  // dL/dq for every vertex's image coordinates, then through the camera.
+  MatrixX2d grad_points = MatrixX2d::Zero(image_points_.rows(), 2);
+  if (options_.profile == SoftProfile::Gaussian)
+    backward_gaussian(grad_image, grad_points);
+  else
+    backward_logistic(grad_image, grad_points);
+
+  MatrixX3d grad_positions(positions_.rows(), 3);
+  Eigen::Matrix<double, 2, 3> jacobian;
+  for (Eigen::Index v = 0; v < positions_.rows(); ++v) {
+    camera_->project(positions_.row(v).transpose(), &jacobian);
+    grad_positions.row(v) = (jacobian.transpose() * grad_points.row(v).transpose()).transpose();
+  }
+  return grad_positions;
+}
+
+// Gaussian profile: covered pixels are exactly 1 (T = 0); uncovered ones multiply 1 - exp(-d^2 / sigma^2).
+void SoftRasterizer::forward_gaussian() {
+  fill_covered_pixels(image_points_, faces_, transmittance_, 0.0);
+  const int width = camera_->width(), height = camera_->height();
+  // Most faces lie inside the silhouette with every pixel of their dilated box covered: count the
+  // uncovered pixels in each box with a summed-area table and skip the faces that have none.
+  const size_t stride = static_cast<size_t>(width) + 1;
+  uncovered_sum_.assign(stride * (static_cast<size_t>(height) + 1), 0);
+  for (int r = 0; r < height; ++r) {
+    const double* row = transmittance_.data() + static_cast<Eigen::Index>(r) * width;
+    int running = 0;
+    for (int c = 0; c < width; ++c) {
+      running += row[c] != 0.0;
+      uncovered_sum_[(r + 1) * stride + c + 1] = uncovered_sum_[r * stride + c + 1] + running;
+    }
+  }
+  const double cutoff_d2 = cutoff_d2_, inv_sigma2 = inv_sigma2_;
+  for (FaceEdges& f : face_edges_) {
+    if (f.col0 > f.col1 || f.row0 > f.row1) continue;
+    const size_t r0 = static_cast<size_t>(f.row0), r1 = static_cast<size_t>(f.row1) + 1;
+    const size_t c0 = static_cast<size_t>(f.col0), c1 = static_cast<size_t>(f.col1) + 1;
+    const int uncovered = uncovered_sum_[r1 * stride + c1] - uncovered_sum_[r0 * stride + c1] -
+                          uncovered_sum_[r1 * stride + c0] + uncovered_sum_[r0 * stride + c0];
+    if (uncovered == 0) {
+      f.row1 = f.row0 - 1;  // nothing to do here, in the backward either
+      continue;
+    }
+    for (int r = f.row0; r <= f.row1; ++r) {
+      const double py = r + 0.5;
+      double* row = transmittance_.data() + static_cast<Eigen::Index>(r) * width;
+      for (int c = f.col0; c <= f.col1; ++c) {
+        if (row[c] == 0.0) continue;  // covered (or already fully opaque)
+        const double d2 = -signed_sq_distance(f, c + 0.5, py);
+        // An uncovered pixel is outside every face, so d2 >= 0 up to rounding at an edge.
+        if (d2 > cutoff_d2) continue;
+        const double y = std::max(d2, 0.0) * inv_sigma2;
+        row[c] *= one_minus_exp_neg(y, std::exp(-y));  // 1 - D_f
+      }
+    }
+  }
+}
+
+void SoftRasterizer::backward_gaussian(const Image& grad_image, MatrixX2d& grad_points) const {
+  const int width = camera_->width();
+  const double cutoff_d2 = cutoff_d2_, inv_sigma2 = inv_sigma2_;
+  for (size_t fi = 0; fi < face_edges_.size(); ++fi) {
+    const FaceEdges& f = face_edges_[fi];
+    double gx[3] = {0, 0, 0}, gy[3] = {0, 0, 0};
+    for (int r = f.row0; r <= f.row1; ++r) {
+      const double py = r + 0.5;
+      const Eigen::Index offset = static_cast<Eigen::Index>(r) * width;
+      const double* trans_row = transmittance_.data() + offset;
+      const double* grad_row = grad_image.data() + offset;
+      for (int c = f.col0; c <= f.col1; ++c) {
+        const double weight = grad_row[c] * trans_row[c];  // dL/dI * T; 0 on covered pixels
+        if (weight == 0.0) continue;
+        const double px = c + 0.5;
+        double d2, t;
+        int k;
+        closest_edge(f, px, py, d2, k, t);
+        if (d2 > cutoff_d2) continue;
+        const double y = d2 * inv_sigma2, exp_neg = std::exp(-y);  // D_f = exp_neg
+        const double factor = one_minus_exp_neg(y, exp_neg);    // 1 - D_f, as in the forward
+        if (factor == 0.0) continue;
+        // dL/d(d^2) = dL/dI * (T / (1 - D_f)) * dD_f/d(d^2),  dD_f/d(d^2) = -D_f / sigma^2;
+        // d(d^2)/dv[k] = -2 (1 - t) r, d(d^2)/dv[k+1] = -2 t r, r = p - v[k] - t e[k].
+        const double g = weight / factor * -exp_neg * inv_sigma2 * -2.0;
+        const double rx = px - f.vx[k] - t * f.ex[k], ry = py - f.vy[k] - t * f.ey[k];
+        const int k1 = (k + 1) % 3;
+        gx[k] += g * (1.0 - t) * rx;
+        gy[k] += g * (1.0 - t) * ry;
+        gx[k1] += g * t * rx;
+        gy[k1] += g * t * ry;
+      }
+    }
+    accumulate_corner_gradients(fi, gx, gy, grad_points);
+  }
+}
+
+// Logistic profile (SoftRas): every pixel near a face multiplies 1 - D_f = 1 / (1 + e^{x_f}).
+void SoftRasterizer::forward_logistic() {
+  const int width = camera_->width();
+  const double cutoff_d2 = cutoff_d2_, inv_sigma2 = inv_sigma2_;
+  for (const FaceEdges& f : face_edges_) {
+    for (int r = f.row0; r <= f.row1; ++r) {
+      const double py = r + 0.5;
+      double* row = transmittance_.data() + static_cast<Eigen::Index>(r) * width;
+      for (int c = f.col0; c <= f.col1; ++c) {
+        const double h = signed_sq_distance(f, c + 0.5, py);
+        if (h < -cutoff_d2) continue;
+        const double x = h * inv_sigma2;
+        const double factor = x > kSaturatedLogit ? 0.0 : 1.0 / (1.0 + std::exp(x));  // 1 - D_f
+        const double t = row[c] * factor;
+        row[c] = t < kTinyTransmittance ? 0.0 : t;
+      }
+    }
+  }
+}
+
+void SoftRasterizer::backward_logistic(const Image& grad_image, MatrixX2d& grad_points) const {
+  const int width = camera_->width();
+  const double cutoff_d2 = cutoff_d2_, inv_sigma2 = inv_sigma2_;
+  for (size_t fi = 0; fi < face_edges_.size(); ++fi) {
+    const FaceEdges& f = face_edges_[fi];
+    double gx[3] = {0, 0, 0}, gy[3] = {0, 0, 0};
+    for (int r = f.row0; r <= f.row1; ++r) {
+      const double py = r + 0.5;
+      const Eigen::Index offset = static_cast<Eigen::Index>(r) * width;
+      const double* trans_row = transmittance_.data() + offset;
+      const double* grad_row = grad_image.data() + offset;
+      for (int c = f.col0; c <= f.col1; ++c) {
+        const double weight = grad_row[c] * trans_row[c];  // dL/dI * T
+        if (weight == 0.0) continue;
+        const double px = c + 0.5;
+        double d2, t;
+        int k;
+        const bool inside = closest_edge(f, px, py, d2, k, t);
+        if (!inside && d2 > cutoff_d2) continue;
+        const double x = (inside ? d2 : -d2) * inv_sigma2;
+        if (x > kSaturatedLogit) continue;  // its factor was taken as 0 in the forward
+        const double d = 1.0 / (1.0 + std::exp(-x));
+        // dL/dx_f = dL/dI T D_f; x_f = +-d2 / sigma^2; d2 = |r|^2, r = p - (1-t) v[k] - t v[k+1].
+        const double g = weight * d * (inside ? inv_sigma2 : -inv_sigma2) * -2.0;
+        const double rx = px - f.vx[k] - t * f.ex[k], ry = py - f.vy[k] - t * f.ey[k];
+        const int k1 = (k + 1) % 3;
+        gx[k] += g * (1.0 - t) * rx;
+        gy[k] += g * (1.0 - t) * ry;
+        gx[k1] += g * t * rx;
+        gy[k1] += g * t * ry;
+      }
+    }
+    accumulate_corner_gradients(fi, gx, gy, grad_points);
+  }
+}
+
+void SoftRasterizer::accumulate_corner_gradients(size_t face, const double gx[3], const double gy[3],
+                                                 MatrixX2d& grad_points) const {
+  for (int k = 0; k < 3; ++k) {
+    const int v = faces_(static_cast<Eigen::Index>(face), k);
+    grad_points(v, 0) += gx[k];
+    grad_points(v, 1) += gy[k];
+  }
+}
+
+RenderTiming time_soft_render(const TriangleMesh& mesh, int repeats, const Camera& camera, SoftRasterOptions options) {
+  if (repeats < 1) throw InputError("time_soft_render: repeats must be at least 1, got " + std::to_string(repeats));
+  SoftRasterizer rasterizer(camera, options);
+  // A gradient that is nonzero everywhere so the backward visits every pair, as in a pixel-MSE loss.
+  Image grad = Image::Constant(camera.height(), camera.width(), 1.0 / (camera.height() * camera.width()));
+  std::vector<double> forward_ms, backward_ms;
+  using clock = std::chrono::steady_clock;
+  rasterizer.forward(mesh.positions, mesh.faces);  // warm-up: sizes the buffers
+  for (int i = 0; i < repeats; ++i) {
+    const auto t0 = clock::now();
+    const Image image = rasterizer.forward(mesh.positions, mesh.faces);
+    const auto t1 = clock::now();
+    const MatrixX3d g = rasterizer.backward(grad);
+    const auto t2 = clock::now();
+    forward_ms.push_back(std::chrono::duration<double, std::milli>(t1 - t0).count());
+    backward_ms.push_back(std::chrono::duration<double, std::milli>(t2 - t1).count());
+  }
+  auto median = [](std::vector<double> v) {
+    std::nth_element(v.begin(), v.begin() + static_cast<long>(v.size() / 2), v.end());
+    return v[v.size() / 2];
+  };
+  RenderTiming timing;
+  timing.forward_ms = median(forward_ms);
+  timing.backward_ms = median(backward_ms);
+  timing.repeats = repeats;
+  timing.width = camera.width();
+  timing.height = camera.height();
+  timing.faces = mesh.num_faces();
+  return timing;
+}
+
+}  // namespace drapelab
