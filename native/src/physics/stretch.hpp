@@ -2,8 +2,12 @@
 //
 // Per face j with rest pattern (u, v) (u = weft, v = warp) and rest area A_j:
 //   F = Ds Dm^-1 (3x2 deformation gradient), G = (F^T F - I) / 2 (Green strain),
-//   eps = (G_uu, G_vv, G_uv),  W = 1/2 eps^T C eps,  C = [[c11, c12, 0], [c12, c22, 0], [0, 0, c33]],
-//   E_j = A_j W   [J];  table entries in N/m.
+//   eps = (G_uu, G_vv, G_uv),  C = [[c11, c12, 0], [c12, c22, 0], [0, 0, c33]],
+//   W(eps) = int_0^1 (1 - t) eps^T C(t eps) eps dt,   E_j = A_j W   [J];  table entries in N/m.
+// The table is read as the tangent stiffness along proportional loading: W'' = C along every strain ray,
+// W = 1/2 eps^T C eps when C is constant. (Reading it as a secant modulus, sigma = C(eps) eps as the
+// paper's force does, is not a potential and, with the published tables whose stiffness falls with
+// strain, makes 1/2 eps^T C(eps) eps lose convexity at ~14 % strain: the drape tears apart.)
 // Each face carries a table (6 x 4, row-major, columns c11, c12, c22, c33): row 0 is the small-strain
 // sample (lambda_max = 0, all directions); rows 1..5 are samples at lambda_max = kStretchSampleStrain
 // in directions phi = 0, 22.5, 45, 67.5, 90 degrees from the weft (u) axis, where lambda_max + 1 is the
@@ -12,10 +16,13 @@
 // (lambda_max, phi) at the nodes of a grid over (G_uu, G_vv, |G_uv|) and trilinearly between nodes
 // (as the paper's released code does): continuous in G, well defined at isotropic strain (where phi is
 // not), and linear in the table. At isotropic grid nodes the five directions are averaged.
-// The energy includes the dependence of C on G, so forces are conservative and E is a potential.
-// Step matrix: Gauss-Newton A_j J_eps^T C J_eps (C frozen), PSD for valid tables.
+// The energy includes the dependence of C on G, so forces are conservative and E is a potential;
+// the integral is evaluated by 3-point Gauss-Legendre quadrature (the definition of W used here).
+// Step matrix: Gauss-Newton A_j J_eps^T C J_eps (C frozen) plus the positive part of the geometric
+// stiffness; PSD for valid tables.
 #pragma once
 #include <array>
+#include <cmath>
 #include <vector>
 
 #include "geometry/mesh.hpp"
@@ -35,7 +42,7 @@ struct StretchWeightGrid {
 };
 const StretchWeightGrid& stretch_weight_grid();
 
-class StretchTerm : public ElementTerm<StretchTerm, 3, 24, 3> {
+class StretchTerm : public ElementTerm<StretchTerm, 3, 24, 9> {
  public:
   // parameter_offset: offset of the "stretch" block; shared = one table for all faces.
   StretchTerm(const TriangleMesh& mesh, int parameter_offset, bool shared);
@@ -46,14 +53,19 @@ class StretchTerm : public ElementTerm<StretchTerm, 3, 24, 3> {
   int parameter_offset(int e) const { return offset_ + (shared_ ? 0 : 24 * e); }
 
   template <class T>
-  void green_strain(int e, const T* x, T* eps) const {
+  void deformation_gradient(int e, const T* x, T f[3][2]) const {
     const auto& Di = dm_inv_[e];
-    T f[3][2];
     for (int c = 0; c < 3; ++c) {
       const T d1 = x[3 + c] - x[c], d2 = x[6 + c] - x[c];
       f[c][0] = d1 * Di[0] + d2 * Di[2];
       f[c][1] = d1 * Di[1] + d2 * Di[3];
     }
+  }
+
+  template <class T>
+  void green_strain(int e, const T* x, T* eps) const {
+    T f[3][2];
+    deformation_gradient(e, x, f);
     T g00 = f[0][0] * f[0][0] + f[1][0] * f[1][0] + f[2][0] * f[2][0];
     T g11 = f[0][1] * f[0][1] + f[1][1] * f[1][1] + f[2][1] * f[2][1];
     T g01 = f[0][0] * f[0][1] + f[1][0] * f[1][1] + f[2][0] * f[2][1];
@@ -93,29 +105,65 @@ class StretchTerm : public ElementTerm<StretchTerm, 3, 24, 3> {
 
   template <class T>
   T element_energy(int e, const T* x, const T* p) const {
-    T eps[3], c[4];
+    T eps[3];
     green_strain(e, x, eps);
-    stiffness(eps, p, c);
-    const T W = 0.5 * (c[0] * eps[0] * eps[0] + 2.0 * c[1] * eps[0] * eps[1] + c[2] * eps[1] * eps[1] +
-                       c[3] * eps[2] * eps[2]);
+    // W = int_0^1 (1 - t) eps^T C(t eps) eps dt by 3-point Gauss-Legendre (exact for constant C: 1/2 eps^T C eps).
+    static constexpr double kT[3] = {0.5 - 0.3872983346207417, 0.5, 0.5 + 0.3872983346207417};
+    static constexpr double kW[3] = {5.0 / 18.0, 8.0 / 18.0, 5.0 / 18.0};
+    T W = T(0.0);
+    for (int q = 0; q < 3; ++q) {
+      T teps[3] = {kT[q] * eps[0], kT[q] * eps[1], kT[q] * eps[2]};
+      T c[4];
+      stiffness(teps, p, c);
+      W += (kW[q] * (1.0 - kT[q])) * (c[0] * eps[0] * eps[0] + 2.0 * c[1] * eps[0] * eps[1] + c[2] * eps[1] * eps[1] +
+                                      c[3] * eps[2] * eps[2]);
+    }
     return area_[e] * W;
   }
 
+  // Residuals (eps, F) and weights: material part A C(eps) on eps, geometric part A S+ (x) I3 on F, where
+  // S+ is the positive part of the secant stress [[s_uu, s_uv/2], [s_uv/2, s_vv]], s = C(eps) eps. The
+  // geometric part gives a taut membrane its out-of-plane stiffness (without it the h = 0.05 s step diverges).
   template <class T>
   void element_gauss_newton(int e, const T* x, const T* p, T* r, T* S) const {
+    T f[3][2];
+    deformation_gradient(e, x, f);
     green_strain(e, x, r);
+    for (int c = 0; c < 3; ++c)
+      for (int a = 0; a < 2; ++a) r[3 + 2 * c + a] = f[c][a];
     T c[4];
     stiffness(r, p, c);
     const double A = area_[e];
+    for (int k = 0; k < 81; ++k) S[k] = T(0.0);
     S[0] = A * c[0];
     S[1] = A * c[1];
-    S[2] = T(0.0);
-    S[3] = A * c[1];
-    S[4] = A * c[2];
-    S[5] = T(0.0);
-    S[6] = T(0.0);
-    S[7] = T(0.0);
-    S[8] = A * c[3];
+    S[9] = A * c[1];
+    S[10] = A * c[2];
+    S[20] = A * c[3];
+    // secant stress and its positive part (closed-form 2x2 eigen-split)
+    const T s00 = c[0] * r[0] + c[1] * r[1], s11 = c[1] * r[0] + c[2] * r[1], s01 = 0.5 * c[3] * r[2];
+    T P[2][2];
+    positive_part(s00, s01, s11, P);
+    for (int cc = 0; cc < 3; ++cc)
+      for (int a = 0; a < 2; ++a)
+        for (int b = 0; b < 2; ++b) S[(3 + 2 * cc + a) * 9 + 3 + 2 * cc + b] = A * P[a][b];
+  }
+
+  // Positive semidefinite part of the symmetric 2x2 matrix [[a, b], [b, d]].
+  template <class T>
+  static void positive_part(const T& a, const T& b, const T& d, T P[2][2]) {
+    const double av = value_of(a), bv = value_of(b), dv = value_of(d);
+    const double mv = 0.5 * (av + dv), rv = std::sqrt(0.25 * (av - dv) * (av - dv) + bv * bv);
+    if (mv - rv >= 0) {  // both eigenvalues >= 0
+      P[0][0] = a; P[0][1] = b; P[1][0] = b; P[1][1] = d;
+    } else if (mv + rv <= 0) {  // both <= 0
+      P[0][0] = P[0][1] = P[1][0] = P[1][1] = T(0.0);
+    } else {  // mu1 > 0 > mu2: P = mu1 (S - mu2 I) / (mu1 - mu2)
+      const T m = 0.5 * (a + d), rad = sqrt(0.25 * (a - d) * (a - d) + b * b);
+      const T mu1 = m + rad, mu2 = m - rad;
+      const T k = mu1 / (mu1 - mu2);
+      P[0][0] = k * (a - mu2); P[0][1] = k * b; P[1][0] = k * b; P[1][1] = k * (d - mu2);
+    }
   }
 
  private:
