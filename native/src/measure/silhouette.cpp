@@ -127,12 +127,12 @@ Silhouette extract_silhouette(const Image& luminance, const Calibration& calibra
   const double support_px = options.geometry.support_radius * out.calibration.px_per_m;
 
   const std::vector<double> all(luminance.data(), luminance.data() + luminance.size());
-  const double lo = percentile(all, 0.01), hi = percentile(all, 0.99);
+  const double lo = percentile(all, 0.001), hi = percentile(all, 0.999);
   if (hi - lo < options.min_contrast) {
     const double mean = luminance.mean();
     throw InputError(source + ": image has no contrast (" +
                      (mean < 0.25 ? "all dark" : mean > 0.75 ? "all light" : "uniform grey") +
-                     ", luminance 1st-99th percentile " + fmt(lo, 3) + "-" + fmt(hi, 3) +
+                     ", luminance 0.1-99.9th percentile " + fmt(lo, 3) + "-" + fmt(hi, 3) +
                      "): no silhouette to extract");
   }
 

@@ -28,7 +28,7 @@ struct SilhouetteOptions {
   Polarity polarity = Polarity::Auto;
   bool keep_central_region = true;    // false: keep every region (no speck removal)
   double max_hole_fraction = 0.05;    // holes up to this fraction of the region's area are filled; 0 = none
-  // Images whose luminance spread (99th minus 1st percentile) is below this have no silhouette.
+  // Images whose luminance spread (99.9th minus 0.1th percentile) is below this have no silhouette.
   double min_contrast = 0.1;
   CusickGeometry geometry;            // support-disk radius: where the specimen region must be
 };
