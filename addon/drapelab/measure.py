@@ -42,7 +42,8 @@ __all__ = [
     "extract_silhouette", "load_silhouette", "automatic_threshold", "calibrate_from_disk", "calibrate_from_mesh",
     "check_cusick_calibration", "pixel_mse", "iou", "shadow_area", "drape_coefficient", "r_theta",
     "analyse_nodes", "node_count", "node_amplitude", "harmonics", "r_theta_rmse", "hausdorff_distance",
-    "measure_silhouette", "measure_image", "compare_mesh_image", "load_manifest", "write_json", "write_overlay",
+    "measure_silhouette", "measure_image", "compare_mesh_image", "load_manifest", "check_output_path", "write_json",
+    "write_overlay",
 ]
 
 DATASET_PX_PER_M = native.DATASET_PX_PER_M
@@ -341,14 +342,23 @@ def load_manifest(path, check_files=False):
 
 
 # ---------------------------------------------------------------- outputs
-def _atomic_write(path, what, suffix, write):
-    """Calls write(temporary_path) for a temporary file beside `path`, then renames it into place."""
+def check_output_path(path, what="output"):
+    """Raises OSError naming `path` when it cannot be an output file (a folder, or in a missing or
+    read-only folder); called before long work so that it fails early."""
     path = os.fspath(path)
     folder = os.path.dirname(os.path.abspath(path))
     if os.path.isdir(path):
         raise OSError(f"{path}: cannot write {what}: it is a directory")
     if not os.path.isdir(folder):
         raise OSError(f"{path}: cannot write {what}: folder {folder} does not exist")
+    if not os.access(folder, os.W_OK):
+        raise OSError(f"{path}: cannot write {what}: folder {folder} is not writable")
+    return path, folder
+
+
+def _atomic_write(path, what, suffix, write):
+    """Calls write(temporary_path) for a temporary file beside `path`, then renames it into place."""
+    path, folder = check_output_path(path, what)
     tmp = None
     try:
         fd, tmp = tempfile.mkstemp(prefix=".tmp_", suffix=suffix, dir=folder)

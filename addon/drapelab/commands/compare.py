@@ -30,6 +30,9 @@ def register(subparsers):
 def run(args):
     from .. import measure
 
+    for path, what in ((args.json, "JSON"), (args.overlay, "overlay")):
+        if path:
+            measure.check_output_path(path, what)
     cal = measure.calibration(measure.DATASET_PX_PER_M if args.px_per_m is None else args.px_per_m, args.centre)
     metrics, measured, model = measure.compare_mesh_image(args.mesh, args.image, camera=args.camera,
                                                           calibration=cal, threshold=args.threshold)

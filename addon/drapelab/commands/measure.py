@@ -31,6 +31,8 @@ def register(subparsers):
 def run(args):
     from .. import measure
 
+    if args.json:
+        measure.check_output_path(args.json, "JSON")
     cal = measure.calibration(measure.DATASET_PX_PER_M if args.px_per_m is None else args.px_per_m, args.centre)
     results, failed = [], 0
     for path in args.images:
