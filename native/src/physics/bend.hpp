@@ -5,11 +5,12 @@
 // angle theta:
 //   E_w = 2 k L / (h1 + h2) (1 - cos((theta - theta_rest) / 2))   [J]
 // so that dE/dtheta = k L / (h1 + h2) sin((theta - theta_rest) / 2), the paper's bending force.
-// k = B(beta, alpha) [N m] interpolates the edge's 3 x 5 table (row-major) bilinearly: rows are bias
+// k = B(beta, alpha) [N m] interpolates the edge's 3 x 5 table (row-major): linearly in the rows, the bias
 // angles beta = 0, 45, 90 degrees between the rest edge and the weft (u) axis (folded to [0, 90]);
 // columns are curvature samples alpha = k * kBendSampleCurvature, k = 0..4, of
 //   alpha = |sin((theta - theta_rest) / 2)| / (h1 + h2)   [1/m]
-// clamped to the table's range. The energy includes dk/dalpha (conservative forces).
+// clamped to the table's range, blended between columns with s(f) = 3 f^2 - 2 f^3 (C1: the energy's
+// gradient is continuous, also at theta = theta_rest). The energy includes dk/dalpha (conservative forces).
 // Step matrix: Gauss-Newton with r = sin((theta - theta_rest) / 4): E = 4 k L/(h1+h2) r^2, K = 8 k L/(h1+h2) dr dr^T.
 #pragma once
 #include <array>
@@ -65,7 +66,7 @@ class BendTerm : public ElementTerm<BendTerm, 4, 15, 1> {
     } else {
       k0 = static_cast<int>(tv);
       if (k0 > 3) k0 = 3;
-      f = t - static_cast<double>(k0);
+      f = smoothstep(t - static_cast<double>(k0));
     }
     const auto& rw = row_weights_[e];
     T k = T(0.0);

@@ -13,9 +13,10 @@
 // in directions phi = 0, 22.5, 45, 67.5, 90 degrees from the weft (u) axis, where lambda_max + 1 is the
 // largest principal stretch and phi its direction (folded to [0, 90] degrees by symmetry).
 // The stiffness C(G) = sum_r W_r(G) row_r interpolates this table piecewise-linearly in
-// (lambda_max, phi) at the nodes of a grid over (G_uu, G_vv, |G_uv|) and trilinearly between nodes
-// (as the paper's released code does): continuous in G, well defined at isotropic strain (where phi is
-// not), and linear in the table. At isotropic grid nodes the five directions are averaged.
+// (lambda_max, phi) at the nodes of a grid over (G_uu, G_vv, |G_uv|), and between nodes with the C1
+// blend s(f) = 3 f^2 - 2 f^3 per axis (the paper's released code blends linearly; C1 makes the energy's
+// gradient continuous, so static equilibria have a vanishing residual): well defined at isotropic strain
+// (where phi is not), and linear in the table. At isotropic grid nodes the five directions are averaged.
 // The energy includes the dependence of C on G, so forces are conservative and E is a potential;
 // the integral is evaluated by 3-point Gauss-Legendre quadrature (the definition of W used here).
 // Step matrix: Gauss-Newton A_j J_eps^T C J_eps (C frozen) plus the positive part of the geometric
@@ -180,7 +181,7 @@ class StretchTerm : public ElementTerm<StretchTerm, 3, 24, 9> {
     } else {
       i0 = static_cast<int>(gv);
       if (i0 > n - 2) i0 = n - 2;
-      f = g - static_cast<double>(i0);
+      f = smoothstep(g - static_cast<double>(i0));
     }
   }
 

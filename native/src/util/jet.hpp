@@ -123,4 +123,10 @@ Jet<T, N> atan2(const Jet<T, N>& y, const Jet<T, N>& x) {
   return r;
 }
 
+// C1 blend of a fraction f in [0, 1]: s(0) = 0, s(1) = 1, s'(0) = s'(1) = 0.
+template <class T>
+T smoothstep(const T& f) {
+  return f * f * (3.0 - 2.0 * f);
+}
+
 }  // namespace drapelab
