@@ -6,6 +6,7 @@ import os
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 from drapelab import measure as M
@@ -126,3 +127,46 @@ def test_cli_end_to_end(tmp_path):
                        env=env)
     assert p.returncode == 2
     assert "cut.jpg" in p.stderr and "Traceback" not in p.stderr
+
+
+def _photo(mask, cloth, table, seed):
+    """A raw-photo-like RGB uint16 image: tones, left-to-right shading, noise."""
+    rng = np.random.default_rng(seed)
+    shade = 1.0 - 0.1 * np.linspace(0, 1, mask.shape[1])[None, :]
+    lum = np.where(mask > 0.5, cloth, table) * shade + rng.normal(0, 0.03, mask.shape)
+    return np.clip(lum, 0, 1)
+
+
+def test_raw_photos_measured_with_a_calibration_image(tmp_path):
+    # Another camera: 1100 px/m, specimen centre off the image centre, light cloth on a dark table.
+    s, cx, cy = 1100.0, 215.0, 192.0
+    c, r = np.meshgrid(np.arange(420) + 0.5, np.arange(400) + 0.5)
+    x, y = (c - cx) / s, (cy - r) / s
+    rho, theta = np.hypot(x, y), np.arctan2(y, x)
+    flat = (rho < 0.15).astype(float)
+    drape = (rho < 0.12 + 0.012 * np.cos(9 * theta)).astype(float)
+    M.write_image(tmp_path / "flat.tif", _photo(flat, 0.8, 0.2, 1), "uint16", 3)
+    M.write_image(tmp_path / "drape.png", _photo(drape, 0.8, 0.2, 2), "uint8", 3)
+    out = tmp_path / "m.json"
+    run(["measure", str(tmp_path / "drape.png"), "--calibration-image", str(tmp_path / "flat.tif"),
+         "--json", str(out)])
+    d = json.loads(out.read_text())["images"][0]
+    assert d["px_per_m"] == pytest.approx(s, rel=0.005)
+    assert d["centre_px"] == [pytest.approx(cx, abs=0.3), pytest.approx(cy, abs=0.3)]
+    assert not d["dark_on_light"]
+    assert d["node_count"] == 9
+    assert d["drape_coefficient"] == pytest.approx(M.drape_coefficient(drape, s), abs=0.01)
+    # Without the calibration the default 720 px/m scale is implausible for this image.
+    with pytest.raises(M.InputError, match="wrong calibration"):
+        run(["measure", str(tmp_path / "drape.png")])
+    with pytest.raises(ValueError, match="one way"):
+        run(["measure", str(tmp_path / "drape.png"), "--px-per-m", "900", "--calibration-image",
+             str(tmp_path / "flat.tif")])
+
+
+def test_compare_with_a_mesh_fitted_calibration(tmp_path):
+    out = tmp_path / "c.json"
+    run(["compare", "--mesh", OBJ, "--image", JPG, "--calibration-mesh", OBJ, JPG, "--json", str(out)])
+    d = json.loads(out.read_text())
+    assert d["px_per_m"] == pytest.approx(720.0, rel=0.01)
+    assert d["iou"] > 0.99

@@ -8,6 +8,8 @@ model-only and shared pixels in three colours with a legend.
 """
 import os
 
+from .measure import add_calibration_arguments, calibration_from_args
+
 
 def register(subparsers):
     p = subparsers.add_parser("compare", help="compare a 3D drape mesh with a measured silhouette",
@@ -17,10 +19,7 @@ def register(subparsers):
     p.add_argument("--camera", choices=["ortho", "perspective"], default="ortho",
                    help="measurement model for iou/mse: calibrated orthographic (default) or the paper's "
                         "perspective camera (fov 0.5 rad, eye 0.7 m)")
-    p.add_argument("--px-per-m", type=float, default=None, metavar="S",
-                   help="calibration scale in pixels per metre (default 720, the bundled dataset)")
-    p.add_argument("--centre", type=float, nargs=2, default=None, metavar=("CX", "CY"),
-                   help="disk centre in pixels (default the image centre)")
+    add_calibration_arguments(p)
     p.add_argument("--threshold", type=float, default=None, help="silhouette threshold (default automatic)")
     p.add_argument("--json", metavar="OUT.json", default=None, help="write the metrics here")
     p.add_argument("--overlay", metavar="PNG", default=None, help="write an overlay image here")
@@ -33,7 +32,7 @@ def run(args):
     for path, what in ((args.json, "JSON"), (args.overlay, "overlay")):
         if path:
             measure.check_output_path(path, what)
-    cal = measure.calibration(measure.DATASET_PX_PER_M if args.px_per_m is None else args.px_per_m, args.centre)
+    cal = calibration_from_args(args)
     metrics, measured, model = measure.compare_mesh_image(args.mesh, args.image, camera=args.camera,
                                                           calibration=cal, threshold=args.threshold)
     result = {"mesh": args.mesh, "image": args.image, **metrics}

@@ -1,5 +1,8 @@
 """`drapelab measure IMG... [--px-per-m S] [--centre CX CY] --json OUT.json`: rotation-free drape measures.
 
+The calibration is the dataset's (720 px/m, centre at the image centre), given (--px-per-m, --centre), or
+estimated from an undraped specimen image (--calibration-image) or a reference mesh (--calibration-mesh).
+
 Writes {"images": [...]} with one object per image (see drapelab.measure.measure_image): image (the path
 as given), drape_coefficient, node_count, node_amplitude_m, area_px, px_per_m, centre_px, r_theta_m
 (360 values, m), harmonics (first 20 amplitudes, m), threshold, dark_on_light. Prints one summary line per
@@ -13,10 +16,7 @@ def register(subparsers):
     p = subparsers.add_parser("measure", help="measure drape coefficient, nodes and r(theta) of silhouette images",
                               description=__doc__.split("\n\n", 1)[1])
     p.add_argument("images", nargs="+", metavar="IMG", help="top-down Cusick images (JPEG, PNG, TIFF, EXR, ...)")
-    p.add_argument("--px-per-m", type=float, default=None, metavar="S",
-                   help="calibration scale in pixels per metre (default 720, the bundled dataset)")
-    p.add_argument("--centre", type=float, nargs=2, default=None, metavar=("CX", "CY"),
-                   help="disk centre in pixels (column, row from the top-left corner; default the image centre)")
+    add_calibration_arguments(p)
     p.add_argument("--threshold", type=float, default=None,
                    help="silhouette threshold on the cloth value s in (0, 1) (default automatic)")
     p.add_argument("--polarity", choices=["auto", "dark_on_light", "light_on_dark"], default="auto",
@@ -28,12 +28,46 @@ def register(subparsers):
     p.set_defaults(func=run)
 
 
+def add_calibration_arguments(p):
+    """Calibration options shared by measure and compare: given, or estimated (one way at most)."""
+    g = p.add_argument_group("calibration (default: orthographic, 720 px/m, centre at the image centre)")
+    g.add_argument("--px-per-m", type=float, default=None, metavar="S", help="scale in pixels per metre")
+    g.add_argument("--centre", type=float, nargs=2, default=None, metavar=("CX", "CY"),
+                   help="disk centre in pixels (column, row from the top-left corner)")
+    g.add_argument("--calibration-image", metavar="FLAT", default=None,
+                   help="estimate scale and centre from an image of the undraped specimen")
+    g.add_argument("--specimen-diameter", type=float, default=0.30, metavar="M",
+                   help="diameter of the undraped specimen in --calibration-image (default 0.30 m)")
+    g.add_argument("--calibration-mesh", nargs=2, metavar=("OBJ", "IMG"), default=None,
+                   help="estimate scale and centre by fitting a reference 3D mesh to its silhouette image")
+
+
+def calibration_from_args(args):
+    from .. import measure
+
+    estimated = [n for n, v in (("--calibration-image", args.calibration_image),
+                                ("--calibration-mesh", args.calibration_mesh)) if v]
+    if len(estimated) > 1 or (estimated and (args.px_per_m is not None or args.centre is not None)):
+        raise ValueError("give the calibration one way: --px-per-m/--centre, --calibration-image or --calibration-mesh")
+    if args.calibration_image:
+        cal = measure.calibrate_from_disk(args.calibration_image, args.specimen_diameter)
+        print(f"calibration from {args.calibration_image}: {cal.px_per_m:.1f} px/m, centre ({cal.cx:.1f}, {cal.cy:.1f})")
+        return cal
+    if args.calibration_mesh:
+        obj, image = args.calibration_mesh
+        cal, fit = measure.calibrate_from_mesh(image, obj)
+        print(f"calibration from {obj} on {image}: {cal.px_per_m:.1f} px/m, centre ({cal.cx:.1f}, {cal.cy:.1f}), "
+              f"IoU {fit:.3f}")
+        return cal
+    return measure.calibration(measure.DATASET_PX_PER_M if args.px_per_m is None else args.px_per_m, args.centre)
+
+
 def run(args):
     from .. import measure
 
     if args.json:
         measure.check_output_path(args.json, "JSON")
-    cal = measure.calibration(measure.DATASET_PX_PER_M if args.px_per_m is None else args.px_per_m, args.centre)
+    cal = calibration_from_args(args)
     results, failed = [], 0
     for path in args.images:
         try:

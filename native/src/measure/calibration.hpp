@@ -38,13 +38,13 @@ Calibration resolve_calibration(const Calibration& calibration, int width, int h
 // inside the image.
 void validate_calibration(const Calibration& calibration, int width, int height, const std::string& source);
 
-// Checks that a measured silhouette is plausible for a Cusick test under `calibration`: its shadow
-// area must not be well below the support disk's (drape coefficient < -min_slack) nor its far edge well
-// beyond the specimen radius (max radius > (1 + radius_slack) * specimen_radius). Either means the scale
-// (px/m) or the centre is wrong for this image. Throws InputError naming `source`.
+// Checks that a measured silhouette is plausible for a Cusick test under `calibration`: its drape
+// coefficient must lie in [-min_slack, 1 + min_slack] and its far edge no further from the centre than
+// (1 + radius_slack) * specimen_radius (the dataset reaches 1.046). Otherwise the scale (px/m) or the
+// centre is wrong for this image. Throws InputError naming `source`.
 void check_cusick_calibration(const Image& mask, const Calibration& calibration, const std::string& source,
-                              const CusickGeometry& geometry = {}, double min_slack = 0.1,
-                              double radius_slack = 0.15);
+                              const CusickGeometry& geometry = {}, double min_slack = 0.05,
+                              double radius_slack = 0.10);
 
 // Estimates the calibration from a binary mask (1 = cloth) of an undraped (flat) specimen of known
 // diameter: px_per_m = 2 sqrt(area_px / pi) / diameter_m, centre = the mask's centroid. Throws
