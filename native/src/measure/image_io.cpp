@@ -5,7 +5,6 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
-#include <cstdio>
 #include <fstream>
 #include <system_error>
 #include <filesystem>
@@ -87,7 +86,6 @@ std::string check_exr_extent(const Bytes& b) {
   if (!b.has(0, 8) || b.u(0, 4, true) != 20000630u) return "";
   const uint64_t version = b.u(4, 4, true);
   if (version & (0x200 | 0x800 | 0x1000)) return "";  // tiled, deep or multi-part: not checked here
-  const bool long_names = version & 0x400;
   uint64_t p = 8;
   int lines_per_chunk = 1;
   int64_t ymin = 0, ymax = -1;
@@ -98,7 +96,6 @@ std::string check_exr_extent(const Bytes& b) {
     const std::string name(d.begin() + static_cast<long>(p), name_end);
     p = static_cast<uint64_t>(name_end - d.begin()) + 1;
     if (name.empty()) break;
-    (void)long_names;
     const auto type_end = std::find(d.begin() + static_cast<long>(p), d.end(), '\0');
     if (type_end == d.end()) return "header runs past the end of the file";
     p = static_cast<uint64_t>(type_end - d.begin()) + 1;

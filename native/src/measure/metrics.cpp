@@ -99,18 +99,25 @@ class NearestGrid {
     ++query_;
     const Eigen::Vector3i c = cell_of(p);
     double best = std::numeric_limits<double>::infinity();
+    auto visit = [&](int x, int y, int z) {
+      for (int i : cells_[index(x, y, z)]) {
+        if (stamp_[i] == query_) continue;
+        stamp_[i] = query_;
+        best = std::min(best, prims_.distance(i, p));
+      }
+    };
     for (int k = 0;; ++k) {
-      for (int x = c[0] - k; x <= c[0] + k; ++x)
-        for (int y = c[1] - k; y <= c[1] + k; ++y)
-          for (int z = c[2] - k; z <= c[2] + k; ++z) {
-            if (std::max({std::abs(x - c[0]), std::abs(y - c[1]), std::abs(z - c[2])}) != k) continue;
-            if (x < 0 || y < 0 || z < 0 || x >= dims_[0] || y >= dims_[1] || z >= dims_[2]) continue;
-            for (int i : cells_[index(x, y, z)]) {
-              if (stamp_[i] == query_) continue;
-              stamp_[i] = query_;
-              best = std::min(best, prims_.distance(i, p));
-            }
+      // The cells at Chebyshev distance k from c, clipped to the grid: whole columns on the x/y rim of
+      // the ring, only the two z caps inside it.
+      for (int x = std::max(0, c[0] - k); x <= std::min(dims_[0] - 1, c[0] + k); ++x)
+        for (int y = std::max(0, c[1] - k); y <= std::min(dims_[1] - 1, c[1] + k); ++y) {
+          if (std::abs(x - c[0]) == k || std::abs(y - c[1]) == k) {
+            for (int z = std::max(0, c[2] - k); z <= std::min(dims_[2] - 1, c[2] + k); ++z) visit(x, y, z);
+          } else {
+            if (c[2] - k >= 0) visit(x, y, c[2] - k);
+            if (k > 0 && c[2] + k < dims_[2]) visit(x, y, c[2] + k);
           }
+        }
       if (best <= cutoff) return best;
       // Anything in a cell beyond ring k lies beyond one of the faces of the ring's box that has cells
       // behind it; p is on the inner side of each such face.
@@ -259,7 +266,7 @@ NodeAnalysis analyse_nodes(const Eigen::VectorXd& r_theta, const NodeOptions& op
     for (int p = 0; p < out.count; ++p) {
       const int a = peaks[p], b = p + 1 < out.count ? peaks[p + 1] : peaks[0] + n;
       double m = std::numeric_limits<double>::infinity();
-      for (int i = a + 1; i < b || (out.count == 1 && i < a + n); ++i) m = std::min(m, at(i));
+      for (int i = a + 1; i < b; ++i) m = std::min(m, at(i));
       if (!std::isfinite(m)) m = s[a];
       peak_sum += s[a];
       trough_sum += m;

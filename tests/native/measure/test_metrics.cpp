@@ -201,8 +201,12 @@ TEST(Metrics, HausdorffGridAgreesWithBruteForce) {
     }
     return h;
   };
-  const double expected = std::max(brute(a.positions, pb, a.faces), brute(pb, a.positions, a.faces));
-  EXPECT_NEAR(hausdorff_distance(a.positions, a.faces, pb, a.faces), expected, 1e-14);
+  for (const Eigen::RowVector3d& shift : {Eigen::RowVector3d(0, 0, 0), Eigen::RowVector3d(0.4, -0.2, 0.7)}) {
+    // Far apart and scaled: every query point lies outside the other mesh's grid.
+    const MatrixX3d pc = (pb * (shift.norm() > 0 ? 1.3 : 1.0)).rowwise() + shift;
+    const double expected = std::max(brute(a.positions, pc, a.faces), brute(pc, a.positions, a.faces));
+    EXPECT_NEAR(hausdorff_distance(a.positions, a.faces, pc, a.faces), expected, 1e-14);
+  }
 }
 
 TEST(Metrics, HausdorffRejectsBadMeshes) {
