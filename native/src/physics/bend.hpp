@@ -11,7 +11,7 @@
 //   alpha = |sin((theta - theta_rest) / 2)| / (h1 + h2)   [1/m]
 // clamped to the table's range, blended between columns with s(f) = 3 f^2 - 2 f^3 (C1: the energy's
 // gradient is continuous, also at theta = theta_rest). The energy includes dk/dalpha (conservative forces).
-// Step matrix: Gauss-Newton with r = sin((theta - theta_rest) / 4): E = 4 k L/(h1+h2) r^2, K = 8 k L/(h1+h2) dr dr^T.
+// Step matrix: K = max(d2E/dtheta2, 0) dtheta/dx dtheta/dx^T (see element_gauss_newton).
 #pragma once
 #include <array>
 #include <vector>
@@ -78,18 +78,33 @@ class BendTerm : public ElementTerm<BendTerm, 4, 15, 1> {
     return k;
   }
 
+  // Energy as a function of the angle change d = theta - theta_rest.
   template <class T>
-  T element_energy(int e, const T* x, const T* p) const {
-    const T d = dihedral_angle(x) - rest_angle_[e];
+  T energy_of_angle(int e, const T& d, const T* p) const {
     const T k = stiffness(e, sin(0.5 * d), p);
     return 2.0 * k * (rest_length_[e] / height_sum_[e]) * (1.0 - cos(0.5 * d));
   }
 
   template <class T>
+  T element_energy(int e, const T* x, const T* p) const {
+    return energy_of_angle(e, dihedral_angle(x) - rest_angle_[e], p);
+  }
+
+  // r = theta - theta_rest, S = max(d2E/dtheta2, 0): exact along the angle (the tables stiffen several-fold
+  // with curvature, and a step matrix that misses this makes the h = 0.05 s step oscillate), and
+  // Gauss-Newton in x (drops dE/dtheta d2theta/dx2).
+  template <class T>
   void element_gauss_newton(int e, const T* x, const T* p, T* r, T* S) const {
-    const T d = dihedral_angle(x) - rest_angle_[e];
-    r[0] = sin(0.25 * d);
-    S[0] = 8.0 * stiffness(e, sin(0.5 * d), p) * (rest_length_[e] / height_sum_[e]);
+    r[0] = dihedral_angle(x) - rest_angle_[e];
+    using J1 = Jet<T, 1>;
+    using J2 = Jet<J1, 1>;
+    J2 d{J1(r[0], 0)};
+    d.v[0] = J1(T(1.0));
+    J2 pj[15];
+    for (int k = 0; k < 15; ++k) pj[k] = J2(J1(p[k]));
+    const J2 E = energy_of_angle<J2>(e, d, pj);
+    const T curvature = E.v[0].v[0];
+    S[0] = value_of(curvature) > 0 ? curvature : T(0.0);
   }
 
   double bias_angle(int e) const { return bias_[e]; }
