@@ -45,10 +45,6 @@ MatrixX2d project_vertices(const Camera& camera, const MatrixX3d& positions) {
   return image_points;
 }
 
-int first_pixel(double lo, int size) { return static_cast<int>(std::clamp(std::ceil(lo - 0.5), 0.0, double(size))); }
-
-int last_pixel(double hi, int size) { return static_cast<int>(std::clamp(std::floor(hi - 0.5), -1.0, size - 1.0)); }
-
 void fill_covered_pixels(const MatrixX2d& q, const MatrixX3i& faces, Image& image, double value) {
   const int width = static_cast<int>(image.cols()), height = static_cast<int>(image.rows());
   for (Eigen::Index f = 0; f < faces.rows(); ++f) {

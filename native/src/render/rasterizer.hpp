@@ -1,6 +1,8 @@
 // Silhouette rasterizers: hard (for metrics) and soft (differentiable, SoftRas/DIB-R family; see
 // render/soft_rasterizer.hpp).
 #pragma once
+#include <algorithm>
+#include <cmath>
 #include <memory>
 
 #include "geometry/mesh.hpp"
@@ -27,8 +29,12 @@ void fill_covered_pixels(const MatrixX2d& image_points, const MatrixX3i& faces, 
 
 // Pixel index range whose centres c + 0.5 lie in [lo, hi], clamped to [0, size) (first > last when empty);
 // safe for any finite coordinate.
-int first_pixel(double lo, int size);
-int last_pixel(double hi, int size);
+inline int first_pixel(double lo, int size) {
+  return static_cast<int>(std::clamp(std::ceil(lo - 0.5), 0.0, static_cast<double>(size)));
+}
+inline int last_pixel(double hi, int size) {
+  return static_cast<int>(std::clamp(std::floor(hi - 0.5), -1.0, size - 1.0));
+}
 
 // Intersection over union of two silhouettes thresholded at 0.5 (1 when both are empty).
 double silhouette_iou(const Image& a, const Image& b);

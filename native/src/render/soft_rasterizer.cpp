@@ -18,46 +18,88 @@ constexpr double kSaturatedLogit = 40.0;
 // Transmittance below this is flushed to 0 so long products never reach subnormal numbers.
 constexpr double kTinyTransmittance = 1e-200;
 
-// Squared distance from (px, py) to the boundary of the face, the edge k realising it and the
-// parameter t of the closest point v[k] + t e[k]; returns whether the point is inside.
-inline bool closest_edge(const SoftRasterizer::FaceEdges& f, double px, double py, double& d2, int& edge,
-                         double& t) {
-  bool inside = f.orientation != 0.0;
-  d2 = INFINITY;
-  edge = 0;
-  t = 0.0;
-  for (int k = 0; k < 3; ++k) {
-    const double wx = px - f.vx[k], wy = py - f.vy[k];
-    const double cross = f.ex[k] * wy - f.ey[k] * wx;
-    inside = inside && f.orientation * cross >= 0.0;
-    const double tk = std::clamp((wx * f.ex[k] + wy * f.ey[k]) * f.inv_len2[k], 0.0, 1.0);
-    const double rx = wx - tk * f.ex[k], ry = wy - tk * f.ey[k];
-    const double dk = rx * rx + ry * ry;
-    if (dk < d2) {
-      d2 = dk;
-      edge = k;
-      t = tk;
-    }
-  }
-  return inside;
-}
+// Branch-free clamp to [0, 1] (minsd/maxsd): the clamp is taken both ways at random in the inner loops.
+inline double clamp01(double t) { return std::min(std::max(t, 0.0), 1.0); }
 
 // 1 - exp(-y) for y >= 0, accurate also for tiny y (where 1 - exp(-y) would cancel); exp_neg = exp(-y).
 inline double one_minus_exp_neg(double y, double exp_neg) { return y < 1e-2 ? -std::expm1(-y) : 1.0 - exp_neg; }
 
-// Squared distance and inside flag only (the forward's inner loop).
-inline double signed_sq_distance(const SoftRasterizer::FaceEdges& f, double px, double py) {
-  bool inside = f.orientation != 0.0;
+// Nearest point of a face's boundary to a pixel centre p: v[edge] + t e[edge]; h = +-d^2 (+ inside).
+struct BoundaryPoint {
+  double h = 0.0;
+  bool inside = false;
+  int edge = 0;
+  double t = 0.0;
+};
+
+// The boundary point of face f nearest to (px, py), unless p lies outside beyond the cutoff radius
+// (returns false: D_f(p) < epsilon). kWithEdge = false skips edge and t (the forward needs only h).
+// Inside a triangle the distance to its boundary is the smallest distance to its three edge lines (and
+// that line's foot lies on the edge); outside, the nearest point lies on an edge whose line has p on its
+// outer side; a centre farther than r_c behind any edge line is farther than r_c from the triangle,
+// which rejects the corners of the dilated bounding box with three multiply-adds.
+template <bool kWithEdge>
+__attribute__((always_inline)) inline bool nearest_boundary_point(const SoftRasterizer::FaceEdges& f, double px,
+                                                                  double py, double cutoff_d2, double cutoff_radius,
+                                                                  BoundaryPoint& out) {
+  if (f.orientation == 0.0) {  // zero-area projection: no inside, distance to its segments
+    double d2 = INFINITY;
+    for (int k = 0; k < 3; ++k) {
+      const double wx = px - f.vx[k], wy = py - f.vy[k];
+      const double tk = clamp01((wx * f.ex[k] + wy * f.ey[k]) * f.inv_len2[k]);
+      const double rx = wx - tk * f.ex[k], ry = wy - tk * f.ey[k];
+      const double dk = rx * rx + ry * ry;
+      if (dk < d2) {
+        d2 = dk;
+        out.edge = k;
+        out.t = tk;
+      }
+    }
+    out.h = -d2;
+    out.inside = false;
+    return d2 <= cutoff_d2;
+  }
+  const double l[3] = {f.la[0] * px + f.lb[0] * py + f.lc[0], f.la[1] * px + f.lb[1] * py + f.lc[1],
+                       f.la[2] * px + f.lb[2] * py + f.lc[2]};
+  const double m = std::min({l[0], l[1], l[2]});
+  if (m >= 0.0) {
+    out.h = m * m;
+    out.inside = true;
+    if (kWithEdge) {
+      const int k = l[0] == m ? 0 : (l[1] == m ? 1 : 2);
+      out.edge = k;
+      out.t = clamp01(((px - f.vx[k]) * f.ex[k] + (py - f.vy[k]) * f.ey[k]) * f.inv_len2[k]);
+    }
+    return true;
+  }
+  if (m < -cutoff_radius) return false;
   double d2 = INFINITY;
   for (int k = 0; k < 3; ++k) {
+    if (l[k] >= 0.0) continue;
     const double wx = px - f.vx[k], wy = py - f.vy[k];
-    const double cross = f.ex[k] * wy - f.ey[k] * wx;
-    inside = inside && f.orientation * cross >= 0.0;
-    const double tk = std::clamp((wx * f.ex[k] + wy * f.ey[k]) * f.inv_len2[k], 0.0, 1.0);
-    const double rx = wx - tk * f.ex[k], ry = wy - tk * f.ey[k];
-    d2 = std::min(d2, rx * rx + ry * ry);
+    double tk = (wx * f.ex[k] + wy * f.ey[k]) * f.inv_len2[k];
+    double dk;
+    if (tk <= 0.0) {
+      tk = 0.0;
+      dk = wx * wx + wy * wy;
+    } else if (tk >= 1.0) {
+      tk = 1.0;
+      const double ux = px - f.vx[(k + 1) % 3], uy = py - f.vy[(k + 1) % 3];
+      dk = ux * ux + uy * uy;
+    } else {
+      dk = l[k] * l[k];
+    }
+    if (dk < d2) {
+      d2 = dk;
+      if (kWithEdge) {
+        out.edge = k;
+        out.t = tk;
+      }
+    }
   }
-  return inside ? d2 : -d2;
+  out.h = -d2;
+  out.inside = false;
+  return d2 <= cutoff_d2;
 }
 
 void check_options(const SoftRasterOptions& options) {
@@ -118,6 +160,13 @@ Image SoftRasterizer::forward(const MatrixX3d& positions, const MatrixX3i& faces
     }
     const double area2 = f.ex[0] * (-f.ey[2]) - f.ey[0] * (-f.ex[2]);  // cross(v1 - v0, v2 - v0)
     f.orientation = area2 > 0.0 ? 1.0 : (area2 < 0.0 ? -1.0 : 0.0);
+    for (int k = 0; k < 3; ++k) {
+      // orientation * cross(e_k, p - v_k) / |e_k|; all edges have nonzero length when the area is nonzero.
+      const double scale = f.orientation * std::sqrt(f.inv_len2[k]);
+      f.la[k] = -scale * f.ey[k];
+      f.lb[k] = scale * f.ex[k];
+      f.lc[k] = scale * (f.ey[k] * f.vx[k] - f.ex[k] * f.vy[k]);
+    }
     // Pixel centres c + 0.5 within the bounding box dilated by the cutoff radius.
     const double xmin = std::min({f.vx[0], f.vx[1], f.vx[2]}) - cutoff_radius_;
     const double xmax = std::max({f.vx[0], f.vx[1], f.vx[2]}) + cutoff_radius_;
@@ -182,7 +231,7 @@ void SoftRasterizer::forward_gaussian() {
       uncovered_sum_[(r + 1) * stride + c + 1] = uncovered_sum_[r * stride + c + 1] + running;
     }
   }
-  const double cutoff_d2 = cutoff_d2_, inv_sigma2 = inv_sigma2_;
+  const double cutoff_d2 = cutoff_d2_, cutoff_radius = cutoff_radius_, inv_sigma2 = inv_sigma2_;
   for (FaceEdges& f : face_edges_) {
     if (f.col0 > f.col1 || f.row0 > f.row1) continue;
     const size_t r0 = static_cast<size_t>(f.row0), r1 = static_cast<size_t>(f.row1) + 1;
@@ -198,10 +247,10 @@ void SoftRasterizer::forward_gaussian() {
       double* row = transmittance_.data() + static_cast<Eigen::Index>(r) * width;
       for (int c = f.col0; c <= f.col1; ++c) {
         if (row[c] == 0.0) continue;  // covered (or already fully opaque)
-        const double d2 = -signed_sq_distance(f, c + 0.5, py);
-        // An uncovered pixel is outside every face, so d2 >= 0 up to rounding at an edge.
-        if (d2 > cutoff_d2) continue;
-        const double y = std::max(d2, 0.0) * inv_sigma2;
+        BoundaryPoint b;
+        if (!nearest_boundary_point<false>(f, c + 0.5, py, cutoff_d2, cutoff_radius, b)) continue;
+        // An uncovered pixel is outside every face, so h <= 0 up to rounding at an edge (then D_f = 1).
+        const double y = std::max(-b.h, 0.0) * inv_sigma2;
         row[c] *= one_minus_exp_neg(y, std::exp(-y));  // 1 - D_f
       }
     }
@@ -210,7 +259,7 @@ void SoftRasterizer::forward_gaussian() {
 
 void SoftRasterizer::backward_gaussian(const Image& grad_image, MatrixX2d& grad_points) const {
   const int width = camera_->width();
-  const double cutoff_d2 = cutoff_d2_, inv_sigma2 = inv_sigma2_;
+  const double cutoff_d2 = cutoff_d2_, cutoff_radius = cutoff_radius_, inv_sigma2 = inv_sigma2_;
   for (size_t fi = 0; fi < face_edges_.size(); ++fi) {
     const FaceEdges& f = face_edges_[fi];
     double gx[3] = {0, 0, 0}, gy[3] = {0, 0, 0};
@@ -223,11 +272,11 @@ void SoftRasterizer::backward_gaussian(const Image& grad_image, MatrixX2d& grad_
         const double weight = grad_row[c] * trans_row[c];  // dL/dI * T; 0 on covered pixels
         if (weight == 0.0) continue;
         const double px = c + 0.5;
-        double d2, t;
-        int k;
-        closest_edge(f, px, py, d2, k, t);
-        if (d2 > cutoff_d2) continue;
-        const double y = d2 * inv_sigma2, exp_neg = std::exp(-y);  // D_f = exp_neg
+        BoundaryPoint b;
+        if (!nearest_boundary_point<true>(f, px, py, cutoff_d2, cutoff_radius, b)) continue;
+        const int k = b.edge;
+        const double t = b.t;
+        const double y = std::max(-b.h, 0.0) * inv_sigma2, exp_neg = std::exp(-y);  // D_f = exp_neg
         const double factor = one_minus_exp_neg(y, exp_neg);    // 1 - D_f, as in the forward
         if (factor == 0.0) continue;
         // dL/d(d^2) = dL/dI * (T / (1 - D_f)) * dD_f/d(d^2),  dD_f/d(d^2) = -D_f / sigma^2;
@@ -248,15 +297,15 @@ void SoftRasterizer::backward_gaussian(const Image& grad_image, MatrixX2d& grad_
 // Logistic profile (SoftRas): every pixel near a face multiplies 1 - D_f = 1 / (1 + e^{x_f}).
 void SoftRasterizer::forward_logistic() {
   const int width = camera_->width();
-  const double cutoff_d2 = cutoff_d2_, inv_sigma2 = inv_sigma2_;
+  const double cutoff_d2 = cutoff_d2_, cutoff_radius = cutoff_radius_, inv_sigma2 = inv_sigma2_;
   for (const FaceEdges& f : face_edges_) {
     for (int r = f.row0; r <= f.row1; ++r) {
       const double py = r + 0.5;
       double* row = transmittance_.data() + static_cast<Eigen::Index>(r) * width;
       for (int c = f.col0; c <= f.col1; ++c) {
-        const double h = signed_sq_distance(f, c + 0.5, py);
-        if (h < -cutoff_d2) continue;
-        const double x = h * inv_sigma2;
+        BoundaryPoint b;
+        if (!nearest_boundary_point<false>(f, c + 0.5, py, cutoff_d2, cutoff_radius, b)) continue;
+        const double x = b.h * inv_sigma2;
         const double factor = x > kSaturatedLogit ? 0.0 : 1.0 / (1.0 + std::exp(x));  // 1 - D_f
         const double t = row[c] * factor;
         row[c] = t < kTinyTransmittance ? 0.0 : t;
@@ -267,7 +316,7 @@ void SoftRasterizer::forward_logistic() {
 
 void SoftRasterizer::backward_logistic(const Image& grad_image, MatrixX2d& grad_points) const {
   const int width = camera_->width();
-  const double cutoff_d2 = cutoff_d2_, inv_sigma2 = inv_sigma2_;
+  const double cutoff_d2 = cutoff_d2_, cutoff_radius = cutoff_radius_, inv_sigma2 = inv_sigma2_;
   for (size_t fi = 0; fi < face_edges_.size(); ++fi) {
     const FaceEdges& f = face_edges_[fi];
     double gx[3] = {0, 0, 0}, gy[3] = {0, 0, 0};
@@ -280,11 +329,12 @@ void SoftRasterizer::backward_logistic(const Image& grad_image, MatrixX2d& grad_
         const double weight = grad_row[c] * trans_row[c];  // dL/dI * T
         if (weight == 0.0) continue;
         const double px = c + 0.5;
-        double d2, t;
-        int k;
-        const bool inside = closest_edge(f, px, py, d2, k, t);
-        if (!inside && d2 > cutoff_d2) continue;
-        const double x = (inside ? d2 : -d2) * inv_sigma2;
+        BoundaryPoint b;
+        if (!nearest_boundary_point<true>(f, px, py, cutoff_d2, cutoff_radius, b)) continue;
+        const bool inside = b.inside;
+        const int k = b.edge;
+        const double t = b.t;
+        const double x = b.h * inv_sigma2;
         if (x > kSaturatedLogit) continue;  // its factor was taken as 0 in the forward
         const double d = 1.0 / (1.0 + std::exp(-x));
         // dL/dx_f = dL/dI T D_f; x_f = +-d2 / sigma^2; d2 = |r|^2, r = p - (1-t) v[k] - t v[k+1].

@@ -90,6 +90,7 @@ class SoftRasterizer {
     double ex[3], ey[3];      // edges v[k+1] - v[k]
     double inv_len2[3];       // 1 / |e_k|^2 (0 for a zero-length edge)
     double orientation;       // +1 / -1 for counter-clockwise / clockwise in image coordinates, 0 degenerate
+    double la[3], lb[3], lc[3];  // signed distance to edge line k: la px + lb py + lc (pixels, > 0 inside)
     int col0, col1, row0, row1;  // pixels visited (inclusive; empty when col0 > col1 or row0 > row1)
   };
 
