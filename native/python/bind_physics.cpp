@@ -1,5 +1,292 @@
+// Bindings of physics/ and solver/: Model, ImplicitEuler (rollout and adjoint), StaticSolver (equilibrium and
+// adjoint) and Progress (progress-and-cancel sink). Vectors are flat float64 numpy arrays in the model's
+// layout: positions and velocities (3V), parameters (layout size). The facade addon/drapelab/sim.py checks
+// shapes, reshapes positions to (V, 3) and names the parameter blocks.
+//
+// Long calls (forward, backward, solve, adjoint, factorize) release the GIL. A Progress passed to them is
+// called back with the GIL re-acquired at every step, and its cancel() (callable from any Python thread)
+// makes the running call raise Cancelled at the next step. Each solver object serialises its own calls
+// with a mutex (it keeps the state of its last forward/solve for the adjoint), so sharing one between
+// Python threads is safe, only not parallel.
+#include <pybind11/eigen.h>
+#include <pybind11/functional.h>
 #include <pybind11/pybind11.h>
+#include <pybind11/stl.h>
+
+#include <memory>
+#include <mutex>
+#include <optional>
+
+#include "geometry/mesh.hpp"
+#include "physics/model.hpp"
+#include "solver/implicit_euler.hpp"
+#include "solver/static_solve.hpp"
+#include "util/error.hpp"
+#include "util/progress.hpp"
 
 namespace py = pybind11;
+using namespace drapelab;
 
-void bind_physics(py::module_& m) {}
+namespace {
+
+using Vector = Eigen::VectorXd;
+using MatrixX4iRow = Eigen::Matrix<int, Eigen::Dynamic, 4, Eigen::RowMajor>;
+
+// A ProgressSink whose callback is a Python callable, invoked with the GIL held. The solver threads call
+// step() without the GIL; cancel() only sets an atomic flag.
+struct PyProgress {
+  explicit PyProgress(py::object cb) : callback(std::move(cb)), sink(make_callback()) {}
+  ~PyProgress() {
+    py::gil_scoped_acquire gil;  // the callback is released with the GIL held
+    callback = py::object();
+  }
+
+  ProgressSink::Callback make_callback() {
+    if (callback.is_none()) return {};
+    return [this](int done, int total) {
+      py::gil_scoped_acquire gil;
+      callback(done, total);
+    };
+  }
+
+  py::object callback;
+  ProgressSink sink;
+};
+
+ProgressSink* sink_of(const std::shared_ptr<PyProgress>& p) { return p ? &p->sink : nullptr; }
+
+struct PyImplicitEuler {
+  explicit PyImplicitEuler(std::shared_ptr<const Model> m) : model(std::move(m)), solver(*model) {}
+  std::shared_ptr<const Model> model;  // kept alive as long as the solver
+  ImplicitEuler solver;
+  std::mutex mutex;
+};
+
+struct PyStaticSolver {
+  explicit PyStaticSolver(std::shared_ptr<const Model> m) : model(std::move(m)), solver(*model) {}
+  std::shared_ptr<const Model> model;
+  StaticSolver solver;
+  std::mutex mutex;
+};
+
+void check_size(const Vector& v, Eigen::Index n, const char* what) {
+  if (v.size() != n)
+    throw InputError(std::string(what) + ": expected " + std::to_string(n) + " values, got " + std::to_string(v.size()));
+}
+
+void check_finite(const Vector& v, const char* what) {
+  if (!v.allFinite()) throw InputError(std::string(what) + ": has non-finite values");
+}
+
+py::list layout_list(const ParameterLayout& layout) {
+  py::list out;
+  for (const auto& b : layout.blocks()) {
+    py::dict d;
+    d["name"] = b.name;
+    d["unit"] = b.unit;
+    d["offset"] = b.offset;
+    d["size"] = b.size;
+    d["entries_per_element"] = b.entries_per_element;
+    d["shared"] = b.shared;
+    out.append(d);
+  }
+  return out;
+}
+
+}  // namespace
+
+void bind_physics(py::module_& m) {
+  py::class_<PyProgress, std::shared_ptr<PyProgress>>(
+      m, "Progress",
+      "Progress-and-cancel sink for long calls: callback(done, total) is called (GIL held) at every step; "
+      "cancel() from any thread makes the running call raise Cancelled at its next step.")
+      .def(py::init<py::object>(), py::arg("callback") = py::none())
+      .def("cancel", [](PyProgress& p) { p.sink.cancel(); }, "Request cancellation (thread-safe).")
+      .def_property_readonly("cancelled", [](const PyProgress& p) { return p.sink.cancelled(); });
+
+  py::class_<Model, std::shared_ptr<Model>>(m, "Model",
+                                            "Cloth model: mesh, rest data, masses, terms (stretch, bend, gravity, "
+                                            "handle) and the flat parameter layout; see physics/model.hpp.")
+      .def(py::init([](const TriangleMesh& mesh, bool heterogeneous, double support_radius, double gravity,
+                       double density, double handle_stiffness) {
+             ModelOptions o;
+             o.heterogeneous = heterogeneous;
+             o.support_radius = support_radius;
+             o.gravity = gravity;
+             o.density = density;
+             o.handle_stiffness = handle_stiffness;
+             return std::make_shared<Model>(mesh, o);
+           }),
+           py::arg("mesh"), py::arg("heterogeneous") = false, py::arg("support_radius") = 0.09,
+           py::arg("gravity") = 9.8, py::arg("density") = 0.192, py::arg("handle_stiffness") = 1e3)
+      .def_property_readonly("num_vertices", &Model::num_vertices)
+      .def_property_readonly("num_dofs", &Model::num_dofs)
+      .def_property_readonly("num_faces", [](const Model& s) { return s.mesh().num_faces(); })
+      .def_property_readonly("num_bending_edges", [](const Model& s) { return static_cast<int>(s.bending_edges().size()); })
+      .def_property_readonly("num_parameters", [](const Model& s) { return s.layout().size(); })
+      .def_property_readonly("mesh", [](const Model& s) { return s.mesh(); },
+                             "The model's mesh (faces oriented counter-clockwise in (u, v)).")
+      .def_property_readonly("bending_edges", [](const Model& s) {
+        const auto& edges = s.bending_edges();
+        MatrixX4iRow out(static_cast<Eigen::Index>(edges.size()), 4);
+        for (size_t i = 0; i < edges.size(); ++i)
+          out.row(static_cast<Eigen::Index>(i)) << edges[i].a, edges[i].b, edges[i].c, edges[i].d;
+        return out;
+      }, "(E, 4) rows (a, b, c, d) in the order of the bend block's elements.")
+      .def_property_readonly("handle_vertices", &Model::handle_vertices)
+      .def_property_readonly("heterogeneous", [](const Model& s) { return s.options().heterogeneous; })
+      .def_property_readonly("support_radius", [](const Model& s) { return s.options().support_radius; })
+      .def_property_readonly("gravity", [](const Model& s) { return s.options().gravity; })
+      .def_property_readonly("layout", [](const Model& s) { return layout_list(s.layout()); },
+                             "Parameter blocks: list of dicts {name, unit, offset, size, entries_per_element, shared}.")
+      .def("rest_positions", &Model::rest_positions, "Flat (3V) rest positions, metres.")
+      .def_property_readonly("area_weights", &Model::area_weights, "Per vertex sum of A_f / 3 (m^2).")
+      .def("masses", [](const Model& s, const Vector& p) {
+        s.validate_parameters(p);
+        return s.masses(p);
+      }, py::arg("parameters"), "Lumped vertex masses (kg).")
+      .def("default_parameters", [](const Model& s) { return Vector(s.default_parameters()); })
+      .def("fill_stretch", [](const Model& s, Vector p, const StretchTable& table) {
+        check_size(p, s.layout().size(), "parameters");
+        s.fill_stretch(p, table);
+        return p;
+      }, py::arg("parameters"), py::arg("table"), "A copy of parameters with the (6, 4) table on every face.")
+      .def("fill_bend", [](const Model& s, Vector p, const BendTable& table) {
+        check_size(p, s.layout().size(), "parameters");
+        s.fill_bend(p, table);
+        return p;
+      }, py::arg("parameters"), py::arg("table"), "A copy of parameters with the (3, 5) table on every bending edge.")
+      .def("validate_parameters", &Model::validate_parameters, py::arg("parameters"))
+      .def("energy", [](const Model& s, const Vector& x, const Vector& p) {
+        check_size(x, s.num_dofs(), "positions");
+        check_finite(x, "positions");
+        s.validate_parameters(p);
+        return s.energy(x, p);
+      }, py::arg("positions"), py::arg("parameters"), "Total energy E(x; p) (J).")
+      .def("gradient", [](const Model& s, const Vector& x, const Vector& p) {
+        check_size(x, s.num_dofs(), "positions");
+        check_finite(x, "positions");
+        s.validate_parameters(p);
+        Vector g = Vector::Zero(x.size());
+        s.add_gradient(x, p, g);
+        return g;
+      }, py::arg("positions"), py::arg("parameters"), "dE/dx (N), flat (3V).");
+
+  py::class_<PyImplicitEuler>(m, "ImplicitEuler", "Implicit Euler rollout and its adjoint; see solver/implicit_euler.hpp.")
+      .def(py::init([](std::shared_ptr<Model> model) { return std::make_unique<PyImplicitEuler>(std::move(model)); }),
+           py::arg("model"))
+      .def(
+          "forward",
+          [](PyImplicitEuler& s, const Vector& p, double time_step, int steps, double max_speed, bool record,
+             std::shared_ptr<PyProgress> progress, std::optional<Vector> x0, std::optional<Vector> v0) {
+            RolloutOptions o;
+            o.time_step = time_step;
+            o.steps = steps;
+            o.max_speed = max_speed;
+            o.record = record;
+            py::gil_scoped_release no_gil;
+            std::lock_guard<std::mutex> lock(s.mutex);
+            return s.solver.forward(p, o, sink_of(progress), x0 ? &*x0 : nullptr, v0 ? &*v0 : nullptr);
+          },
+          py::arg("parameters"), py::arg("time_step") = 0.05, py::arg("steps") = 100, py::arg("max_speed") = 50.0,
+          py::arg("record") = true, py::arg("progress") = nullptr, py::arg("x0") = py::none(),
+          py::arg("v0") = py::none(), "Rolls out from (x0, v0) (default: rest, at rest); returns final positions (3V).")
+      .def(
+          "backward",
+          [](PyImplicitEuler& s, const Vector& dL_dx, std::optional<Vector> dL_dv, std::shared_ptr<PyProgress> progress) {
+            RolloutGradient g;
+            {
+              py::gil_scoped_release no_gil;
+              std::lock_guard<std::mutex> lock(s.mutex);
+              g = s.solver.backward(dL_dx, dL_dv ? &*dL_dv : nullptr, sink_of(progress));
+            }
+            py::dict out;
+            out["parameters"] = g.parameters;
+            out["positions0"] = g.positions0;
+            out["velocities0"] = g.velocities0;
+            return out;
+          },
+          py::arg("dL_dx"), py::arg("dL_dv") = py::none(), py::arg("progress") = nullptr,
+          "dL/d(parameters, x0, v0) of the last forward (record=True): dict of flat arrays.")
+      .def_property_readonly("positions", [](PyImplicitEuler& s) {
+        std::lock_guard<std::mutex> lock(s.mutex);
+        return Vector(s.solver.positions());
+      })
+      .def_property_readonly("velocities", [](PyImplicitEuler& s) {
+        std::lock_guard<std::mutex> lock(s.mutex);
+        return Vector(s.solver.velocities());
+      })
+      .def_property_readonly("timing", [](PyImplicitEuler& s) {
+        std::lock_guard<std::mutex> lock(s.mutex);
+        const auto& t = s.solver.timing();
+        py::dict out;
+        out["assemble"] = t.assemble;
+        out["factorize"] = t.factorize;
+        out["solve"] = t.solve;
+        return out;
+      }, "Seconds spent in assembly, factorisation and solves during the last forward.")
+      .def(
+          "step_system",
+          [](PyImplicitEuler& s, const Vector& x, const Vector& v, const Vector& p, double h) {
+            const int n = s.model->num_dofs();
+            check_size(x, n, "positions");
+            check_size(v, n, "velocities");
+            s.model->validate_parameters(p);
+            Vector A, b;
+            {
+              py::gil_scoped_release no_gil;
+              s.solver.step_system(x, v, p, h, A, b);
+            }
+            return py::make_tuple(A, b);
+          },
+          py::arg("positions"), py::arg("velocities"), py::arg("parameters"), py::arg("time_step"),
+          "(A, b) of one step: A = M + h^2 K (upper-triangle values in pattern order), b (3V).")
+      .def(
+          "factorize",
+          [](PyImplicitEuler& s, const Vector& values) {
+            check_finite(values, "values");
+            py::gil_scoped_release no_gil;
+            std::lock_guard<std::mutex> lock(s.mutex);
+            check_size(values, s.model->pattern().nnz(), "values");
+            return s.solver.linear_solver().factorize(values);
+          },
+          py::arg("values"), "Numeric CHOLMOD factorisation of a step matrix; False if not positive definite.")
+      .def_property_readonly("factor_bytes", [](PyImplicitEuler& s) {
+        std::lock_guard<std::mutex> lock(s.mutex);
+        return s.solver.linear_solver().factor_bytes();
+      });
+
+  py::class_<PyStaticSolver>(m, "StaticSolver", "Static equilibrium (Newton) and its adjoint; see solver/static_solve.hpp.")
+      .def(py::init([](std::shared_ptr<Model> model) { return std::make_unique<PyStaticSolver>(std::move(model)); }),
+           py::arg("model"))
+      .def(
+          "solve",
+          [](PyStaticSolver& s, const Vector& p, double force_tolerance, int max_iterations,
+             std::shared_ptr<PyProgress> progress, std::optional<Vector> x0) {
+            StaticOptions o;
+            o.force_tolerance = force_tolerance;
+            o.max_iterations = max_iterations;
+            StaticResult r;
+            {
+              py::gil_scoped_release no_gil;
+              std::lock_guard<std::mutex> lock(s.mutex);
+              r = s.solver.solve(p, o, sink_of(progress), x0 ? &*x0 : nullptr);
+            }
+            py::dict out;
+            out["positions"] = r.positions;
+            out["iterations"] = r.iterations;
+            out["residual"] = r.residual;
+            return out;
+          },
+          py::arg("parameters"), py::arg("force_tolerance") = 1e-6, py::arg("max_iterations") = 200,
+          py::arg("progress") = nullptr, py::arg("x0") = py::none(),
+          "Equilibrium from x0 (default rest): dict positions (3V), iterations, residual (in vertex weights).")
+      .def(
+          "adjoint",
+          [](PyStaticSolver& s, const Vector& dL_dx) {
+            py::gil_scoped_release no_gil;
+            std::lock_guard<std::mutex> lock(s.mutex);
+            return s.solver.adjoint(dL_dx);
+          },
+          py::arg("dL_dx"), "dL/dparameters (flat) given dL/dx* (3V) at the last solution.");
+}

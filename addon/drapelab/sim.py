@@ -1,0 +1,483 @@
+"""Simulation side of drapelab: cloth models, drapes (dynamic rollout or static equilibrium) and their
+gradients with respect to the material parameters (bpy-free facade over physics/ and solver/).
+
+Arrays in and out are numpy float64: positions (V, 3) metres, faces (F, 3) int32. Parameters are one flat
+vector in the model's layout (``model.layout``), built and taken apart by name::
+
+    from drapelab import sim, tables
+    model = sim.ClothModel(sim.cusick_specimen(1))                       # circle1, homogeneous
+    params = model.parameters(stretch=tables.COTTON_BLUE.stretch, bend=tables.COTTON_BLUE.bend)
+    x = model.simulate(params, steps=100, time_step=0.05)               # (V, 3) final positions
+    grads = model.backward(2 * (x - target))                             # {"stretch": (6, 4), "bend": (3, 5), ...}
+
+Blocks (same names in ``parameters(...)``, ``split(...)`` and the gradients of ``backward``):
+    stretch           (6, 4) N/m, or (F, 6, 4) per face for heterogeneous models; columns c11, c12, c22, c33
+    bend              (3, 5) N m, or (E, 3, 5) per bending edge (``model.bending_edges`` order)
+    density           kg/m^2 (float, > 0)
+    handle_stiffness  N/m (float, >= 0): the spring holding the vertices on the support disk
+
+Modes: "dynamic" = implicit Euler from the flat rest state (the paper: 100 steps of 0.05 s), gradients by
+the adjoint of the whole rollout; "static" = Newton to equilibrium (E minimal), gradients by one adjoint
+solve. Long calls release the GIL; ``progress(done, total)`` is called on the calling thread at every step
+(or Newton iteration); setting ``cancel_event`` (a threading.Event) from any thread makes the call raise
+``Cancelled`` at its next step. Bad input raises ``InputError`` (a ValueError) naming the argument; a
+failed solve raises ``SolverError`` (a RuntimeError).
+"""
+import os
+import threading
+
+import numpy as np
+
+from . import tables
+from ._native import Cancelled, InputError, SolverError, native
+
+__all__ = [
+    "InputError", "SolverError", "Cancelled", "ClothModel", "cusick_specimen", "cusick_template_path",
+    "default_template_dir", "simulate", "backward", "read_obj", "write_obj", "MODES",
+    "DEFAULT_DENSITY", "DEFAULT_HANDLE_STIFFNESS", "DEFAULT_SUPPORT_RADIUS", "DEFAULT_TIME_STEP", "DEFAULT_STEPS",
+]
+
+MODES = ("dynamic", "static")
+DEFAULT_DENSITY = tables.COTTON_BLUE.density  # kg/m^2
+DEFAULT_HANDLE_STIFFNESS = 1e3                # N/m (paper)
+DEFAULT_SUPPORT_RADIUS = 0.09                 # m: half the 18 cm Cusick support disk
+DEFAULT_GRAVITY = 9.8                         # m/s^2
+DEFAULT_TIME_STEP = 0.05                      # s (paper)
+DEFAULT_STEPS = 100                           # paper: 5 s of drape
+DEFAULT_FORCE_TOLERANCE = 1e-6                # static solve: residual force per vertex weight
+DEFAULT_MAX_ITERATIONS = 200                  # static solve: Newton iterations
+DEFAULT_MAX_SPEED = 50.0                      # m/s: a faster vertex means the rollout diverged
+TEMPLATE_LEVELS = (1, 2, 3, 4, 5)
+# Table shapes of the blocks with a table per element; other blocks hold one value per element.
+TABLE_SHAPES = {"stretch": tables.STRETCH_SHAPE, "bend": tables.BEND_SHAPE}
+
+
+# ---------------------------------------------------------------- meshes
+def default_template_dir():
+    """$DRAPELAB_ROOT/../shared/data/cusick/template_meshes (repository root from this file if unset)."""
+    root = os.environ.get("DRAPELAB_ROOT") or os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..")
+    return os.path.normpath(os.path.join(root, "..", "shared", "data", "cusick", "template_meshes"))
+
+
+def _level(level):
+    if isinstance(level, bool) or not isinstance(level, (int, np.integer)) or int(level) not in TEMPLATE_LEVELS:
+        raise InputError(f"level: expected one of {TEMPLATE_LEVELS} (circle1..circle5), got {level!r}")
+    return int(level)
+
+
+def cusick_template_path(level, template_dir=None):
+    """Path of the dataset's circle{level}.obj when present in the template folder, else None."""
+    folder = default_template_dir() if template_dir is None else os.fspath(template_dir)
+    path = os.path.join(folder, f"circle{_level(level)}.obj")
+    return path if os.path.isfile(path) else None
+
+
+def cusick_specimen(level=3, *, vertices=None, template_dir=None):
+    """The flat 30 cm Cusick specimen (z = 0, centred, u = x weft, v = y warp) as a TriangleMesh.
+
+    level 1..5: the dataset's circle{level}.obj from ``template_dir`` (default ``default_template_dir()``)
+    when present, else a generated disk with the same vertex count (297, 1205, 2699, 4766, 7496).
+    vertices=N (instead of level): a generated disk of about N (>= 7) vertices.
+    """
+    if vertices is not None:
+        if isinstance(vertices, bool) or not isinstance(vertices, (int, np.integer)) or vertices < 7:
+            raise InputError(f"vertices: expected an integer >= 7, got {vertices!r}")
+        return native.make_cusick_specimen(int(vertices))
+    level = _level(level)
+    folder = default_template_dir() if template_dir is None else os.fspath(template_dir)
+    return native.load_cusick_template(level, folder)
+
+
+def read_obj(path):
+    """A TriangleMesh from an OBJ file (rest pattern from vt when consistent, else from (x, y))."""
+    return native.read_obj(os.fspath(path))
+
+
+def write_obj(path, positions, faces):
+    """Writes an OBJ (positions (V, 3), faces (F, 3)) atomically."""
+    from . import measure
+    measure.check_output_path(path, "OBJ")
+    positions = _float_array(positions, "positions", ndim=2)
+    if positions.shape[1] != 3:
+        raise InputError(f"positions: expected shape (V, 3), got {positions.shape}")
+    faces = np.asarray(faces)
+    if faces.ndim != 2 or faces.shape[1] != 3 or not np.issubdtype(faces.dtype, np.integer):
+        raise InputError(f"faces: expected an integer array of shape (F, 3), got {faces.dtype} {faces.shape}")
+    if faces.size and (faces.min() < 0 or faces.max() >= positions.shape[0]):
+        raise InputError(f"faces: vertex indices must lie in [0, {positions.shape[0]})")
+    native.write_obj(os.fspath(path), positions, np.ascontiguousarray(faces, dtype=np.int32))
+
+
+def _mesh_arg(mesh_or_path):
+    if isinstance(mesh_or_path, native.TriangleMesh):
+        return mesh_or_path
+    if isinstance(mesh_or_path, (str, os.PathLike)):
+        return read_obj(mesh_or_path)
+    if isinstance(mesh_or_path, (tuple, list)) and len(mesh_or_path) in (2, 3):
+        positions = _float_array(mesh_or_path[0], "mesh positions", ndim=2)
+        faces = np.asarray(mesh_or_path[1])
+        if faces.ndim != 2 or faces.shape[1] != 3 or not np.issubdtype(faces.dtype, np.integer):
+            raise InputError(f"mesh faces: expected an integer array of shape (F, 3), got {faces.dtype} {faces.shape}")
+        uv = None if len(mesh_or_path) == 2 else _float_array(mesh_or_path[2], "mesh uv", ndim=2)
+        return native.TriangleMesh(positions, np.ascontiguousarray(faces, dtype=np.int32), uv)
+    raise InputError("mesh_or_path: expected a TriangleMesh, an OBJ path or (positions, faces[, uv]), "
+                     f"got {type(mesh_or_path).__name__}")
+
+
+# ---------------------------------------------------------------- argument checks
+def _float_array(value, name, ndim=None):
+    try:
+        arr = np.asarray(value)
+    except Exception as e:  # ragged lists and the like
+        raise InputError(f"{name}: not an array ({e})") from None
+    if arr.dtype == bool or not (np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)):
+        raise InputError(f"{name}: expected real numbers, got dtype {arr.dtype}")
+    if ndim is not None and arr.ndim != ndim:
+        raise InputError(f"{name}: expected a {ndim}-dimensional array, got shape {arr.shape}")
+    arr = np.ascontiguousarray(arr, dtype=np.float64)
+    if not np.isfinite(arr).all():
+        index = tuple(int(i) for i in np.argwhere(~np.isfinite(arr))[0])
+        raise InputError(f"{name}: non-finite value {arr[index] if index else arr} at index {list(index)}")
+    return arr
+
+
+def _scalar(value, name, minimum=None, strictly=False, unit=""):
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise InputError(f"{name}: expected a number, got {value!r}") from None
+    if not np.isfinite(v):
+        raise InputError(f"{name}: must be finite, got {v}")
+    if minimum is not None and (v <= minimum if strictly else v < minimum):
+        raise InputError(f"{name}: must be {'>' if strictly else '>='} {minimum:g}{' ' + unit if unit else ''}, got {v:g}")
+    return v
+
+
+def _positive_int(value, name):
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+        raise InputError(f"{name}: expected a positive integer, got {value!r}")
+    return int(value)
+
+
+# ---------------------------------------------------------------- progress and cancel
+def _progress_sink(progress, cancel_event, what):
+    """A native.Progress forwarding to progress(done, total) and cancelling when cancel_event is set."""
+    if progress is not None and not callable(progress):
+        raise InputError(f"progress: expected a callable progress(done, total), got {type(progress).__name__}")
+    if cancel_event is not None and not hasattr(cancel_event, "is_set"):
+        raise InputError(f"cancel_event: expected a threading.Event, got {type(cancel_event).__name__}")
+    if cancel_event is not None and cancel_event.is_set():
+        raise Cancelled(f"{what}: cancelled before it started")
+    if progress is None and cancel_event is None:
+        return None
+    sink = None
+
+    def callback(done, total):
+        if progress is not None:
+            progress(done, total)
+        if cancel_event is not None and cancel_event.is_set():
+            sink.cancel()
+
+    sink = native.Progress(callback)
+    return sink
+
+
+# ---------------------------------------------------------------- the model
+class ClothModel:
+    """A cloth model (mesh, rest frame, masses, stretch + bend + gravity + handle) and its solvers.
+
+    mesh_or_path: a TriangleMesh (e.g. ``cusick_specimen(3)``), an OBJ path, or (positions, faces[, uv]).
+    heterogeneous: one stretch table per face and one bend table per bending edge (else one shared table).
+    density (kg/m^2), handle_stiffness (N/m), support_radius (m): defaults of ``parameters()`` and the
+    handled region (vertices with rest radius below support_radius are held at their rest positions).
+
+    One model runs one simulation at a time; ``backward`` differentiates its last ``simulate``.
+    """
+
+    def __init__(self, mesh_or_path, heterogeneous=False, density=DEFAULT_DENSITY,
+                 handle_stiffness=DEFAULT_HANDLE_STIFFNESS, support_radius=DEFAULT_SUPPORT_RADIUS,
+                 gravity=DEFAULT_GRAVITY):
+        mesh = _mesh_arg(mesh_or_path)
+        density = _scalar(density, "density", 0.0, strictly=True, unit="kg/m^2")
+        handle_stiffness = _scalar(handle_stiffness, "handle_stiffness", 0.0, unit="N/m")
+        support_radius = _scalar(support_radius, "support_radius", 0.0, strictly=True, unit="m")
+        gravity = _scalar(gravity, "gravity", 0.0, unit="m/s^2")
+        self._native = native.Model(mesh, heterogeneous=bool(heterogeneous), support_radius=support_radius,
+                                    gravity=gravity, density=density, handle_stiffness=handle_stiffness)
+        self._blocks = {b["name"]: b for b in self._native.layout}
+        self._mesh = self._native.mesh
+        self._dynamic = None
+        self._static = None
+        self._last = None  # mode of the last successful simulate
+        self._lock = threading.Lock()
+        self.last_result = {}
+
+    # -- description
+    @property
+    def native(self):
+        """The native Model (for other facades; users need not touch it)."""
+        return self._native
+
+    @property
+    def num_vertices(self):
+        return self._native.num_vertices
+
+    @property
+    def num_faces(self):
+        return self._native.num_faces
+
+    @property
+    def num_bending_edges(self):
+        return self._native.num_bending_edges
+
+    @property
+    def num_parameters(self):
+        return self._native.num_parameters
+
+    @property
+    def heterogeneous(self):
+        return self._native.heterogeneous
+
+    @property
+    def support_radius(self):
+        return self._native.support_radius
+
+    @property
+    def faces(self):
+        """(F, 3) int32, counter-clockwise in the rest pattern (the model's orientation)."""
+        return np.array(self._mesh.faces, dtype=np.int32)
+
+    @property
+    def rest_positions(self):
+        """(V, 3) metres."""
+        return np.array(self._mesh.positions)
+
+    @property
+    def uv(self):
+        """(V, 2) rest pattern coordinates, metres (u = weft, v = warp)."""
+        return np.array(self._mesh.uv)
+
+    @property
+    def bending_edges(self):
+        """(E, 4) int32 rows (a, b, c, d): edge a-b, c and d opposite; the bend block's element order."""
+        return np.array(self._native.bending_edges, dtype=np.int32)
+
+    @property
+    def handle_vertices(self):
+        """Indices of the vertices held by the handle (rest radius < support_radius)."""
+        return np.array(self._native.handle_vertices, dtype=np.int64)
+
+    @property
+    def layout(self):
+        """Parameter blocks: list of dicts {name, unit, offset, size, entries_per_element, shared}."""
+        return [dict(b) for b in self._native.layout]
+
+    def block_shape(self, name):
+        """Shape of a block as returned by ``split``: e.g. (6, 4) or (F, 6, 4) for stretch, () for scalars."""
+        b = self._block(name)
+        table = TABLE_SHAPES.get(name, (b["entries_per_element"],) if b["entries_per_element"] > 1 else ())
+        return table if b["shared"] else (b["size"] // b["entries_per_element"],) + table
+
+    def _block(self, name):
+        if name not in self._blocks:
+            raise InputError(f"unknown parameter block {name!r}; blocks: {', '.join(self._blocks)}")
+        return self._blocks[name]
+
+    def masses(self, params):
+        """Lumped vertex masses (V,) in kg."""
+        return np.asarray(self._native.masses(self._params(params)))
+
+    def __repr__(self):
+        return (f"ClothModel({self.num_vertices} vertices, {self.num_faces} faces, {self.num_bending_edges} bending "
+                f"edges, {'heterogeneous' if self.heterogeneous else 'homogeneous'})")
+
+    # -- parameters
+    def parameters(self, material=None, stretch=None, bend=None, density=None, handle_stiffness=None):
+        """A flat parameter vector (new array).
+
+        Starts from the model's defaults (Cotton Blue tables, the model's density and handle stiffness), then
+        a ``tables.MaterialPreset`` (its stretch, bend and density), then the given blocks: stretch (6, 4)
+        on every face or (F, 6, 4) per face (heterogeneous models), bend (3, 5) or (E, 3, 5), density
+        (kg/m^2, > 0), handle_stiffness (N/m, >= 0).
+        """
+        p = np.array(self._native.default_parameters())
+        if material is not None:
+            if not isinstance(material, tables.MaterialPreset):
+                material = tables.preset(material)
+            stretch = material.stretch if stretch is None else stretch
+            bend = material.bend if bend is None else bend
+            density = material.density if density is None else density
+        for name, value in (("stretch", stretch), ("bend", bend)):
+            if value is not None:
+                self._set_block(p, name, value)
+        if density is not None:
+            self._set_block(p, "density", _scalar(density, "density", 0.0, strictly=True, unit="kg/m^2"))
+        if handle_stiffness is not None:
+            self._set_block(p, "handle_stiffness", _scalar(handle_stiffness, "handle_stiffness", 0.0, unit="N/m"))
+        self._native.validate_parameters(p)
+        return p
+
+    def _set_block(self, p, name, value):
+        b = self._block(name)
+        arr = _float_array(value, name)
+        table = self.block_shape(name) if b["shared"] else self.block_shape(name)[1:]
+        per_element = self.block_shape(name)
+        if arr.shape == tuple(table):
+            self._check_signs(name, arr.reshape((1,) + tuple(table)), shared=True)
+            p[b["offset"]:b["offset"] + b["size"]] = np.tile(arr.ravel(), b["size"] // b["entries_per_element"])
+        elif not b["shared"] and arr.shape == tuple(per_element):
+            self._check_signs(name, arr, shared=False)
+            p[b["offset"]:b["offset"] + b["size"]] = arr.ravel()
+        else:
+            allowed = f"{tuple(table)}" + ("" if b["shared"] else f" or {tuple(per_element)}")
+            note = " (the model is homogeneous: one shared table)" if b["shared"] and arr.ndim == len(table) + 1 else ""
+            raise InputError(f"{name}: expected shape {allowed}, got {arr.shape}{note}")
+
+    @staticmethod
+    def _check_signs(name, arr, shared):
+        # c12 (Poisson coupling, column 1 of stretch) may be negative; every other stiffness may not.
+        mask = arr < 0
+        if name == "stretch":
+            mask[..., 1] = False
+        if mask.any():
+            index = tuple(int(i) for i in np.argwhere(mask)[0])
+            where = list(index[1:]) if shared else list(index)
+            if name == "stretch":
+                where_text = (f"row {index[-2]} {tables.STRETCH_COLUMNS[index[-1]]}"
+                              + ("" if shared else f" of face {index[0]}"))
+            elif name == "bend":
+                where_text = f"row {index[-2]} column {index[-1]}" + ("" if shared else f" of edge {index[0]}")
+            else:
+                where_text = f"entry {where}"
+            raise InputError(f"{name}: stiffness must be >= 0, got {arr[index]:g} at {where_text}")
+
+    def _params(self, params, name="params"):
+        if isinstance(params, dict):
+            params = self.parameters(**{k: v for k, v in params.items()})
+        arr = _float_array(params, name, ndim=1)
+        if arr.shape[0] != self.num_parameters:
+            raise InputError(f"{name}: expected {self.num_parameters} values (the model's layout), got {arr.shape[0]}")
+        try:
+            self._native.validate_parameters(arr)
+        except InputError as e:
+            raise InputError(f"{name}: {e}") from None
+        return arr
+
+    def split(self, params):
+        """dict block name -> value: arrays shaped like the tables (see block_shape), floats for scalars.
+
+        Works for parameter vectors and for gradients (same layout; gradients are not sign-checked).
+        """
+        arr = _float_array(params, "params", ndim=1)
+        if arr.shape[0] != self.num_parameters:
+            raise InputError(f"params: expected {self.num_parameters} values (the model's layout), got {arr.shape[0]}")
+        out = {}
+        for name, b in self._blocks.items():
+            shape = self.block_shape(name)
+            values = arr[b["offset"]:b["offset"] + b["size"]]
+            out[name] = float(values[0]) if shape == () else values.reshape(shape).copy()
+        return out
+
+    def join(self, blocks):
+        """Inverse of split for a dict of every block (no sign checks; use ``parameters`` for materials)."""
+        p = np.zeros(self.num_parameters)
+        missing = set(self._blocks) - set(blocks)
+        if missing:
+            raise InputError(f"blocks: missing {', '.join(sorted(missing))}")
+        for name, value in blocks.items():
+            b = self._block(name)
+            arr = _float_array(value, name)
+            if arr.shape != tuple(self.block_shape(name)):
+                raise InputError(f"{name}: expected shape {self.block_shape(name)}, got {arr.shape}")
+            p[b["offset"]:b["offset"] + b["size"]] = arr.ravel()
+        return p
+
+    # -- energy
+    def _positions(self, positions, name="positions"):
+        arr = _float_array(positions, name, ndim=2)
+        if arr.shape != (self.num_vertices, 3):
+            raise InputError(f"{name}: expected shape ({self.num_vertices}, 3), got {arr.shape}")
+        return arr
+
+    def energy(self, positions, params):
+        """Total energy E(x; p) in J of positions (V, 3)."""
+        return self._native.energy(self._positions(positions).ravel(), self._params(params))
+
+    def gradient(self, positions, params):
+        """dE/dx (V, 3) in N."""
+        g = self._native.gradient(self._positions(positions).ravel(), self._params(params))
+        return np.asarray(g).reshape(-1, 3)
+
+    # -- simulation
+    def simulate(self, params, mode="dynamic", steps=DEFAULT_STEPS, time_step=DEFAULT_TIME_STEP, progress=None,
+                 cancel_event=None, force_tolerance=DEFAULT_FORCE_TOLERANCE, max_iterations=DEFAULT_MAX_ITERATIONS,
+                 max_speed=DEFAULT_MAX_SPEED, record=True):
+        """Drapes the cloth from its flat rest state; returns the final positions (V, 3).
+
+        mode "dynamic": ``steps`` implicit Euler steps of ``time_step`` seconds (record=False skips what
+        backward needs, saving memory). mode "static": Newton to equilibrium, every vertex's residual force
+        below force_tolerance times its weight, within max_iterations. Details in ``last_result``.
+        """
+        if mode not in MODES:
+            raise InputError(f"mode: expected one of {MODES}, got {mode!r}")
+        p = self._params(params)
+        if mode == "dynamic":
+            steps = _positive_int(steps, "steps")
+            time_step = _scalar(time_step, "time_step", 0.0, strictly=True, unit="s")
+            max_speed = _scalar(max_speed, "max_speed", 0.0, strictly=True, unit="m/s")
+        else:
+            force_tolerance = _scalar(force_tolerance, "force_tolerance", 0.0, strictly=True)
+            max_iterations = _positive_int(max_iterations, "max_iterations")
+        sink = _progress_sink(progress, cancel_event, "simulate")
+        with self._lock:
+            self._last = None
+            if mode == "dynamic":
+                if self._dynamic is None:
+                    self._dynamic = native.ImplicitEuler(self._native)
+                x = self._dynamic.forward(p, time_step=time_step, steps=steps, max_speed=max_speed,
+                                          record=bool(record), progress=sink)
+                self.last_result = {"mode": mode, "steps": steps, "time_step": time_step, "recorded": bool(record),
+                                    "timing": dict(self._dynamic.timing)}
+            else:
+                if self._static is None:
+                    self._static = native.StaticSolver(self._native)
+                r = self._static.solve(p, force_tolerance=force_tolerance, max_iterations=max_iterations,
+                                       progress=sink)
+                x = r["positions"]
+                self.last_result = {"mode": mode, "iterations": int(r["iterations"]), "residual": float(r["residual"])}
+            self._last = mode if (mode == "static" or record) else None
+        return np.asarray(x).reshape(-1, 3)
+
+    def backward(self, dL_dpositions, flat=False, progress=None, cancel_event=None):
+        """Gradient of a loss L(final positions) with respect to the parameters of the last ``simulate``.
+
+        dL_dpositions: (V, 3). Returns a dict block name -> gradient shaped like ``split`` (or the flat
+        vector when flat=True).
+        """
+        g = self._positions(dL_dpositions, "dL_dpositions").ravel()
+        sink = _progress_sink(progress, cancel_event, "backward")
+        with self._lock:
+            if self._last is None:
+                raise InputError("backward: run simulate(...) first (dynamic mode with record=True)")
+            if self._last == "dynamic":
+                gp = self._dynamic.backward(g, progress=sink)["parameters"]
+            else:
+                gp = self._static.adjoint(g)
+        gp = np.asarray(gp)
+        return gp if flat else self.split(gp)
+
+
+def simulate(model, params, mode="dynamic", steps=DEFAULT_STEPS, time_step=DEFAULT_TIME_STEP, progress=None,
+             cancel_event=None, **options):
+    """``model.simulate(...)``: final positions (V, 3) of a drape (see ClothModel.simulate)."""
+    if not isinstance(model, ClothModel):
+        raise InputError(f"model: expected a ClothModel, got {type(model).__name__}")
+    return model.simulate(params, mode=mode, steps=steps, time_step=time_step, progress=progress,
+                          cancel_event=cancel_event, **options)
+
+
+def backward(model, dL_dpositions, flat=False, progress=None, cancel_event=None):
+    """``model.backward(...)``: parameter gradients of the model's last simulate (see ClothModel.backward)."""
+    if not isinstance(model, ClothModel):
+        raise InputError(f"model: expected a ClothModel, got {type(model).__name__}")
+    return model.backward(dL_dpositions, flat=flat, progress=progress, cancel_event=cancel_event)
