@@ -134,7 +134,7 @@ def _float_array(value, name, ndim=None):
         raise InputError(f"{name}: expected real numbers, got dtype {arr.dtype}")
     if ndim is not None and arr.ndim != ndim:
         raise InputError(f"{name}: expected a {ndim}-dimensional array, got shape {arr.shape}")
-    arr = np.ascontiguousarray(arr, dtype=np.float64)
+    arr = np.asarray(arr, dtype=np.float64, order="C")  # (ascontiguousarray would make 0-d arrays 1-d)
     if not np.isfinite(arr).all():
         index = tuple(int(i) for i in np.argwhere(~np.isfinite(arr))[0])
         raise InputError(f"{name}: non-finite value {arr[index] if index else arr} at index {list(index)}")
@@ -411,12 +411,14 @@ class ClothModel:
     # -- simulation
     def simulate(self, params, mode="dynamic", steps=DEFAULT_STEPS, time_step=DEFAULT_TIME_STEP, progress=None,
                  cancel_event=None, force_tolerance=DEFAULT_FORCE_TOLERANCE, max_iterations=DEFAULT_MAX_ITERATIONS,
-                 max_speed=DEFAULT_MAX_SPEED, record=True):
+                 max_speed=DEFAULT_MAX_SPEED, record=True, positions0=None, velocities0=None):
         """Drapes the cloth from its flat rest state; returns the final positions (V, 3).
 
         mode "dynamic": ``steps`` implicit Euler steps of ``time_step`` seconds (record=False skips what
         backward needs, saving memory). mode "static": Newton to equilibrium, every vertex's residual force
         below force_tolerance times its weight, within max_iterations. Details in ``last_result``.
+        positions0 (V, 3): start here instead of the flat rest state (e.g. to warm-start a static solve);
+        velocities0 (V, 3): initial velocities of a dynamic rollout (default at rest).
         """
         if mode not in MODES:
             raise InputError(f"mode: expected one of {MODES}, got {mode!r}")
@@ -428,6 +430,10 @@ class ClothModel:
         else:
             force_tolerance = _scalar(force_tolerance, "force_tolerance", 0.0, strictly=True)
             max_iterations = _positive_int(max_iterations, "max_iterations")
+        x0 = None if positions0 is None else self._positions(positions0, "positions0").ravel()
+        v0 = None if velocities0 is None else self._positions(velocities0, "velocities0").ravel()
+        if v0 is not None and mode != "dynamic":
+            raise InputError("velocities0: only a dynamic rollout has initial velocities")
         sink = _progress_sink(progress, cancel_event, "simulate")
         with self._lock:
             self._last = None
@@ -435,14 +441,14 @@ class ClothModel:
                 if self._dynamic is None:
                     self._dynamic = native.ImplicitEuler(self._native)
                 x = self._dynamic.forward(p, time_step=time_step, steps=steps, max_speed=max_speed,
-                                          record=bool(record), progress=sink)
+                                          record=bool(record), progress=sink, x0=x0, v0=v0)
                 self.last_result = {"mode": mode, "steps": steps, "time_step": time_step, "recorded": bool(record),
                                     "timing": dict(self._dynamic.timing)}
             else:
                 if self._static is None:
                     self._static = native.StaticSolver(self._native)
                 r = self._static.solve(p, force_tolerance=force_tolerance, max_iterations=max_iterations,
-                                       progress=sink)
+                                       progress=sink, x0=x0)
                 x = r["positions"]
                 self.last_result = {"mode": mode, "iterations": int(r["iterations"]), "residual": float(r["residual"])}
             self._last = mode if (mode == "static" or record) else None
