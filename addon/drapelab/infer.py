@@ -1,0 +1,464 @@
+"""Bayesian fitting of a fabric's bending stiffness from Cusick silhouettes: HOMO, HETER and BDP.
+
+What is learned (and why): the bending table B (3 x 5, N m), in log space. The silhouette of a Cusick drape is
+governed by bending against gravity; membrane stretching changes it by well under a pixel (the paper froze
+stretching for the same reason), so the stretching table stays at its starting value (recorded in the
+preset). Log space makes every sample positive (no clamping), makes one learning rate fit entries that span
+decades (1e-5 .. 1e-4 N m), and turns the multiplicative sample-to-sample variation of a fabric into an
+additive Gaussian.
+
+Models (the paper's):
+    homo   one deterministic table:          log B_w = mu                     for every bending edge w
+    heter  one deterministic table per edge:  log B_w = mu_w
+    bdp    mean-field Gaussian, per element:  log B_w = mu + softplus(eta) * eps_w,  eps_w ~ N(0, I)
+
+Loss (negative ELBO, Monte Carlo over S samples per epoch, stated in fit.json):
+    L = mean_s [ mean_pixels (I_hat_s - I)^2 / (2 sigma_obs^2) ] + kl_weight * KL(q || p)
+where the first term is the per-pixel Gaussian negative log-likelihood averaged over pixels (constant
+dropped; sigma_obs from fit.json), and KL is the closed form for the 15 table entries between
+q = N(mu, softplus(eta)^2) and the isotropic prior p = N(mu0, s0^2) (mu0 = the starting table, s0 from
+fit.json), i.e. log q - log p averaged over elements as in the paper's released code. HOMO and HETER use the
+likelihood term only (maximum likelihood). Gradients: soft-render VJP -> drape adjoint -> dL/dB_w ->
+reparameterisation (dL/dmu = sum_w g_w, dL/deta = sum_w g_w eps_w sigmoid(eta), g_w = B_w dL/dB_w).
+
+A fit is a job: progress callback per epoch, cancel (threading.Event), a checkpoint after every epoch
+(atomic JSON, resumable, bit-identical continuation: the noise of epoch k sample s is drawn from
+default_rng([seed, k, s])), a time budget or an epoch count. Monte Carlo samples run on threads (native
+calls release the GIL); the same seed gives the same result for a given thread count.
+"""
+import concurrent.futures
+import datetime
+import hashlib
+import json
+import math
+import os
+import threading
+import time
+
+import numpy as np
+
+from . import measure, render, sim, tables
+from ._native import Cancelled, InputError, SolverError
+
+__all__ = ["MODELS", "load_config", "FitJob", "fit", "load_preset", "write_preset", "sample_bend_tables",
+           "kl_divergence", "evaluate", "PRESET_SCHEMA_VERSION"]
+
+MODELS = ("homo", "heter", "bdp")
+PRESET_SCHEMA_VERSION = 1
+CONFIG_PATH = os.path.join(os.path.dirname(os.path.abspath(__file__)), "config", "fit.json")
+MAX_PLAUSIBLE_DENSITY = 5.0  # kg/m^2: heavier than any woven or knitted fabric by far
+BEND_SHAPE = tables.BEND_SHAPE
+
+
+def load_config(path=None):
+    path = path or CONFIG_PATH
+    try:
+        with open(path) as f:
+            return json.load(f)
+    except (OSError, ValueError) as e:
+        raise InputError(f"{path}: cannot read the fit configuration: {e}") from None
+
+
+def softplus(x):
+    return np.logaddexp(0.0, x)
+
+
+def sigmoid(x):
+    return 0.5 * (1.0 + np.tanh(0.5 * x))
+
+
+def inverse_softplus(y):
+    return np.log(np.expm1(y))
+
+
+def kl_divergence(mu, sigma, mu0, sigma0):
+    """KL(N(mu, sigma^2) || N(mu0, sigma0^2)) summed over entries, and its gradients (d/dmu, d/dsigma)."""
+    kl = np.log(sigma0 / sigma) + (sigma ** 2 + (mu - mu0) ** 2) / (2 * sigma0 ** 2) - 0.5
+    return float(np.sum(kl)), (mu - mu0) / sigma0 ** 2, -1.0 / sigma + sigma / sigma0 ** 2
+
+
+def check_density(density):
+    try:
+        d = float(density)
+    except (TypeError, ValueError):
+        raise InputError(f"density: expected a number in kg/m^2, got {density!r}") from None
+    if not math.isfinite(d) or d <= 0:
+        raise InputError(f"density: must be > 0 kg/m^2, got {density!r}")
+    if d > MAX_PLAUSIBLE_DENSITY:
+        raise InputError(f"density: {d} kg/m^2 is not a fabric's area density (expected well below "
+                         f"{MAX_PLAUSIBLE_DENSITY} kg/m^2; fabrics weigh 0.05-0.5 kg/m^2): wrong unit?")
+    return d
+
+
+def sample_bend_tables(model_kind, theta, num_edges, noise=None):
+    """Bending tables (E, 3, 5) in N m (or (3, 5) for homo) for parameters theta and standard-normal noise."""
+    if model_kind == "homo":
+        return np.exp(theta["mu"])
+    if model_kind == "heter":
+        return np.exp(theta["mu"])
+    sigma = softplus(theta["eta"])
+    if noise is None:
+        noise = np.zeros((num_edges,) + BEND_SHAPE)
+    return np.exp(theta["mu"][None] + sigma[None] * noise)
+
+
+class _Observation:
+    def __init__(self, path, calibration, camera):
+        self.path = path
+        sil = measure.load_silhouette(path, calibration)
+        self.mask = np.asarray(sil.mask, dtype=np.float64)
+        c = sil.calibration
+        self.calibration = {"px_per_m": float(c.px_per_m), "centre_px": [float(c.cx), float(c.cy)]}
+        with open(path, "rb") as f:
+            self.sha256 = hashlib.sha256(f.read()).hexdigest()
+        self.camera = camera
+
+
+def _camera_for(kind, calibration, shape):
+    h, w = shape
+    if kind == "ortho":
+        return render.orthographic_camera(px_per_m=calibration["px_per_m"], centre=tuple(calibration["centre_px"]),
+                                          size=(w, h))
+    if kind == "perspective":
+        return render.perspective_camera(size=(w, h))
+    raise InputError(f"camera: expected 'ortho' or 'perspective', got {kind!r}")
+
+
+class _Worker:
+    """One Monte Carlo lane: its own model, solver state (warm start) and renderer."""
+
+    def __init__(self, mesh, heterogeneous, density, stretch, config, camera):
+        self.model = sim.ClothModel(mesh, heterogeneous=heterogeneous, density=density)
+        self.stretch = stretch
+        self.config = config
+        self.renderer = render.SoftRenderer(camera, sigma=config["render_sigma_px"])
+        self.faces = self.model.faces
+        self.positions = None  # last equilibrium: warm start of the next static solve
+
+    def drape(self, bend, record=True):
+        p = self.model.parameters(stretch=self.stretch, bend=bend)
+        cfg = self.config
+        if cfg["forward"] == "static":
+            if self.positions is None:  # first solve: the paper's rollout from flat, then Newton to rest
+                self.positions = self.model.simulate(p, mode="dynamic", record=False, **cfg["dynamic"])
+            x = self.model.simulate(p, mode="static", positions0=self.positions, **cfg["static"])
+            self.positions = x
+        else:
+            x = self.model.simulate(p, mode="dynamic", record=record, **cfg["dynamic"])
+        return x
+
+    def loss_and_gradient(self, bend, target, sigma_obs):
+        """Data term and dL/dB (shaped like bend) for one drape."""
+        x = self.drape(bend)
+        image = self.renderer.render(x, self.faces)
+        diff = image - target
+        data = float(np.mean(diff ** 2) / (2 * sigma_obs ** 2))
+        g_image = diff / (sigma_obs ** 2 * diff.size)
+        g_x = self.renderer.backward(g_image)
+        g = self.model.backward(g_x)
+        return data, g["bend"], x, image
+
+
+class FitJob:
+    """A fit of one model to one or more silhouettes; run() until done, cancelled or out of time."""
+
+    def __init__(self, images, density, model="bdp", seed=0, config=None, camera="ortho", calibration=None,
+                 mesh_level=None, template_dir=None, threads=None, init_bend=None, init_stretch=None):
+        if model not in MODELS:
+            raise InputError(f"model: expected one of {MODELS}, got {model!r}")
+        if not images:
+            raise InputError("images: give at least one Cusick silhouette")
+        self.kind = model
+        self.density = check_density(density)
+        self.seed = int(seed)
+        self.config = config or load_config()
+        self.observations = [_Observation(p, calibration, None) for p in images]
+        shape = self.observations[0].mask.shape
+        for o in self.observations:
+            if o.mask.shape != shape:
+                raise InputError(f"{o.path}: image size {o.mask.shape} differs from {self.observations[0].path} {shape}")
+        self.camera_kind = camera
+        self.camera = _camera_for(camera, self.observations[0].calibration, shape)
+        level = mesh_level or self.config["mesh_level"]
+        self.mesh_level = level
+        self.mesh = sim.cusick_specimen(level, template_dir=template_dir)
+        self.stretch = np.asarray(init_stretch if init_stretch is not None else tables.preset(self.config["init"]["stretch"]).stretch)
+        bend0 = np.asarray(init_bend if init_bend is not None else tables.preset(self.config["init"]["bend"]).bend, dtype=float)
+        if bend0.shape != BEND_SHAPE or not np.all(np.isfinite(bend0)) or np.any(bend0 <= 0):
+            raise InputError(f"init_bend: expected a positive finite {BEND_SHAPE} table")
+        self.log_bend0 = np.log(bend0)
+        prior = self.config["prior"]
+        self.prior_mu = self.log_bend0.copy() if prior["log_bend_mean"] == "start" else np.full(BEND_SHAPE, float(prior["log_bend_mean"]))
+        self.prior_sigma = float(prior["log_bend_std"])
+        self.sigma_obs = float(self.config["sigma_obs"])
+        self.threads = max(1, int(threads or min(os.cpu_count() or 1, 2)))
+        self.samples = 1 if model == "homo" else (1 if model == "heter" else int(self.config["samples_per_epoch"]))
+        heterogeneous = model != "homo"
+        lanes = min(self.threads, max(self.samples, len(self.observations)))
+        self.workers = [_Worker(self.mesh, heterogeneous, self.density, self.stretch, self.config, self.camera)
+                        for _ in range(lanes)]
+        self.num_edges = self.workers[0].model.num_bending_edges
+        if model == "heter":
+            self.theta = {"mu": np.broadcast_to(self.log_bend0, (self.num_edges,) + BEND_SHAPE).copy()}
+        elif model == "homo":
+            self.theta = {"mu": self.log_bend0.copy()}
+        else:
+            self.theta = {"mu": self.log_bend0.copy(),
+                          "eta": np.full(BEND_SHAPE, inverse_softplus(float(self.config["init"]["bdp_std"])))}
+        self.adam = {k: {"m": np.zeros_like(v), "v": np.zeros_like(v)} for k, v in self.theta.items()}
+        self.epoch = 0
+        self.history = []
+        self.elapsed = 0.0
+        self.start_metrics = None
+
+    # -- objective
+    def noise(self, epoch, sample):
+        rng = np.random.default_rng([self.seed, epoch, sample])
+        return rng.standard_normal((self.num_edges,) + BEND_SHAPE)
+
+    def objective(self, theta, epoch, cancel_event=None):
+        """Loss terms and gradient dict for theta at this epoch's noise (deterministic given the seed)."""
+        jobs = []
+        for s in range(self.samples):
+            noise = self.noise(epoch, s) if self.kind == "bdp" else None
+            for o in self.observations:
+                jobs.append((s, noise, o))
+        results = [None] * len(jobs)
+
+        def run(lane, indices):
+            w = self.workers[lane]
+            for i in indices:
+                if cancel_event is not None and cancel_event.is_set():
+                    raise Cancelled()
+                s, noise, o = jobs[i]
+                bend = sample_bend_tables(self.kind, theta, self.num_edges, noise)
+                results[i] = (w.loss_and_gradient(bend, o.mask, self.sigma_obs), bend, noise)
+
+        lanes = len(self.workers)
+        assignments = [list(range(l, len(jobs), lanes)) for l in range(lanes)]
+        if lanes == 1:
+            run(0, assignments[0])
+        else:
+            with concurrent.futures.ThreadPoolExecutor(lanes) as pool:
+                for f in [pool.submit(run, l, a) for l, a in enumerate(assignments)]:
+                    f.result()
+        n = len(jobs)
+        data = 0.0
+        grads = {k: np.zeros_like(v) for k, v in theta.items()}
+        images = []
+        for (d, g_bend, x, image), bend, noise in results:
+            data += d / n
+            g_log = np.asarray(g_bend) * bend / n  # dL/dlog B
+            images.append(image)
+            if self.kind == "bdp":
+                grads["mu"] += g_log.sum(axis=0)
+                grads["eta"] += (g_log * noise).sum(axis=0) * sigmoid(theta["eta"])
+            else:
+                grads["mu"] += g_log
+        kl = 0.0
+        if self.kind == "bdp":
+            sigma = softplus(theta["eta"])
+            kl, d_mu, d_sigma = kl_divergence(theta["mu"], sigma, self.prior_mu, self.prior_sigma)
+            w = float(self.config["kl_weight"])
+            kl *= w
+            grads["mu"] += w * d_mu
+            grads["eta"] += w * d_sigma * sigmoid(theta["eta"])
+        return {"loss": data + kl, "data": data, "kl": kl, "images": images}, grads
+
+    # -- optimisation
+    def adam_step(self, grads):
+        cfg = self.config["adam"]
+        lrs = self.config["learning_rates"][self.kind]
+        t = self.epoch + 1
+        for k, g in grads.items():
+            st = self.adam[k]
+            st["m"] = cfg["beta1"] * st["m"] + (1 - cfg["beta1"]) * g
+            st["v"] = cfg["beta2"] * st["v"] + (1 - cfg["beta2"]) * g * g
+            mhat = st["m"] / (1 - cfg["beta1"] ** t)
+            vhat = st["v"] / (1 - cfg["beta2"] ** t)
+            self.theta[k] = self.theta[k] - lrs[k] * mhat / (np.sqrt(vhat) + cfg["epsilon"])
+
+    def metrics(self, images):
+        out = []
+        for img, o in zip(images, self.observations * (len(images) // len(self.observations))):
+            hard = (img >= 0.5).astype(np.float64)
+            out.append({"iou": measure.iou(hard, o.mask), "mse": measure.pixel_mse(hard, o.mask)})
+        return {"iou": float(np.mean([m["iou"] for m in out])), "mse": float(np.mean([m["mse"] for m in out]))}
+
+    def run(self, epochs=None, time_budget=None, progress=None, cancel_event=None, checkpoint=None):
+        """Runs epochs until `epochs` in total are done or `time_budget` seconds pass. Returns the history."""
+        if epochs is None and time_budget is None:
+            epochs = int(self.config["default_epochs"])
+        if epochs is not None and int(epochs) < 1:
+            raise InputError(f"epochs: must be >= 1, got {epochs}")
+        if time_budget is not None and not (float(time_budget) > 0):
+            raise InputError(f"time_budget: must be > 0 seconds, got {time_budget}")
+        t0 = time.monotonic()
+        while True:
+            if epochs is not None and self.epoch >= int(epochs):
+                break
+            if time_budget is not None and time.monotonic() - t0 >= float(time_budget):
+                break
+            if cancel_event is not None and cancel_event.is_set():
+                raise Cancelled()
+            te = time.monotonic()
+            terms, grads = self.objective(self.theta, self.epoch, cancel_event)
+            m = self.metrics(terms["images"])
+            if self.start_metrics is None:
+                self.start_metrics = m
+            self.adam_step(grads)
+            self.epoch += 1
+            entry = {"epoch": self.epoch, "loss": terms["loss"], "data": terms["data"], "kl": terms["kl"],
+                     "iou": m["iou"], "mse": m["mse"], "seconds": time.monotonic() - te}
+            self.history.append(entry)
+            self.elapsed += entry["seconds"]
+            if checkpoint:
+                self.save_checkpoint(checkpoint)
+            if progress:
+                progress(dict(entry))
+        return self.history
+
+    # -- checkpoints
+    def state(self):
+        return {"schema": "drapelab-fit-checkpoint", "version": 1, "model": self.kind, "seed": self.seed,
+                "epoch": self.epoch, "density": self.density, "mesh_level": self.mesh_level,
+                "images": [o.path for o in self.observations],
+                "theta": {k: v.tolist() for k, v in self.theta.items()},
+                "adam": {k: {"m": s["m"].tolist(), "v": s["v"].tolist()} for k, s in self.adam.items()},
+                "history": self.history, "elapsed": self.elapsed, "start_metrics": self.start_metrics}
+
+    def save_checkpoint(self, path):
+        measure.write_json(path, self.state())
+
+    def load_checkpoint(self, path):
+        try:
+            with open(path) as f:
+                st = json.load(f)
+        except (OSError, ValueError) as e:
+            raise InputError(f"{path}: cannot read checkpoint: {e}") from None
+        if st.get("schema") != "drapelab-fit-checkpoint" or st.get("model") != self.kind:
+            raise InputError(f"{path}: not a checkpoint of a {self.kind} fit")
+        for k in self.theta:
+            arr = np.asarray(st["theta"][k], dtype=float)
+            if arr.shape != self.theta[k].shape or not np.all(np.isfinite(arr)):
+                raise InputError(f"{path}: checkpoint parameter {k} has shape {arr.shape} or non-finite values")
+            self.theta[k] = arr
+            self.adam[k] = {"m": np.asarray(st["adam"][k]["m"], dtype=float), "v": np.asarray(st["adam"][k]["v"], dtype=float)}
+        self.epoch = int(st["epoch"])
+        self.history = list(st["history"])
+        self.elapsed = float(st.get("elapsed", 0.0))
+        self.start_metrics = st.get("start_metrics")
+
+    # -- results
+    def posterior(self):
+        if self.kind == "bdp":
+            return {"bend": {"log_mean": self.theta["mu"].tolist(), "log_std": softplus(self.theta["eta"]).tolist(),
+                             "median_N_m": np.exp(self.theta["mu"]).tolist()}}
+        if self.kind == "homo":
+            return {"bend": {"log_mean": self.theta["mu"].tolist(), "log_std": np.zeros(BEND_SHAPE).tolist(),
+                             "median_N_m": np.exp(self.theta["mu"]).tolist()}}
+        mu = self.theta["mu"]
+        return {"bend": {"log_mean": mu.mean(axis=0).tolist(), "log_std": mu.std(axis=0).tolist(),
+                         "median_N_m": np.exp(mu.mean(axis=0)).tolist(),
+                         "per_element_log": mu.reshape(mu.shape[0], -1).tolist()}}
+
+    def preset(self, fabric=None, options=None):
+        last = self.history[-1] if self.history else {}
+        return {
+            "schema_version": PRESET_SCHEMA_VERSION,
+            "kind": "drapelab-material-preset",
+            "fabric": fabric or {},
+            "density_kg_m2": self.density,
+            "model": self.kind,
+            "parameterisation": "log bending table (3 bias angles x 5 curvature samples, N m); stretching fixed",
+            "posterior": self.posterior(),
+            "stretch_N_m": np.asarray(self.stretch).tolist(),
+            "prior": {"log_bend_mean": self.prior_mu.tolist(), "log_bend_std": self.prior_sigma},
+            "likelihood": {"sigma_obs": self.sigma_obs, "kl_weight": float(self.config["kl_weight"])},
+            "active_effects": {},
+            "camera": {"kind": self.camera_kind, **self.observations[0].calibration},
+            "simulation": {"mesh_level": self.mesh_level, "forward": self.config["forward"]},
+            "training": {"epochs": self.epoch, "seconds": self.elapsed, "final_loss": last.get("loss"),
+                         "start": self.start_metrics, "history": self.history},
+            "metrics": {"training_image": {"iou": last.get("iou"), "mse": last.get("mse")}},
+            "provenance": {"images": [{"path": o.path, "sha256": o.sha256} for o in self.observations],
+                           "options": options or {}, "seed": self.seed,
+                           "software": f"drapelab {__import__('drapelab').__version__}",
+                           "created": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")},
+        }
+
+
+def fit(images, density, model="bdp", epochs=None, time_budget=None, seed=0, out=None, checkpoint=None,
+        resume=None, progress=None, cancel_event=None, fabric=None, **options):
+    """Fits and (when `out` is given) writes a preset. Returns the preset dict."""
+    if out:
+        measure.check_output_path(out, "preset")
+    job = FitJob(images, density, model=model, seed=seed, **options)
+    if resume:
+        job.load_checkpoint(resume)
+    job.run(epochs=epochs, time_budget=time_budget, progress=progress, cancel_event=cancel_event,
+            checkpoint=checkpoint)
+    preset = job.preset(fabric=fabric, options={"model": model, "epochs": epochs, "time_budget": time_budget,
+                                                "seed": seed, **{k: v for k, v in options.items() if k != "config"}})
+    if out:
+        write_preset(out, preset)
+    return preset
+
+
+def write_preset(path, preset):
+    validate_preset(preset, path)
+    measure.write_json(path, preset)
+
+
+def validate_preset(preset, source="preset"):
+    if not isinstance(preset, dict) or preset.get("kind") != "drapelab-material-preset":
+        raise InputError(f"{source}: not a drapelab material preset")
+    if preset.get("schema_version") != PRESET_SCHEMA_VERSION:
+        raise InputError(f"{source}: schema version {preset.get('schema_version')} is not supported "
+                         f"(this drapelab reads {PRESET_SCHEMA_VERSION})")
+    if preset.get("model") not in MODELS:
+        raise InputError(f"{source}: unknown model {preset.get('model')!r}")
+    check_density(preset.get("density_kg_m2"))
+    bend = preset.get("posterior", {}).get("bend", {})
+    for key in ("log_mean", "log_std"):
+        arr = np.asarray(bend.get(key, []), dtype=float)
+        if arr.shape != BEND_SHAPE:
+            raise InputError(f"{source}: posterior bend {key} must be a 3 x 5 table, got shape {arr.shape}")
+        if not np.all(np.isfinite(arr)):
+            raise InputError(f"{source}: posterior bend {key} contains NaN or infinity")
+    if np.any(np.asarray(bend["log_std"]) < 0):
+        raise InputError(f"{source}: posterior bend log_std must be >= 0")
+    stretch = np.asarray(preset.get("stretch_N_m", []), dtype=float)
+    if stretch.shape != tables.STRETCH_SHAPE or not np.all(np.isfinite(stretch)):
+        raise InputError(f"{source}: stretch_N_m must be a finite 6 x 4 table")
+    if "per_element_log" in bend:
+        pe = np.asarray(bend["per_element_log"], dtype=float)
+        if pe.ndim != 2 or pe.shape[1] != 15 or not np.all(np.isfinite(pe)):
+            raise InputError(f"{source}: posterior bend per_element_log must be finite (E, 15)")
+    return preset
+
+
+def load_preset(path):
+    try:
+        with open(path) as f:
+            preset = json.load(f)
+    except OSError as e:
+        raise InputError(f"{path}: cannot read preset: {e.strerror}") from None
+    except ValueError as e:
+        raise InputError(f"{path}: not valid JSON: {e}") from None
+    return validate_preset(preset, path)
+
+
+def preset_bend_samples(preset, num_edges, rng, count):
+    """`count` per-element bending tables (count, E, 3, 5) drawn from a preset's posterior."""
+    bend = preset["posterior"]["bend"]
+    mu = np.asarray(bend["log_mean"])
+    sd = np.asarray(bend["log_std"])
+    if preset["model"] == "heter" and "per_element_log" in bend:
+        pe = np.asarray(bend["per_element_log"]).reshape(-1, *BEND_SHAPE)
+        if pe.shape[0] == num_edges:
+            return np.exp(np.broadcast_to(pe, (count,) + pe.shape))
+        mu = pe.mean(axis=0)  # different mesh: fall back to the element mean
+        sd = np.zeros(BEND_SHAPE)
+    noise = rng.standard_normal((count, num_edges) + BEND_SHAPE)
+    return np.exp(mu[None, None] + sd[None, None] * noise)
