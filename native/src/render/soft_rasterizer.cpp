@@ -223,6 +223,9 @@ void SoftRasterizer::forward_gaussian() {
   // uncovered pixels in each box with a summed-area table and skip the faces that have none.
   const size_t stride = static_cast<size_t>(width) + 1;
   uncovered_sum_.assign(stride * (static_cast<size_t>(height) + 1), 0);
+  // next_uncovered_[r * stride + c]: the first uncovered column >= c in row r (width if none), so the
+  // loops below jump over covered runs instead of testing (and mispredicting) pixel by pixel.
+  next_uncovered_.resize(stride * static_cast<size_t>(height));
   for (int r = 0; r < height; ++r) {
     const double* row = transmittance_.data() + static_cast<Eigen::Index>(r) * width;
     int running = 0;
@@ -230,6 +233,9 @@ void SoftRasterizer::forward_gaussian() {
       running += row[c] != 0.0;
       uncovered_sum_[(r + 1) * stride + c + 1] = uncovered_sum_[r * stride + c + 1] + running;
     }
+    int* next = next_uncovered_.data() + r * stride;
+    next[width] = width;
+    for (int c = width - 1; c >= 0; --c) next[c] = row[c] != 0.0 ? c : next[c + 1];
   }
   const double cutoff_d2 = cutoff_d2_, cutoff_radius = cutoff_radius_, inv_sigma2 = inv_sigma2_;
   for (FaceEdges& f : face_edges_) {
@@ -245,8 +251,8 @@ void SoftRasterizer::forward_gaussian() {
     for (int r = f.row0; r <= f.row1; ++r) {
       const double py = r + 0.5;
       double* row = transmittance_.data() + static_cast<Eigen::Index>(r) * width;
-      for (int c = f.col0; c <= f.col1; ++c) {
-        if (row[c] == 0.0) continue;  // covered (or already fully opaque)
+      const int* next = next_uncovered_.data() + r * stride;
+      for (int c = next[f.col0]; c <= f.col1; c = next[c + 1]) {
         BoundaryPoint b;
         if (!nearest_boundary_point<false>(f, c + 0.5, py, cutoff_d2, cutoff_radius, b)) continue;
         // An uncovered pixel is outside every face, so h <= 0 up to rounding at an edge (then D_f = 1).
@@ -268,8 +274,9 @@ void SoftRasterizer::backward_gaussian(const Image& grad_image, MatrixX2d& grad_
       const Eigen::Index offset = static_cast<Eigen::Index>(r) * width;
       const double* trans_row = transmittance_.data() + offset;
       const double* grad_row = grad_image.data() + offset;
-      for (int c = f.col0; c <= f.col1; ++c) {
-        const double weight = grad_row[c] * trans_row[c];  // dL/dI * T; 0 on covered pixels
+      const int* next = next_uncovered_.data() + static_cast<size_t>(r) * (static_cast<size_t>(width) + 1);
+      for (int c = next[f.col0]; c <= f.col1; c = next[c + 1]) {
+        const double weight = grad_row[c] * trans_row[c];  // dL/dI * T
         if (weight == 0.0) continue;
         const double px = c + 0.5;
         BoundaryPoint b;

@@ -28,10 +28,17 @@
 // Cutoff: pairs (p, f) with D_f(p) < epsilon are skipped: outside the face with d_f(p) > r_c,
 //   r_c = sigma sqrt(ln(1/epsilon))        (Gaussian; 4.29 sigma for the default epsilon = 1e-8)
 //   r_c = sigma sqrt(ln(1/epsilon - 1))    (Logistic; the same to 1e-8)
-// Each face only visits its bounding box dilated by r_c. Skipping changes I(p) by at most the sum of the
-// skipped D_f(p): below 1e-6 as long as fewer than 100 faces lie within about 5 sigma of a pixel (the
-// 256x256 Cusick meshes have ~15). The truncation makes I jump by up to epsilon when a pair crosses the
-// cutoff; finite-difference checks at tiny steps should use a smaller epsilon.
+// Each face only visits its bounding box dilated by r_c, and rejects centres more than r_c behind one of
+// its edge lines with three multiply-adds. Skipping changes I(p) by at most the sum of the skipped
+// D_f(p): below 1e-6 while fewer than 100 faces lie within about 5 sigma of a pixel (measured on a real
+// 5226-face drape at 256x256: max |error| 3e-8, 5e-8, 1.3e-7 for sigma = 0.5, 1, 2 px). The truncation
+// makes I jump by up to epsilon when a pair crosses the cutoff; finite-difference checks at tiny steps
+// should use a smaller epsilon. The Gaussian profile also skips every face whose dilated box holds no
+// uncovered pixel (a summed-area table of the hard coverage), i.e. most of the interior.
+//
+// Cost (one core, 256x256, real 5226-face drape, forward + backward): Gaussian ~1.8 ms at sigma = 0.5 px,
+// ~3.5 ms at 1 px (default), ~12 ms at 2 px; logistic ~11 ms at 0.5 px, ~26 ms at 1 px (it visits every
+// pixel near every face). time_soft_render() measures it.
 //
 // Saturation (D_f -> 1) never produces NaN. Gaussian: 1 - D_f = -expm1(-d^2/sigma^2) is accurate for
 // tiny d, covered pixels have T = 0 and are skipped, and the backward divides T by 1 - D_f only when that
@@ -111,7 +118,8 @@ class SoftRasterizer {
   MatrixX2d image_points_;
   std::vector<FaceEdges> face_edges_;
   Image transmittance_;
-  std::vector<int> uncovered_sum_;  // summed-area table of uncovered pixels ((H+1) x (W+1)), Gaussian only
+  std::vector<int> uncovered_sum_;   // summed-area table of uncovered pixels ((H+1) x (W+1)), Gaussian only
+  std::vector<int> next_uncovered_;  // per row, first uncovered column >= c (H x (W+1)), Gaussian only
 };
 
 // Timing of forward + backward on a mesh (median over `repeats` runs, milliseconds), for the bench driver.
