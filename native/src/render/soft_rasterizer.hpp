@@ -36,9 +36,11 @@
 // should use a smaller epsilon. The Gaussian profile also skips every face whose dilated box holds no
 // uncovered pixel (a summed-area table of the hard coverage), i.e. most of the interior.
 //
-// Cost (one core, 256x256, real 5226-face drape, forward + backward): Gaussian ~1.8 ms at sigma = 0.5 px,
-// ~3.5 ms at 1 px (default), ~12 ms at 2 px; logistic ~11 ms at 0.5 px, ~26 ms at 1 px (it visits every
-// pixel near every face). time_soft_render() measures it.
+// Cost (one core, median over 100 runs on a shared, loaded 2-core machine; 256x256, fabric 1 sample 1
+// capture 1, 5226 faces; forward + backward): Gaussian 1.1 + 0.4 ms at sigma = 0.5 px, 1.8 + 1.2 ms at
+// 1 px (default), 4.6 + 4.5 ms at 2 px; logistic 5.5 + 6.3 ms at 0.5 px, 12 + 14 ms at 1 px (it visits
+// every pixel near every face). Strongly draping fabrics cost more (fabric 3: ~3.0 + 2.6 ms Gaussian
+// 1 px: the hanging skirt projects many faces into the silhouette band). time_soft_render() measures it.
 //
 // Saturation (D_f -> 1) never produces NaN. Gaussian: 1 - D_f = -expm1(-d^2/sigma^2) is accurate for
 // tiny d, covered pixels have T = 0 and are skipped, and the backward divides T by 1 - D_f only when that
