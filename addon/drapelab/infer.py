@@ -24,7 +24,8 @@ reparameterisation (dL/dmu = sum_w g_w, dL/deta = sum_w g_w eps_w sigmoid(eta), 
 A fit is a job: progress callback per epoch, cancel (threading.Event), a checkpoint after every epoch
 (atomic JSON, resumable, bit-identical continuation: the noise of epoch k sample s is drawn from
 default_rng([seed, k, s])), a time budget or an epoch count. Monte Carlo samples run on threads (native
-calls release the GIL); the same seed gives the same result for a given thread count.
+calls release the GIL); the same seed gives the same result whatever the thread count (each Monte Carlo
+slot keeps its own warm start). A resumed fit restarts its warm starts from the flat drape.
 """
 import concurrent.futures
 import datetime
@@ -133,23 +134,24 @@ class _Worker:
         self.config = config
         self.renderer = render.SoftRenderer(camera, sigma=config["render_sigma_px"])
         self.faces = self.model.faces
-        self.positions = None  # last equilibrium: warm start of the next static solve
 
-    def drape(self, bend, record=True):
+    def drape(self, bend, warm, key):
+        """Drape with these tables. Static mode warm-starts from warm[key] (the previous equilibrium of the
+        same Monte Carlo slot, so results do not depend on which lane ran it) and stores the new one."""
         p = self.model.parameters(stretch=self.stretch, bend=bend)
         cfg = self.config
         if cfg["forward"] == "static":
-            if self.positions is None:  # first solve: the paper's rollout from flat, then Newton to rest
-                self.positions = self.model.simulate(p, mode="dynamic", record=False, **cfg["dynamic"])
-            x = self.model.simulate(p, mode="static", positions0=self.positions, **cfg["static"])
-            self.positions = x
+            if warm.get(key) is None:  # first solve: the paper's rollout from flat, then Newton to rest
+                warm[key] = self.model.simulate(p, mode="dynamic", record=False, **cfg["dynamic"])
+            x = self.model.simulate(p, mode="static", positions0=warm[key], **cfg["static"])
+            warm[key] = x
         else:
-            x = self.model.simulate(p, mode="dynamic", record=record, **cfg["dynamic"])
+            x = self.model.simulate(p, mode="dynamic", record=True, **cfg["dynamic"])
         return x
 
-    def loss_and_gradient(self, bend, target, sigma_obs):
+    def loss_and_gradient(self, bend, target, sigma_obs, warm, key):
         """Data term and dL/dB (shaped like bend) for one drape."""
-        x = self.drape(bend)
+        x = self.drape(bend, warm, key)
         image = self.renderer.render(x, self.faces)
         diff = image - target
         data = float(np.mean(diff ** 2) / (2 * sigma_obs ** 2))
@@ -206,6 +208,7 @@ class FitJob:
             self.theta = {"mu": self.log_bend0.copy(),
                           "eta": np.full(BEND_SHAPE, inverse_softplus(float(self.config["init"]["bdp_std"])))}
         self.adam = {k: {"m": np.zeros_like(v), "v": np.zeros_like(v)} for k, v in self.theta.items()}
+        self.warm = {}  # Monte Carlo slot -> last equilibrium (static mode warm starts)
         self.epoch = 0
         self.history = []
         self.elapsed = 0.0
@@ -232,7 +235,7 @@ class FitJob:
                     raise Cancelled()
                 s, noise, o = jobs[i]
                 bend = sample_bend_tables(self.kind, theta, self.num_edges, noise)
-                results[i] = (w.loss_and_gradient(bend, o.mask, self.sigma_obs), bend, noise)
+                results[i] = (w.loss_and_gradient(bend, o.mask, self.sigma_obs, self.warm, i), bend, noise)
 
         lanes = len(self.workers)
         assignments = [list(range(l, len(jobs), lanes)) for l in range(lanes)]
@@ -462,3 +465,106 @@ def preset_bend_samples(preset, num_edges, rng, count):
         sd = np.zeros(BEND_SHAPE)
     noise = rng.standard_normal((count, num_edges) + BEND_SHAPE)
     return np.exp(mu[None, None] + sd[None, None] * noise)
+
+
+def _hard_image(camera, x, faces):
+    return np.asarray(render.hard_silhouette(camera, x, faces), dtype=np.float64)
+
+
+def evaluate(preset_or_path, images, meshes=None, samples=None, seed=0, threads=None, template_dir=None,
+             mesh_level=None, forward=None, progress=None, cancel_event=None, config=None):
+    """Posterior-predictive evaluation of a preset on test silhouettes (and, optionally, their 3D meshes).
+
+    Draws `samples` parameter sets (default fit.json: 1000 for bdp, 1 for homo/heter), drapes each once from
+    the flat rest state (the paper's protocol: the same draws serve every test image) and reports, per image:
+    best-of-N pixel `mse` and `iou` (hard silhouettes), `hausdorff_m` of the best sample's mesh to the given
+    mesh, the drape coefficient (observed, posterior-predictive mean, 90 % interval) and the node count
+    (observed, predictive mode). `mean` averages them and gives coverage fractions.
+    """
+    preset = load_preset(preset_or_path) if isinstance(preset_or_path, (str, os.PathLike)) else validate_preset(preset_or_path)
+    config = config or load_config()
+    if not images:
+        raise InputError("images: give at least one test silhouette")
+    meshes = list(meshes or [])
+    if meshes and len(meshes) != len(images):
+        raise InputError(f"meshes: {len(meshes)} meshes for {len(images)} images (they pair in order)")
+    kind = preset["model"]
+    n = int(samples) if samples is not None else int(config["evaluate"]["samples"][kind])
+    if n < 1:
+        raise InputError(f"samples: must be >= 1, got {samples}")
+    cal = preset["camera"]
+    observations = [_Observation(p, None, None) for p in images]
+    shape = observations[0].mask.shape
+    camera = _camera_for(preset["camera"].get("kind", "ortho"),
+                         {"px_per_m": cal["px_per_m"], "centre_px": cal["centre_px"]}, shape)
+    level = mesh_level or preset["simulation"]["mesh_level"]
+    mesh = sim.cusick_specimen(level, template_dir=template_dir)
+    heterogeneous = True
+    lanes = max(1, min(int(threads or min(os.cpu_count() or 1, 2)), n))
+    models = [sim.ClothModel(mesh, heterogeneous=heterogeneous, density=preset["density_kg_m2"]) for _ in range(lanes)]
+    num_edges = models[0].num_bending_edges
+    stretch = np.asarray(preset["stretch_N_m"])
+    fwd = forward or config["evaluate"]["forward"]
+    dyn = config["dynamic"]
+    mode_opts = dyn if fwd == "dynamic" else config["static"]
+    rng = np.random.default_rng(seed)
+    draws = preset_bend_samples(preset, num_edges, rng, n)
+    cal_obj = measure.calibration(cal["px_per_m"], tuple(cal["centre_px"]))
+    shapes = [None] * n
+    done = [0]
+    lock = threading.Lock()
+
+    def run(lane):
+        m = models[lane]
+        for i in range(lane, n, lanes):
+            if cancel_event is not None and cancel_event.is_set():
+                raise Cancelled()
+            p = m.parameters(stretch=stretch, bend=draws[i])
+            x = m.simulate(p, mode=fwd, record=False, **mode_opts) if fwd == "dynamic" else \
+                m.simulate(p, mode="static", **mode_opts)
+            img = _hard_image(camera, x, m.faces)
+            r = measure.r_theta(img, cal_obj)
+            shapes[i] = {"x": x, "image": img, "dc": measure.drape_coefficient(img, cal["px_per_m"]),
+                         "nodes": measure.node_count(r)}
+            with lock:
+                done[0] += 1
+                if progress:
+                    progress(done[0], n)
+
+    if lanes == 1:
+        run(0)
+    else:
+        with concurrent.futures.ThreadPoolExecutor(lanes) as pool:
+            for f in [pool.submit(run, l) for l in range(lanes)]:
+                f.result()
+    dcs = np.array([s["dc"] for s in shapes])
+    nodes = np.array([s["nodes"] for s in shapes])
+    values, counts = np.unique(nodes, return_counts=True)
+    node_mode = int(values[np.argmax(counts)])
+    lo, hi = (float(v) for v in np.percentile(dcs, [5, 95]))
+    per_image = []
+    for k, o in enumerate(observations):
+        mses = np.array([measure.pixel_mse(s["image"], o.mask) for s in shapes])
+        best = int(np.argmin(mses))
+        obs_dc = measure.drape_coefficient(o.mask, o.calibration["px_per_m"])
+        obs_nodes = measure.node_count(measure.r_theta(o.mask, measure.calibration(o.calibration["px_per_m"],
+                                                                                  tuple(o.calibration["centre_px"]))))
+        entry = {"image": images[k], "mse": float(mses[best]), "iou": float(measure.iou(shapes[best]["image"], o.mask)),
+                 "best_sample": best,
+                 "drape_coefficient": {"observed": float(obs_dc), "predicted_mean": float(dcs.mean()),
+                                       "interval90": [lo, hi]},
+                 "node_count": {"observed": int(obs_nodes), "predicted_mode": node_mode}}
+        if meshes:
+            entry["hausdorff_m"] = float(measure.hausdorff_distance((shapes[best]["x"], models[0].faces), meshes[k]))
+        per_image.append(entry)
+    mean = {"mse": float(np.mean([e["mse"] for e in per_image])),
+            "iou": float(np.mean([e["iou"] for e in per_image])),
+            "dc_abs_error": float(np.mean([abs(e["drape_coefficient"]["predicted_mean"] - e["drape_coefficient"]["observed"])
+                                           for e in per_image])),
+            "dc_coverage90": float(np.mean([lo <= e["drape_coefficient"]["observed"] <= hi for e in per_image])),
+            "node_within1": float(np.mean([abs(e["node_count"]["predicted_mode"] - e["node_count"]["observed"]) <= 1
+                                           for e in per_image]))}
+    if meshes:
+        mean["hausdorff_m"] = float(np.mean([e["hausdorff_m"] for e in per_image]))
+    return {"preset": preset_or_path if isinstance(preset_or_path, str) else None, "model": kind, "samples": n,
+            "forward": fwd, "mesh_level": level, "images": per_image, "mean": mean}

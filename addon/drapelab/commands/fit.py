@@ -1,0 +1,64 @@
+"""`drapelab fit --images IMG... --density KG_M2 [--model homo|heter|bdp] [--epochs N | --time-budget S] [--seed S]
+--out PRESET.json`: fit a material posterior to Cusick silhouettes and write a preset.
+
+Learns the bending table in log space (stretching stays at its starting table; see drapelab.infer). Settings
+(learning rates, likelihood sigma, prior, Monte Carlo samples, mesh resolution) come from
+addon/drapelab/config/fit.json or --config. A checkpoint is written after every epoch (--checkpoint, default
+PRESET.json.ckpt) and --resume continues from one. Ctrl-C cancels cleanly: the last checkpoint stays valid.
+"""
+import os
+import signal
+import sys
+import threading
+
+
+def register(subparsers):
+    p = subparsers.add_parser("fit", help="fit a material posterior (HOMO/HETER/BDP) to Cusick images",
+                              description=__doc__.split("\n\n", 1)[1])
+    p.add_argument("--images", nargs="+", required=True, metavar="IMG", help="training silhouettes")
+    p.add_argument("--density", type=float, required=True, metavar="KG_M2", help="area density in kg/m^2")
+    p.add_argument("--model", choices=["homo", "heter", "bdp"], default="bdp")
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--epochs", type=int, default=None, metavar="N")
+    g.add_argument("--time-budget", type=float, default=None, metavar="SECONDS")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--out", required=True, metavar="PRESET.json")
+    p.add_argument("--camera", choices=["ortho", "perspective"], default="ortho")
+    p.add_argument("--mesh-level", type=int, default=None, choices=[1, 2, 3, 4, 5],
+                   help="Cusick template mesh circleN used for simulation (default from fit.json)")
+    p.add_argument("--config", default=None, metavar="FIT.json", help="fit settings (default addon/drapelab/config/fit.json)")
+    p.add_argument("--checkpoint", default=None, metavar="CKPT.json")
+    p.add_argument("--resume", default=None, metavar="CKPT.json", help="continue a fit from its checkpoint")
+    p.add_argument("--threads", type=int, default=None, help="Monte Carlo lanes (default: up to 2 cores)")
+    p.add_argument("--name", default=None, help="fabric name recorded in the preset")
+    p.set_defaults(func=run)
+
+
+def run(args):
+    from .. import infer, measure
+
+    measure.check_output_path(args.out, "preset")
+    config = infer.load_config(args.config)
+    checkpoint = args.checkpoint or args.out + ".ckpt"
+    cancel = threading.Event()
+    previous = signal.signal(signal.SIGINT, lambda *_: cancel.set())
+
+    def progress(e):
+        print(f"epoch {e['epoch']:4d}  loss {e['loss']:.5f} (data {e['data']:.5f}, kl {e['kl']:.5f})  "
+              f"IoU {e['iou']:.4f}  MSE {e['mse']:.4f}  {e['seconds']:.1f} s", flush=True)
+
+    try:
+        preset = infer.fit(args.images, args.density, model=args.model, epochs=args.epochs,
+                           time_budget=args.time_budget, seed=args.seed, out=args.out, checkpoint=checkpoint,
+                           resume=args.resume, progress=progress, cancel_event=cancel,
+                           fabric={"name": args.name} if args.name else None, config=config,
+                           camera=args.camera, mesh_level=args.mesh_level, threads=args.threads)
+    except infer.Cancelled:
+        print(f"fit cancelled; the last checkpoint is {checkpoint} (resume with --resume)", file=sys.stderr)
+        return 130
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    t = preset["training"]
+    print(f"wrote {args.out}: {args.model}, {t['epochs']} epochs in {t['seconds']:.1f} s, "
+          f"training IoU {preset['metrics']['training_image']['iou']:.4f}")
+    return 0
