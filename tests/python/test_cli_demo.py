@@ -33,3 +33,19 @@ def test_demo_static_mode(tmp_path, capsys):
     assert cli.main(["demo", "--mesh-level", "1", "--mode", "static", "--out", str(out)]) == 0
     assert "Newton iterations" in capsys.readouterr().out
     assert (out / "drape.obj").exists() and (out / "silhouette.png").exists()
+
+
+def test_bench_smoke(tmp_path, capsys):
+    import json
+
+    out = tmp_path / "bench.json"
+    assert cli.main(["bench", "--meshes", "1", "--steps", "2", "--no-static", "--json", str(out)]) == 0
+    report = json.loads(out.read_text())
+    assert report["threads"] == 1 and report["steps"] == 2
+    (mesh,) = report["meshes"]
+    assert mesh["name"] == "circle1" and mesh["vertices"] == 297
+    for key in ("forward_ms_per_step", "backward_ms_per_step", "factorize_ms", "epoch_s", "peak_rss_mb"):
+        assert mesh[key] > 0, key
+    assert report["render"]["forward_ms"] > 0 and len(report["paper_gpu"]["meshes"]) == 3
+    assert "circle1" in capsys.readouterr().out
+    assert cli.main(["bench", "--meshes", "7", "--json", str(out)]) == 2

@@ -1,11 +1,303 @@
-"""`drapelab bench`: placeholder until the simulator facade lands (prints a notice)."""
+"""`drapelab bench --json OUT.json [--meshes 1,2,3] [--steps N]`: single-thread speed and memory of the simulator.
+
+For each Cusick mesh circle1..circle5 (the dataset's template meshes, or generated disks of about the same
+vertex counts when ../shared is absent), homogeneous model with the Cotton Blue starting tables, in its own
+subprocess (so that peak memory is per mesh), with OPENBLAS_NUM_THREADS=1 and OMP_NUM_THREADS=1:
+  forward_ms_per_step, backward_ms_per_step   one rollout of --steps implicit Euler steps of 0.05 s from the
+                                              flat rest state and its adjoint (after a 1-step warm-up run)
+  epoch_s                                     that rollout + its backward (one training epoch of the paper)
+  peak_rss_mb                                 peak resident memory of the process right after that backward
+                                              (ru_maxrss; the backward keeps one factor per step)
+  factorize_ms                                one numeric CHOLMOD factorisation of the step matrix at the
+                                              draped state (median of 5)
+  static_solve_ms, static_iterations          Newton to equilibrium from the flat rest state (or
+                                              static_error when it does not converge in 200 iterations)
+  static_warm_solve_ms, static_warm_iterations  the same from the end of the rollout
+  static_adjoint_ms                           its adjoint at the last equilibrium found (one Hessian
+                                              factorisation and solve)
+Also the soft renderer's forward and backward (ms, 256 x 256, Gaussian profile, sigma 1 px, median of 10)
+on the circle3 drape, and the paper's GPU figures (seconds per step, NVIDIA TITAN Xp) for comparison.
+Writes the JSON atomically and prints a table. circle4/5 take minutes (the backward is the slow part).
+"""
+import argparse
+import json
+import os
+import platform
+import subprocess
+import sys
+import time
+
+LEVELS = (1, 2, 3, 4, 5)
+RENDER_LEVEL = 3
+RENDER_REPEATS = 10
+FACTORIZE_REPEATS = 5
+THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+# Supplement of Gong, Mao, Wang (CVPR 2024): seconds per simulation step on an NVIDIA TITAN Xp.
+# (The paper's smallest mesh is listed with 279 vertices; the dataset's circle1.obj has 297.)
+PAPER_GPU = [
+    {"vertices": 279, "forward_s_per_step": 0.038, "backward_s_per_step": 0.062},
+    {"vertices": 1205, "forward_s_per_step": 0.073, "backward_s_per_step": 0.228},
+    {"vertices": 2699, "forward_s_per_step": 0.178, "backward_s_per_step": 0.660},
+]
 
 
 def register(subparsers):
-    p = subparsers.add_parser("bench", help="bench (not implemented yet)")
+    p = subparsers.add_parser("bench", help="time the simulator, its adjoint and the renderer (single thread)",
+                              description=__doc__.split("\n\n", 1)[1],
+                              formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--json", required=True, metavar="OUT.json", help="write the results here")
+    p.add_argument("--meshes", default="1,2,3,4,5", metavar="LIST",
+                   help="comma-separated mesh levels among 1..5 (default 1,2,3,4,5)")
+    p.add_argument("--steps", type=int, default=100, metavar="N", help="rollout steps (default 100)")
+    p.add_argument("--no-static", action="store_true", help="skip the static solve and its adjoint")
     p.set_defaults(func=run)
 
 
+def parse_levels(text):
+    try:
+        levels = [int(t) for t in str(text).split(",") if t.strip()]
+    except ValueError:
+        raise ValueError(f"--meshes: expected comma-separated levels among {LEVELS}, got {text!r}") from None
+    bad = [v for v in levels if v not in LEVELS]
+    if not levels or bad:
+        raise ValueError(f"--meshes: expected comma-separated levels among {LEVELS}, got {text!r}")
+    return sorted(set(levels))
+
+
+def single_thread_environment():
+    env = dict(os.environ)
+    for name in THREAD_VARIABLES:
+        env[name] = "1"
+    # The child imports drapelab the same way as this process.
+    here = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    native_dir = os.path.dirname(sys.modules["drapelab_native"].__file__) if "drapelab_native" in sys.modules else ""
+    paths = [here, native_dir] + [p for p in env.get("PYTHONPATH", "").split(os.pathsep) if p]
+    env["PYTHONPATH"] = os.pathsep.join(dict.fromkeys(p for p in paths if p))
+    return env
+
+
+def run_child(task, env):
+    """Runs `python -m drapelab.commands.bench --child TASK-JSON` and returns its result dict."""
+    cmd = [sys.executable, "-m", "drapelab.commands.bench", "--child", json.dumps(task)]
+    proc = subprocess.run(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    lines = [l for l in proc.stdout.splitlines() if l.startswith("{")]
+    if proc.returncode != 0 or not lines:
+        tail = (proc.stderr.strip().splitlines() or ["(no output)"])[-1]
+        return {"error": f"exit status {proc.returncode}: {tail}"}
+    return json.loads(lines[-1])
+
+
 def run(args):
-    print("drapelab bench: not implemented yet")
-    return 1
+    from .. import measure
+
+    levels = parse_levels(args.meshes)
+    if args.steps < 1:
+        raise ValueError(f"--steps must be at least 1, got {args.steps}")
+    measure.check_output_path(args.json, "JSON")
+    env = single_thread_environment()
+    print(f"drapelab bench: meshes {','.join(f'circle{l}' for l in levels)}, {args.steps} steps, 1 thread "
+          f"(one subprocess per mesh)", flush=True)
+    results, failed = [], 0
+    render = None
+    for level in levels:
+        t0 = time.perf_counter()
+        print(f"  circle{level} ...", end="", flush=True)
+        task = {"task": "mesh", "level": level, "steps": args.steps, "static": not args.no_static,
+                "render": level == RENDER_LEVEL}
+        r = run_child(task, env)
+        if "error" in r:
+            failed += 1
+            print(f" error: {r['error']}", flush=True)
+            results.append({"name": f"circle{level}", **r})
+            continue
+        render = r.pop("render", None) or render
+        results.append(r)
+        print(f" {time.perf_counter() - t0:.0f} s", flush=True)
+    if render is None:
+        render = run_child({"task": "render", "level": RENDER_LEVEL}, env)
+    report = {
+        "schema": "drapelab.bench/1",
+        "threads": 1,
+        "steps": args.steps,
+        "time_step_s": 0.05,
+        "material": "Cotton Blue starting tables (homogeneous), density 0.192 kg/m^2",
+        "machine": machine_info(),
+        "meshes": results,
+        "render": render,
+        "paper_gpu": {"device": "NVIDIA TITAN Xp", "source": "Gong, Mao, Wang, CVPR 2024, supplement",
+                      "meshes": PAPER_GPU},
+    }
+    measure.write_json(args.json, report)
+    print_table(report)
+    print(f"wrote {args.json}")
+    return 1 if failed else 0
+
+
+def machine_info():
+    cpu = platform.processor()
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                if line.startswith("model name"):
+                    cpu = line.split(":", 1)[1].strip()
+                    break
+    except OSError:
+        pass
+    from .._native import native
+    return {"cpu": cpu, "cores": os.cpu_count(), "load_average_1min": os.getloadavg()[0],
+            "python": platform.python_version(),
+            "drapelab": getattr(native, "__version__", "?"), "date": time.strftime("%Y-%m-%d")}
+
+
+def _fmt(value, width, spec):
+    return f"{'-' if value is None else format(value, spec):>{width}}"
+
+
+def _static_cell(r, key):
+    if r.get(f"{key}_solve_ms") is None:
+        return f"{'no conv.' if r.get(f'{key}_error') else '-':>15}"
+    return f"{r[f'{key}_solve_ms']:>9.0f} ({r[f'{key}_iterations']:>3d})"
+
+
+def print_table(report):
+    header = (f"{'mesh':<8} {'verts':>6} {'fwd ms/step':>11} {'bwd ms/step':>11} {'factor ms':>9} "
+              f"{'static ms (it)':>15} {'warm ms (it)':>15} {'adjoint ms':>10} {'epoch s':>8} {'peak MB':>8}")
+    print(header)
+    print("-" * len(header))
+    for r in report["meshes"]:
+        if "error" in r:
+            print(f"{r['name']:<8} error: {r['error']}")
+            continue
+        print(f"{r['name']:<8} {r['vertices']:>6} {r['forward_ms_per_step']:>11.1f} {r['backward_ms_per_step']:>11.1f} "
+              f"{r['factorize_ms']:>9.2f} {_static_cell(r, 'static')} {_static_cell(r, 'static_warm')} "
+              f"{_fmt(r.get('static_adjoint_ms'), 10, '.1f')} "
+              f"{r['epoch_s']:>8.1f} {r['peak_rss_mb']:>8.0f}")
+    gpu = report["paper_gpu"]
+    print(f"paper ({gpu['device']}), ms per step: " + ", ".join(
+        f"{g['vertices']} verts {1000 * g['forward_s_per_step']:.0f} fwd / {1000 * g['backward_s_per_step']:.0f} bwd"
+        for g in gpu["meshes"]))
+    rd = report.get("render") or {}
+    if "error" in rd:
+        print(f"soft renderer: error: {rd['error']}")
+    elif rd:
+        print(f"soft renderer ({rd['width']}x{rd['height']}, {rd['faces']} faces, {rd['shape']} circle{rd['level']}): "
+              f"forward {rd['forward_ms']:.2f} ms, backward {rd['backward_ms']:.2f} ms (median of {rd['repeats']})")
+
+
+# ---------------------------------------------------------------- child process
+def _peak_rss_mb():
+    import resource
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # KiB on Linux
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("VmHWM:"):
+                    peak = max(peak, int(line.split()[1]) / 1024.0)
+    except OSError:
+        pass
+    return peak
+
+
+def _current_rss_mb():
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("VmRSS:"):
+                    return int(line.split()[1]) / 1024.0
+    except OSError:
+        pass
+    return None
+
+
+def _time_render(level, positions, faces, shape):
+    from .. import render
+    t = render.time_soft_render(positions, faces, repeats=RENDER_REPEATS, camera=render.orthographic_camera())
+    return {"level": level, "shape": shape, "profile": "gaussian", "sigma_px": 1.0, **dict(t)}
+
+
+def child_mesh(task):
+    import numpy as np
+
+    from .. import sim, tables
+    from .._native import native
+
+    level, steps = task["level"], task["steps"]
+    mesh = sim.cusick_specimen(level)
+    model = sim.ClothModel(mesh, density=tables.COTTON_BLUE.density)
+    p = model.parameters(material=tables.COTTON_BLUE)
+    h = sim.DEFAULT_TIME_STEP
+    out = {"name": f"circle{level}", "vertices": model.num_vertices, "faces": model.num_faces,
+           "bending_edges": model.num_bending_edges, "steps": steps,
+           "mesh_source": "template" if sim.cusick_template_path(level) else "generated"}
+    rng = np.random.default_rng(0)
+    weights = rng.standard_normal((model.num_vertices, 3))
+
+    model.simulate(p, steps=1, time_step=h)  # warm-up: solver set-up (symbolic analysis), caches
+    model.backward(weights)
+    out["baseline_rss_mb"] = _current_rss_mb()
+    t0 = time.perf_counter()
+    x = model.simulate(p, steps=steps, time_step=h)
+    t1 = time.perf_counter()
+    model.backward(weights)
+    t2 = time.perf_counter()
+    out["peak_rss_mb"] = _peak_rss_mb()
+    timing = model.last_result["timing"]
+    out["forward_ms_per_step"] = 1000 * (t1 - t0) / steps
+    out["backward_ms_per_step"] = 1000 * (t2 - t1) / steps
+    out["epoch_s"] = t2 - t0
+    out["forward_split_ms_per_step"] = {k: 1000 * v / steps for k, v in timing.items()}
+
+    # One numeric factorisation of a step matrix at the draped state (a separate solver: no tape).
+    solver = native.ImplicitEuler(model.native)
+    A, _ = solver.step_system(x.ravel(), np.zeros(x.size), p, h)
+    times = []
+    for _ in range(FACTORIZE_REPEATS):
+        s = time.perf_counter()
+        if not solver.factorize(A):
+            raise RuntimeError("step matrix not positive definite")
+        times.append(time.perf_counter() - s)
+    out["factorize_ms"] = 1000 * float(np.median(times))
+    out["factor_mb"] = solver.factor_bytes / 2 ** 20
+
+    if task.get("render"):
+        out["render"] = _time_render(level, x, model.faces, "dynamic drape")
+    del solver
+
+    if task.get("static", True):
+        # Cold: Newton from the flat rest state (the alternative to the rollout). Warm: from the rollout's end
+        # (how a fit would use it). The adjoint is timed at the warm equilibrium (else the cold one).
+        static = sim.ClothModel(mesh, density=tables.COTTON_BLUE.density)
+        adjoint_ready = False
+        for key, start in (("static", None), ("static_warm", x)):
+            try:
+                s = time.perf_counter()
+                static.simulate(p, mode="static", positions0=start)
+                out[f"{key}_solve_ms"] = 1000 * (time.perf_counter() - s)
+                out[f"{key}_iterations"] = static.last_result["iterations"]
+                adjoint_ready = True
+            except sim.SolverError as e:
+                out[f"{key}_error"] = str(e)
+                out[f"{key}_solve_ms"] = None
+        if adjoint_ready:
+            s = time.perf_counter()
+            static.backward(weights)
+            out["static_adjoint_ms"] = 1000 * (time.perf_counter() - s)
+    return out
+
+
+def child_render(task):
+    from .. import sim
+    mesh = sim.cusick_specimen(task["level"])
+    model = sim.ClothModel(mesh)
+    return _time_render(task["level"], model.rest_positions, model.faces, "flat")
+
+
+def child_main(argv):
+    task = json.loads(argv[argv.index("--child") + 1])
+    result = child_mesh(task) if task["task"] == "mesh" else child_render(task)
+    print(json.dumps(result), flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(child_main(sys.argv))
