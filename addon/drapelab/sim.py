@@ -341,14 +341,13 @@ class ClothModel:
             mask[..., 1] = False
         if mask.any():
             index = tuple(int(i) for i in np.argwhere(mask)[0])
-            where = list(index[1:]) if shared else list(index)
             if name == "stretch":
                 where_text = (f"row {index[-2]} {tables.STRETCH_COLUMNS[index[-1]]}"
                               + ("" if shared else f" of face {index[0]}"))
             elif name == "bend":
                 where_text = f"row {index[-2]} column {index[-1]}" + ("" if shared else f" of edge {index[0]}")
             else:
-                where_text = f"entry {where}"
+                where_text = f"entry {list(index[1:]) if shared else list(index)}"
             raise InputError(f"{name}: stiffness must be >= 0, got {arr[index]:g} at {where_text}")
 
     def _params(self, params, name="params"):

@@ -79,6 +79,12 @@ def test_heterogeneous_per_element_tables(small_heterogeneous):
     np.testing.assert_allclose(blocks["stretch"], stretch)
     assert blocks["bend"].shape == (E, 3, 5)
     np.testing.assert_array_equal(blocks["bend"][-1], tables.WOOL_RED.bend)
+    bad = np.array(stretch)
+    bad[7, 2, 3] = -1.0
+    with pytest.raises(ValueError, match="stretch: stiffness must be >= 0.*row 2 c33 of face 7"):
+        m.parameters(stretch=bad)
+    with pytest.raises(ValueError, match=r"bend: expected shape \(3, 5\) or \(%d, 3, 5\)" % E):
+        m.parameters(bend=np.ones((E + 1, 3, 5)))
 
 
 def test_presets():
