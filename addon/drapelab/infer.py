@@ -143,7 +143,15 @@ class _Worker:
         if cfg["forward"] == "static":
             if warm.get(key) is None:  # first solve: the paper's rollout from flat, then Newton to rest
                 warm[key] = self.model.simulate(p, mode="dynamic", record=False, **cfg["dynamic"])
-            x = self.model.simulate(p, mode="static", positions0=warm[key], **cfg["static"])
+            try:
+                x = self.model.simulate(p, mode="static", positions0=warm[key], **cfg["static"])
+            except SolverError:
+                # Folds rearranging: let the drape move for a while (rollout from the warm state), then retry
+                # with a larger iteration allowance; a second failure is reported.
+                start = self.model.simulate(p, mode="dynamic", record=False, positions0=warm[key], **cfg["dynamic"])
+                opts = dict(cfg["static"])
+                opts["max_iterations"] = 3 * int(opts["max_iterations"])
+                x = self.model.simulate(p, mode="static", positions0=start, **opts)
             warm[key] = x
         else:
             x = self.model.simulate(p, mode="dynamic", record=True, **cfg["dynamic"])

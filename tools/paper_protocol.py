@@ -1,0 +1,124 @@
+#!/usr/bin/python3
+"""The paper's protocol on the real data, and the shipped presets.
+
+    tools/paper_protocol.py table   [--models homo,heter,bdp] [--fabrics 1,2,3,4,5] [--time-budget S] [--samples N]
+    tools/paper_protocol.py presets [--fabrics 1,...,20] [--time-budget S] [--samples N]
+
+table: for each fabric, fit on the paper's training sample (capture 1: Cotton White 5, Cotton Blue 2, Viscose
+White 1, Cotton Pink 4, Wool Red 2), evaluate on the other 11 samples (capture-1 images and meshes), for each
+model; writes out/protocol/table.json and table.md (beside the paper's numbers).
+presets: fits BDP on each fabric's first sample (capture 1) and writes assets/presets/<fabric>.json with its
+evaluation on that fabric's other capture-1 samples.
+Run with ./drapelab's environment: `./drapelab build && PYTHONPATH=addon:build/python tools/paper_protocol.py ...`.
+"""
+import argparse
+import csv
+import json
+import os
+import re
+import sys
+import time
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, os.path.join(ROOT, "addon"))
+from drapelab import infer, measure  # noqa: E402
+
+DATA = os.path.join(ROOT, "..", "shared", "data", "cusick")
+TRAINING_SAMPLE = {1: 5, 2: 2, 3: 1, 4: 4, 5: 2}
+PAPER = {"homo": (0.0572, 0.0340), "heter": (0.0551, 0.0328), "bdp": (0.0384, 0.0217)}
+
+
+def manifest_rows():
+    with open(os.path.join(DATA, "manifest.csv")) as f:
+        return list(csv.DictReader(f))
+
+
+def captures(fabric, capture="1"):
+    rows = [r for r in manifest_rows() if int(r["fabric"]) == fabric and r["capture"] == capture]
+    return sorted(rows, key=lambda r: int(r["sample"]))
+
+
+def path(rel):
+    return os.path.join(DATA, rel) if rel else None
+
+
+def slug(row):
+    name = row["name"] or f"fabric {int(row['fabric']):02d}"
+    return re.sub(r"[^a-z0-9]+", "_", f"fabric_{int(row['fabric']):02d}_{name}".lower()).strip("_")
+
+
+def fit_and_evaluate(fabric, train_sample, model, time_budget, samples, out_dir):
+    rows = captures(fabric)
+    train = [r for r in rows if int(r["sample"]) == train_sample][0]
+    tests = [r for r in rows if int(r["sample"]) != train_sample]
+    density = float(train["density_kg_m2"])
+    preset_path = os.path.join(out_dir, f"{slug(train)}_{model}.json")
+    t0 = time.monotonic()
+    preset = infer.fit([path(train["silhouette"])], density, model=model, time_budget=time_budget, seed=0,
+                       out=preset_path, checkpoint=preset_path + ".ckpt",
+                       fabric={"fabric": fabric, "name": train["name"], "material": train["material"],
+                               "weave": train["weave"], "thickness_mm": float(train["thickness_mm"]),
+                               "training_sample": train_sample})
+    fit_s = time.monotonic() - t0
+    meshes = [path(r["mesh"]) for r in tests]
+    result = infer.evaluate(preset_path, [path(r["silhouette"]) for r in tests],
+                            meshes=meshes if all(meshes) else None, samples=samples)
+    result["fit_seconds"] = fit_s
+    result["epochs"] = preset["training"]["epochs"]
+    return preset_path, preset, result
+
+
+def table(args):
+    out = os.path.join(ROOT, "out", "protocol")
+    os.makedirs(out, exist_ok=True)
+    results = {}
+    for model in args.models.split(","):
+        for fabric in [int(f) for f in args.fabrics.split(",")]:
+            samples = args.samples if model == "bdp" else 1
+            _, _, r = fit_and_evaluate(fabric, TRAINING_SAMPLE[fabric], model, args.time_budget, samples, out)
+            results.setdefault(model, {})[fabric] = r
+            print(model, fabric, json.dumps(r["mean"]), f"fit {r['fit_seconds']:.0f} s", flush=True)
+            measure.write_json(os.path.join(out, "table.json"), results)
+    lines = ["| model | MSE (ours) | MSE (paper) | Hausdorff m (ours) | Hausdorff m (paper) | abs DC error | DC 90% coverage | nodes within 1 | samples | fit s |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
+    for model, per in results.items():
+        def avg(key):
+            vals = [r["mean"][key] for r in per.values() if key in r["mean"]]
+            return sum(vals) / len(vals) if vals else float("nan")
+        fit_s = sum(r["fit_seconds"] for r in per.values()) / len(per)
+        n = next(iter(per.values()))["samples"]
+        lines.append(f"| {model} | {avg('mse'):.4f} | {PAPER[model][0]:.4f} | {avg('hausdorff_m'):.4f} | {PAPER[model][1]:.4f} | "
+                     f"{avg('dc_abs_error'):.3f} | {avg('dc_coverage90'):.2f} | {avg('node_within1'):.2f} | {n} | {fit_s:.0f} |")
+    with open(os.path.join(out, "table.md"), "w") as f:
+        f.write("\n".join(lines) + "\n")
+    print("\n".join(lines))
+
+
+def presets(args):
+    out = os.path.join(ROOT, "assets", "presets")
+    os.makedirs(out, exist_ok=True)
+    fabrics = sorted({int(r["fabric"]) for r in manifest_rows()}) if args.fabrics == "all" else \
+        [int(f) for f in args.fabrics.split(",")]
+    for fabric in fabrics:
+        rows = captures(fabric)
+        train_sample = TRAINING_SAMPLE.get(fabric, int(rows[0]["sample"]))
+        preset_path, preset, result = fit_and_evaluate(fabric, train_sample, "bdp", args.time_budget, args.samples, out)
+        preset["evaluation"] = {"test_images": len(result["images"]), "samples": result["samples"], "mean": result["mean"]}
+        infer.write_preset(preset_path, preset)
+        os.remove(preset_path + ".ckpt")
+        print(fabric, preset_path, json.dumps(result["mean"]), flush=True)
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("what", choices=["table", "presets"])
+    ap.add_argument("--models", default="homo,heter,bdp")
+    ap.add_argument("--fabrics", default="1,2,3,4,5")
+    ap.add_argument("--time-budget", type=float, default=300.0)
+    ap.add_argument("--samples", type=int, default=1000)
+    args = ap.parse_args()
+    (table if args.what == "table" else presets)(args)
+
+
+if __name__ == "__main__":
+    main()
