@@ -75,9 +75,9 @@ class StretchTerm : public ElementTerm<StretchTerm, 3, 24, 9> {
     eps[2] = 0.5 * g01;
   }
 
-  // C entries (c11, c12, c22, c33) interpolated at strain eps from table p (24 entries).
+  // Interpolation weights w_r(eps) of the 6 table rows at strain eps (C = sum_r w_r row_r).
   template <class T>
-  void stiffness(const T* eps, const T* p, T* c) const {
+  static void table_weights(const T* eps, T* w) {
     const StretchWeightGrid& grid = stretch_weight_grid();
     const T ga = (eps[0] - StretchWeightGrid::kMin) / StretchWeightGrid::kStep;
     const T gb = (eps[1] - StretchWeightGrid::kMin) / StretchWeightGrid::kStep;
@@ -87,7 +87,6 @@ class StretchTerm : public ElementTerm<StretchTerm, 3, 24, 9> {
     cell(ga, StretchWeightGrid::kNormal, i0, fa);
     cell(gb, StretchWeightGrid::kNormal, j0, fb);
     cell(gc, StretchWeightGrid::kShear, k0, fc);
-    T w[6];
     for (int r = 0; r < 6; ++r) w[r] = T(0.0);
     for (int di = 0; di < 2; ++di)
       for (int dj = 0; dj < 2; ++dj)
@@ -98,9 +97,48 @@ class StretchTerm : public ElementTerm<StretchTerm, 3, 24, 9> {
           for (int r = 0; r < 6; ++r)
             if (nw[r] != 0.0) w[r] += t * nw[r];
         }
+  }
+
+  // C entries (c11, c12, c22, c33) interpolated at strain eps from table p (24 entries).
+  template <class T, class P>
+  static void stiffness(const T* eps, const P* p, T* c) {
+    T w[6];
+    table_weights(eps, w);
     for (int col = 0; col < 4; ++col) {
       c[col] = T(0.0);
       for (int r = 0; r < 6; ++r) c[col] += w[r] * p[4 * r + col];
+    }
+  }
+
+  // Strain energy density W(eps) [J/m^2] (see the header comment).
+  template <class T, class P>
+  static T strain_energy(const T* eps, const P* p) {
+    // W = int_0^1 (1 - t) eps^T C(t eps) eps dt by 3-point Gauss-Legendre (exact for constant C: 1/2 eps^T C eps).
+    T W = T(0.0);
+    for (int q = 0; q < 3; ++q) {
+      T teps[3] = {kQuadT[q] * eps[0], kQuadT[q] * eps[1], kQuadT[q] * eps[2]};
+      T c[4];
+      stiffness(teps, p, c);
+      W += (kQuadW[q] * (1.0 - kQuadT[q])) * (c[0] * eps[0] * eps[0] + 2.0 * c[1] * eps[0] * eps[1] +
+                                              c[2] * eps[1] * eps[1] + c[3] * eps[2] * eps[2]);
+    }
+    return W;
+  }
+
+  // dW/dp (24 entries; W is linear in the table).
+  template <class T>
+  static void strain_energy_table_gradient(const T* eps, T* dW) {
+    for (int k = 0; k < 24; ++k) dW[k] = T(0.0);
+    const T Q[4] = {eps[0] * eps[0], 2.0 * eps[0] * eps[1], eps[1] * eps[1], eps[2] * eps[2]};
+    for (int q = 0; q < 3; ++q) {
+      T teps[3] = {kQuadT[q] * eps[0], kQuadT[q] * eps[1], kQuadT[q] * eps[2]};
+      T w[6];
+      table_weights(teps, w);
+      const double coef = kQuadW[q] * (1.0 - kQuadT[q]);
+      for (int r = 0; r < 6; ++r) {
+        const T cw = coef * w[r];
+        for (int col = 0; col < 4; ++col) dW[4 * r + col] += cw * Q[col];
+      }
     }
   }
 
@@ -108,19 +146,27 @@ class StretchTerm : public ElementTerm<StretchTerm, 3, 24, 9> {
   T element_energy(int e, const T* x, const T* p) const {
     T eps[3];
     green_strain(e, x, eps);
-    // W = int_0^1 (1 - t) eps^T C(t eps) eps dt by 3-point Gauss-Legendre (exact for constant C: 1/2 eps^T C eps).
-    static constexpr double kT[3] = {0.5 - 0.3872983346207417, 0.5, 0.5 + 0.3872983346207417};
-    static constexpr double kW[3] = {5.0 / 18.0, 8.0 / 18.0, 5.0 / 18.0};
-    T W = T(0.0);
-    for (int q = 0; q < 3; ++q) {
-      T teps[3] = {kT[q] * eps[0], kT[q] * eps[1], kT[q] * eps[2]};
-      T c[4];
-      stiffness(teps, p, c);
-      W += (kW[q] * (1.0 - kT[q])) * (c[0] * eps[0] * eps[0] + 2.0 * c[1] * eps[0] * eps[1] + c[2] * eps[1] * eps[1] +
-                                      c[3] * eps[2] * eps[2]);
-    }
-    return area_[e] * W;
+    return area_[e] * strain_energy(eps, p);
   }
+
+  // Hand-derived kernels (the chain rule through the 3 strains: jets only on W(eps), C(eps) and S+(eps),
+  // the strain map eps(x) and its derivatives written out). Equal to the jet-derived reference
+  // (ElementTerm's versions, kept as Reference) to round-off; see tests/native/physics/test_kernels.cpp.
+  using Reference = ElementTerm<StretchTerm, 3, 24, 9>;
+  void add_gradient(const Eigen::VectorXd& x, const Eigen::VectorXd& p, Eigen::VectorXd& g) const override;
+  void add_step_matrix(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double scale,
+                       Eigen::VectorXd& values) const override;
+  void add_hessian(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double scale,
+                   Eigen::VectorXd& values) const override;
+  void add_hessian_product(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& dir,
+                           Eigen::VectorXd& out) const override;
+  void add_energy_parameter_gradient(const Eigen::VectorXd& x, const Eigen::VectorXd& p,
+                                     Eigen::VectorXd& gp) const override;
+  void add_gradient_parameter_product(const Eigen::VectorXd& x, const Eigen::VectorXd& p,
+                                      const Eigen::VectorXd& lambda, double scale, Eigen::VectorXd& gp) const override;
+  void add_step_matrix_derivatives(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& lambda,
+                                   const Eigen::VectorXd& w, double scale, Eigen::VectorXd& gx,
+                                   Eigen::VectorXd& gp) const override;
 
   // Residuals (eps, F) and weights: material part A C(eps) on eps, geometric part A S+ (x) I3 on F, where
   // S+ is the positive part of the secant stress [[s_uu, s_uv/2], [s_uv/2, s_vv]], s = C(eps) eps. The
@@ -168,6 +214,13 @@ class StretchTerm : public ElementTerm<StretchTerm, 3, 24, 9> {
   }
 
  private:
+  static constexpr double kQuadT[3] = {0.5 - 0.3872983346207417, 0.5, 0.5 + 0.3872983346207417};
+  static constexpr double kQuadW[3] = {5.0 / 18.0, 8.0 / 18.0, 5.0 / 18.0};
+
+  // Per-element state of the hand-written kernels.
+  struct Local;
+  void local_state(int e, const Eigen::VectorXd& x, Local& s) const;
+
   // Cell index and fraction along one grid axis, clamped to the grid (constant extrapolation).
   template <class T>
   static void cell(const T& g, int n, int& i0, T& f) {

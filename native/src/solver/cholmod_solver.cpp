@@ -1,10 +1,77 @@
 #include "solver/cholmod_solver.hpp"
 
+#include <dlfcn.h>
+
+#include <cstdlib>
 #include <cstring>
+#include <vector>
 
 #include "util/error.hpp"
 
 namespace drapelab {
+
+namespace {
+// Runs a scope with OpenMP parallel regions disabled on the calling thread (max-active-levels is a
+// per-thread ICV in libgomp >= 11), restored afterwards. Looked up at run time: libgomp comes with
+// CHOLMOD, and without it there is nothing to switch off.
+class SerialOpenMP {
+ public:
+  SerialOpenMP() {
+    static const Api api = lookup();
+    api_ = &api;
+    if (api_->get && api_->set) {
+      saved_ = api_->get();
+      api_->set(0);
+    }
+  }
+  ~SerialOpenMP() {
+    if (api_->get && api_->set) api_->set(saved_);
+  }
+  SerialOpenMP(const SerialOpenMP&) = delete;
+  SerialOpenMP& operator=(const SerialOpenMP&) = delete;
+
+ private:
+  struct Api {
+    int (*get)() = nullptr;
+    void (*set)(int) = nullptr;
+  };
+  static Api lookup() {
+    Api a;
+    a.get = reinterpret_cast<int (*)()>(dlsym(RTLD_DEFAULT, "omp_get_max_active_levels"));
+    a.set = reinterpret_cast<void (*)(int)>(dlsym(RTLD_DEFAULT, "omp_set_max_active_levels"));
+    return a;
+  }
+  const Api* api_ = nullptr;
+  int saved_ = 1;
+};
+
+// Fill-reducing ordering of the dofs: nested dissection of the vertex graph, 3 dofs per vertex kept together.
+// Empty if the partitioner is unavailable (CHOLMOD then chooses).
+std::vector<int> vertex_block_ordering(const SparsePattern& pattern, cholmod_common* common) {
+  const int n = pattern.size(), nv = n / 3;
+  const auto& cs = pattern.column_start();
+  const auto& ri = pattern.row_index();
+  std::vector<int> gp(nv + 1, 0), gi;
+  for (int j = 0; j < nv; ++j) {
+    for (int k = cs[3 * j]; k < cs[3 * j + 1]; ++k)
+      if (ri[k] % 3 == 0) gi.push_back(ri[k] / 3);
+    gp[j + 1] = static_cast<int>(gi.size());
+  }
+  cholmod_sparse* graph =
+      cholmod_allocate_sparse(nv, nv, gi.size(), /*sorted*/ 1, /*packed*/ 1, /*stype upper*/ 1, CHOLMOD_PATTERN, common);
+  if (!graph) return {};
+  std::memcpy(graph->p, gp.data(), sizeof(int) * (nv + 1));
+  std::memcpy(graph->i, gi.data(), sizeof(int) * gi.size());
+  std::vector<int> vperm(nv), cparent(nv), cmember(nv);
+  const long ncomp = cholmod_nested_dissection(graph, nullptr, 0, vperm.data(), cparent.data(), cmember.data(), common);
+  cholmod_free_sparse(&graph, common);
+  if (ncomp <= 0 || common->status != CHOLMOD_OK) return {};
+  std::vector<int> perm(n);
+  for (int i = 0; i < nv; ++i)
+    for (int k = 0; k < 3; ++k) perm[3 * i + k] = 3 * vperm[i] + k;
+  return perm;
+}
+}  // namespace
 
 CholmodSolver::CholmodSolver(const SparsePattern& pattern) : pattern_(pattern) {
   cholmod_start(&common_);
@@ -20,8 +87,23 @@ CholmodSolver::CholmodSolver(const SparsePattern& pattern) : pattern_(pattern) {
   std::memset(matrix_->x, 0, sizeof(double) * pattern.nnz());
   // Symbolic analysis once per mesh: fill-reducing ordering and supernodal structure.
   for (int d = 0; d < n; ++d) static_cast<double*>(matrix_->x)[pattern.diagonal(d)] = 1.0;
-  factor_ = cholmod_analyze(matrix_, &common_);
+  SerialOpenMP serial;
+  common_.supernodal = CHOLMOD_SUPERNODAL;
+  std::vector<int> perm = vertex_block_ordering(pattern, &common_);
+  common_.status = CHOLMOD_OK;
+  if (!perm.empty()) {
+    common_.nmethods = 1;
+    common_.method[0].ordering = CHOLMOD_GIVEN;
+    factor_ = cholmod_analyze_p(matrix_, perm.data(), nullptr, 0, &common_);
+  }
+  if (!factor_) {
+    common_.nmethods = 0;
+    common_.status = CHOLMOD_OK;
+    factor_ = cholmod_analyze(matrix_, &common_);
+  }
   if (!factor_) throw SolverError("CHOLMOD: symbolic analysis failed");
+  lnz_ = common_.lnz;
+  flops_ = common_.fl;
 }
 
 CholmodSolver::~CholmodSolver() {
@@ -32,6 +114,7 @@ CholmodSolver::~CholmodSolver() {
 
 bool CholmodSolver::factorize(const Eigen::VectorXd& values) {
   std::memcpy(matrix_->x, values.data(), sizeof(double) * pattern_.nnz());
+  SerialOpenMP serial;
   cholmod_factorize(matrix_, factor_, &common_);
   return common_.status == CHOLMOD_OK;
 }
@@ -47,6 +130,7 @@ Eigen::VectorXd CholmodSolver::solve_impl(cholmod_factor* factor, const Eigen::V
   rhs.z = nullptr;
   rhs.xtype = CHOLMOD_REAL;
   rhs.dtype = CHOLMOD_DOUBLE;
+  SerialOpenMP serial;
   cholmod_dense* sol = cholmod_solve(CHOLMOD_A, factor, &rhs, &common_);
   if (!sol) throw SolverError("CHOLMOD: solve failed");
   Eigen::VectorXd x = Eigen::Map<Eigen::VectorXd>(static_cast<double*>(sol->x), n);
@@ -57,10 +141,31 @@ Eigen::VectorXd CholmodSolver::solve_impl(cholmod_factor* factor, const Eigen::V
 Eigen::VectorXd CholmodSolver::solve(const Eigen::VectorXd& b) const { return solve_impl(factor_, b); }
 
 CholmodSolver::Factor CholmodSolver::keep_factor() const {
-  cholmod_factor* copy = cholmod_copy_factor(factor_, &common_);
-  if (!copy) throw SolverError("CHOLMOD: out of memory keeping a factor for the adjoint");
-  cholmod_common* c = &common_;
-  return Factor(copy, [c](cholmod_factor* f) { cholmod_free_factor(&f, c); });
+  if (!factor_->is_super) {  // simplicial factors change structure when refactorised: a full copy
+    cholmod_factor* copy = cholmod_copy_factor(factor_, &common_);
+    if (!copy) throw SolverError("CHOLMOD: out of memory keeping a factor for the adjoint");
+    cholmod_common* c = &common_;
+    return Factor(copy, [c](cholmod_factor* f) { cholmod_free_factor(&f, c); });
+  }
+  // Supernodal: the structure is fixed by the analysis; keep the header and the numeric values only.
+  auto* copy = new cholmod_factor(*factor_);
+  const size_t bytes = factor_->xsize * sizeof(double);
+  copy->x = std::malloc(bytes);
+  if (!copy->x) {
+    delete copy;
+    throw SolverError("CHOLMOD: out of memory keeping a factor for the adjoint");
+  }
+  std::memcpy(copy->x, factor_->x, bytes);
+  copy->z = nullptr;
+  return Factor(copy, [](cholmod_factor* f) {
+    std::free(f->x);
+    delete f;
+  });
+}
+
+size_t CholmodSolver::kept_factor_bytes() const {
+  if (factor_->is_super) return factor_->xsize * sizeof(double);
+  return factor_bytes();
 }
 
 Eigen::VectorXd CholmodSolver::solve_with(const Factor& factor, const Eigen::VectorXd& b) const {
