@@ -30,3 +30,171 @@ BendTerm::BendTerm(const TriangleMesh& mesh, const std::vector<BendingEdge>& edg
 }
 
 }  // namespace drapelab
+
+// ---------------------------------------------------------------------------------------------------------
+// Hand-written kernels (see bend.hpp). d = theta - theta_rest; E(d) and its d-derivatives by scalar jets.
+// ---------------------------------------------------------------------------------------------------------
+
+namespace drapelab {
+
+namespace {
+using D1 = Jet<double, 1>;
+using D2 = Jet<D1, 1>;
+using D3 = Jet<D2, 1>;
+
+inline D2 seed2(double d) {
+  D2 r{D1(d, 0)};
+  r.v[0] = D1(1.0);
+  return r;
+}
+inline D3 seed3(double d) {
+  D3 r{seed2(d)};
+  r.v[0] = D2(D1(1.0));
+  return r;
+}
+}  // namespace
+
+void BendTerm::add_gradient(const Eigen::VectorXd& x, const Eigen::VectorXd& p, Eigen::VectorXd& g) const {
+  double xe[12], gt[12];
+  for (int e = 0; e < num_elements(); ++e) {
+    gather_local(e, x, xe);
+    const double d = dihedral_angle(xe) - rest_angle_[e];
+    const D1 E = energy_of_angle(e, D1(d, 0), p.data() + parameter_offset(e));
+    dihedral_gradient(xe, gt);
+    for (int i = 0; i < 12; ++i) gt[i] *= E.v[0];
+    scatter_vector(e, gt, 1.0, g);
+  }
+}
+
+void BendTerm::add_step_matrix(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double scale,
+                               Eigen::VectorXd& values) const {
+  double xe[12], gt[12], K[144], r, S;
+  for (int e = 0; e < num_elements(); ++e) {
+    gather_local(e, x, xe);
+    element_gauss_newton(e, xe, p.data() + parameter_offset(e), &r, &S);
+    dihedral_gradient(xe, gt);
+    for (int i = 0; i < 12; ++i) {
+      const double si = S * gt[i];
+      for (int j = 0; j < 12; ++j) K[i * 12 + j] = si * gt[j];
+    }
+    scatter_matrix(e, K, scale, values);
+  }
+}
+
+void BendTerm::add_hessian(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double scale,
+                           Eigen::VectorXd& values) const {
+  using G = Jet<double, 12>;
+  double xe[12], H[144];
+  G xj[12], gj[12];
+  for (int e = 0; e < num_elements(); ++e) {
+    gather_local(e, x, xe);
+    const double d = dihedral_angle(xe) - rest_angle_[e];
+    const D2 E = energy_of_angle(e, seed2(d), p.data() + parameter_offset(e));
+    const double E1 = E.v[0].a, E2 = E.v[0].v[0];
+    for (int i = 0; i < 12; ++i) xj[i] = G(xe[i], i);
+    dihedral_gradient(xj, gj);
+    for (int i = 0; i < 12; ++i)
+      for (int j = 0; j < 12; ++j) H[i * 12 + j] = E2 * gj[i].a * gj[j].a + E1 * gj[i].v[j];
+    scatter_matrix(e, H, scale, values);
+  }
+}
+
+void BendTerm::add_hessian_product(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& dir,
+                                   Eigen::VectorXd& out) const {
+  double xe[12], Hd[12];
+  D1 xj[12], gj[12];
+  for (int e = 0; e < num_elements(); ++e) {
+    gather_local(e, x, xe);
+    const auto& v = verts_[e];
+    for (int i = 0; i < 12; ++i) {
+      xj[i] = D1(xe[i]);
+      xj[i].v[0] = dir[3 * v[i / 3] + i % 3];
+    }
+    const double d = dihedral_angle(xe) - rest_angle_[e];
+    const D2 E = energy_of_angle(e, seed2(d), p.data() + parameter_offset(e));
+    const double E1 = E.v[0].a, E2 = E.v[0].v[0];
+    dihedral_gradient(xj, gj);
+    double gd = 0;
+    for (int i = 0; i < 12; ++i) gd += gj[i].a * xj[i].v[0];
+    for (int i = 0; i < 12; ++i) Hd[i] = E2 * gj[i].a * gd + E1 * gj[i].v[0];
+    scatter_vector(e, Hd, 1.0, out);
+  }
+}
+
+void BendTerm::add_energy_parameter_gradient(const Eigen::VectorXd& x, const Eigen::VectorXd& p,
+                                             Eigen::VectorXd& gp) const {
+  using P15 = Jet<double, 15>;
+  double xe[12];
+  P15 pj[15];
+  for (int e = 0; e < num_elements(); ++e) {
+    gather_local(e, x, xe);
+    const int off = parameter_offset(e);
+    for (int k = 0; k < 15; ++k) pj[k] = P15(p[off + k], k);
+    const P15 E = energy_of_angle(e, P15(dihedral_angle(xe) - rest_angle_[e]), pj);
+    for (int k = 0; k < 15; ++k) gp[off + k] += E.v[k];
+  }
+}
+
+void BendTerm::add_gradient_parameter_product(const Eigen::VectorXd& x, const Eigen::VectorXd& p,
+                                              const Eigen::VectorXd& lambda, double scale, Eigen::VectorXd& gp) const {
+  using P15 = Jet<double, 15>;
+  using Q = Jet<P15, 1>;
+  double xe[12], gt[12];
+  Q pj[15];
+  for (int e = 0; e < num_elements(); ++e) {
+    gather_local(e, x, xe);
+    const auto& v = verts_[e];
+    const int off = parameter_offset(e);
+    for (int k = 0; k < 15; ++k) pj[k] = Q(P15(p[off + k], k));
+    Q d{P15(dihedral_angle(xe) - rest_angle_[e])};
+    d.v[0] = P15(1.0);
+    const Q E = energy_of_angle(e, d, pj);
+    dihedral_gradient(xe, gt);
+    double gl = 0;
+    for (int i = 0; i < 12; ++i) gl += gt[i] * lambda[3 * v[i / 3] + i % 3];
+    for (int k = 0; k < 15; ++k) gp[off + k] += scale * gl * E.v[0].v[k];
+  }
+}
+
+void BendTerm::add_step_matrix_derivatives(const Eigen::VectorXd& x, const Eigen::VectorXd& p,
+                                           const Eigen::VectorXd& lambda, const Eigen::VectorXd& w, double scale,
+                                           Eigen::VectorXd& gx, Eigen::VectorXd& gp) const {
+  using T2 = Jet<double, 2>;
+  using P15 = Jet<double, 15>;
+  using R = Jet<Jet<P15, 1>, 1>;
+  double xe[12], ge[12];
+  T2 xj[12], gj[12];
+  R pj[15];
+  for (int e = 0; e < num_elements(); ++e) {
+    gather_local(e, x, xe);
+    const auto& v = verts_[e];
+    const int off = parameter_offset(e);
+    for (int i = 0; i < 12; ++i) {
+      const int dof = 3 * v[i / 3] + i % 3;
+      xj[i] = T2(xe[i]);
+      xj[i].v[0] = lambda[dof];
+      xj[i].v[1] = w[dof];
+    }
+    dihedral_gradient(xj, gj);  // .a: grad theta, .v[0]: Hess theta lambda, .v[1]: Hess theta w
+    double gl = 0, gw = 0;
+    for (int i = 0; i < 12; ++i) {
+      gl += gj[i].a * xj[i].v[0];
+      gw += gj[i].a * xj[i].v[1];
+    }
+    const double d = dihedral_angle(xe) - rest_angle_[e];
+    // S = max(E'', 0): its angle derivative E''' and its table derivatives dE''/dp where E'' > 0.
+    const D3 E3 = energy_of_angle(e, seed3(d), p.data() + off);
+    const double E2 = E3.v[0].v[0].a;
+    if (!(E2 > 0)) continue;  // S = 0 with zero derivatives
+    const double E3v = E3.v[0].v[0].v[0];
+    for (int i = 0; i < 12; ++i) ge[i] = E3v * gj[i].a * gl * gw + E2 * (gj[i].v[0] * gw + gl * gj[i].v[1]);
+    scatter_vector(e, ge, scale, gx);
+    for (int k = 0; k < 15; ++k) pj[k] = R(Jet<P15, 1>(P15(p[off + k], k)));
+    R dj{Jet<P15, 1>(P15(d), 0)};
+    dj.v[0] = Jet<P15, 1>(P15(1.0));
+    const R Ep = energy_of_angle(e, dj, pj);
+    for (int k = 0; k < 15; ++k) gp[off + k] += scale * gl * gw * Ep.v[0].v[0].v[k];
+  }
+}
+
+}  // namespace drapelab

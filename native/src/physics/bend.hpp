@@ -52,8 +52,8 @@ class BendTerm : public ElementTerm<BendTerm, 4, 15, 1> {
     return atan2(s, c);
   }
 
-  template <class T>
-  T stiffness(int e, const T& half_angle_sine, const T* p) const {
+  template <class T, class P>
+  T stiffness(int e, const T& half_angle_sine, const P* p) const {
     const double hsum = height_sum_[e];
     T alpha = (value_of(half_angle_sine) >= 0 ? half_angle_sine : -half_angle_sine) / hsum;
     const T t = alpha / kBendSampleCurvature;
@@ -79,8 +79,8 @@ class BendTerm : public ElementTerm<BendTerm, 4, 15, 1> {
   }
 
   // Energy as a function of the angle change d = theta - theta_rest.
-  template <class T>
-  T energy_of_angle(int e, const T& d, const T* p) const {
+  template <class T, class P>
+  T energy_of_angle(int e, const T& d, const P* p) const {
     const T k = stiffness(e, sin(0.5 * d), p);
     return 2.0 * k * (rest_length_[e] / height_sum_[e]) * (1.0 - cos(0.5 * d));
   }
@@ -102,14 +102,69 @@ class BendTerm : public ElementTerm<BendTerm, 4, 15, 1> {
     d.v[0] = J1(T(1.0));
     J2 pj[15];
     for (int k = 0; k < 15; ++k) pj[k] = J2(J1(p[k]));
-    const J2 E = energy_of_angle<J2>(e, d, pj);
+    const J2 E = energy_of_angle(e, d, pj);
     const T curvature = E.v[0].v[0];
     S[0] = value_of(curvature) > 0 ? curvature : T(0.0);
   }
 
   double bias_angle(int e) const { return bias_[e]; }
 
+  // Gradient of the dihedral angle in closed form (Bridson et al. 2003): with e = x_b - x_a and the
+  // area-weighted normals n1 = e x (x_c - x_a), n2 = (x_d - x_a) x e,
+  //   dtheta/dx_c = -|e| n1 / |n1|^2,  dtheta/dx_d = -|e| n2 / |n2|^2,
+  //   dtheta/dx_b = -(a_c dtheta/dx_c + a_d dtheta/dx_d),  dtheta/dx_a = -(dtheta/dx_b + dtheta/dx_c + dtheta/dx_d),
+  // a_k = (x_k - x_a) . e / |e|^2. Templated: with jets it gives the angle's Hessian (products).
+  template <class T>
+  static void dihedral_gradient(const T* x, T* g) {
+    T e[3], ec[3], ed[3];
+    for (int k = 0; k < 3; ++k) {
+      e[k] = x[3 + k] - x[k];
+      ec[k] = x[6 + k] - x[k];
+      ed[k] = x[9 + k] - x[k];
+    }
+    T n1[3], n2[3];
+    cross(e, ec, n1);
+    cross(ed, e, n2);
+    const T le2 = e[0] * e[0] + e[1] * e[1] + e[2] * e[2];
+    const T le = sqrt(le2);
+    const T s1 = -le / (n1[0] * n1[0] + n1[1] * n1[1] + n1[2] * n1[2]);
+    const T s2 = -le / (n2[0] * n2[0] + n2[1] * n2[1] + n2[2] * n2[2]);
+    const T ac = (ec[0] * e[0] + ec[1] * e[1] + ec[2] * e[2]) / le2;
+    const T ad = (ed[0] * e[0] + ed[1] * e[1] + ed[2] * e[2]) / le2;
+    for (int k = 0; k < 3; ++k) {
+      const T gc = s1 * n1[k], gd = s2 * n2[k];
+      const T gb = -(ac * gc + ad * gd);
+      g[6 + k] = gc;
+      g[9 + k] = gd;
+      g[3 + k] = gb;
+      g[k] = -(gb + gc + gd);
+    }
+  }
+
+  // Hand-written kernels: E = E(theta) through the dihedral angle, its gradient in closed form (above),
+  // jets only on the scalar E(theta) and on the closed-form gradient (for the angle's Hessian). Equal to the
+  // jet-derived reference (ElementTerm's versions, kept as Reference) to round-off; see test_kernels.cpp.
+  using Reference = ElementTerm<BendTerm, 4, 15, 1>;
+  void add_gradient(const Eigen::VectorXd& x, const Eigen::VectorXd& p, Eigen::VectorXd& g) const override;
+  void add_step_matrix(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double scale,
+                       Eigen::VectorXd& values) const override;
+  void add_hessian(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double scale,
+                   Eigen::VectorXd& values) const override;
+  void add_hessian_product(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& dir,
+                           Eigen::VectorXd& out) const override;
+  void add_energy_parameter_gradient(const Eigen::VectorXd& x, const Eigen::VectorXd& p,
+                                     Eigen::VectorXd& gp) const override;
+  void add_gradient_parameter_product(const Eigen::VectorXd& x, const Eigen::VectorXd& p,
+                                      const Eigen::VectorXd& lambda, double scale, Eigen::VectorXd& gp) const override;
+  void add_step_matrix_derivatives(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& lambda,
+                                   const Eigen::VectorXd& w, double scale, Eigen::VectorXd& gx,
+                                   Eigen::VectorXd& gp) const override;
+
  private:
+  void gather_local(int e, const Eigen::VectorXd& x, double* xe) const {
+    const auto& v = verts_[e];
+    for (int i = 0; i < 12; ++i) xe[i] = x[3 * v[i / 3] + i % 3];
+  }
   template <class T>
   static void cross(const T* a, const T* b, T* out) {
     out[0] = a[1] * b[2] - a[2] * b[1];

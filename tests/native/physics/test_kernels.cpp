@@ -103,3 +103,8 @@ TEST(TermKernels, StretchMatchesJetReference) {
   compare_kernels<StretchTerm>(false);
   compare_kernels<StretchTerm>(true);
 }
+
+TEST(TermKernels, BendMatchesJetReference) {
+  compare_kernels<BendTerm>(false);
+  compare_kernels<BendTerm>(true);
+}
