@@ -89,7 +89,7 @@ def cusick_specimen(level=3, *, vertices=None, template_dir=None):
 
 
 def read_obj(path):
-    """A TriangleMesh from an OBJ file (rest pattern from vt when consistent, else from (x, y))."""
+    """A TriangleMesh from an OBJ file; its rest pattern (u, v) is the (x, y) of the vertices (flat meshes)."""
     return native.read_obj(os.fspath(path))
 
 
@@ -186,7 +186,8 @@ def _progress_sink(progress, cancel_event, what):
 class ClothModel:
     """A cloth model (mesh, rest frame, masses, stretch + bend + gravity + handle) and its solvers.
 
-    mesh_or_path: a TriangleMesh (e.g. ``cusick_specimen(3)``), an OBJ path, or (positions, faces[, uv]).
+    mesh_or_path: a TriangleMesh (e.g. ``cusick_specimen(3)``), an OBJ path (a flat mesh: the rest pattern is
+    its (x, y)), or (positions, faces[, uv]) with uv the rest pattern (default (x, y)).
     heterogeneous: one stretch table per face and one bend table per bending edge (else one shared table).
     density (kg/m^2), handle_stiffness (N/m), support_radius (m): defaults of ``parameters()`` and the
     handled region (vertices with rest radius below support_radius are held at their rest positions).
