@@ -217,6 +217,8 @@ class FitJob:
                           "eta": np.full(BEND_SHAPE, inverse_softplus(float(self.config["init"]["bdp_std"])))}
         self.adam = {k: {"m": np.zeros_like(v), "v": np.zeros_like(v)} for k, v in self.theta.items()}
         self.warm = {}  # Monte Carlo slot -> last equilibrium (static mode warm starts)
+        self.previous_theta = None  # before the last Adam step (undone if the next drape fails)
+        self.lr_scale = 1.0
         self.epoch = 0
         self.history = []
         self.elapsed = 0.0
@@ -287,7 +289,7 @@ class FitJob:
             st["v"] = cfg["beta2"] * st["v"] + (1 - cfg["beta2"]) * g * g
             mhat = st["m"] / (1 - cfg["beta1"] ** t)
             vhat = st["v"] / (1 - cfg["beta2"] ** t)
-            self.theta[k] = self.theta[k] - lrs[k] * mhat / (np.sqrt(vhat) + cfg["epsilon"])
+            self.theta[k] = self.theta[k] - self.lr_scale * lrs[k] * mhat / (np.sqrt(vhat) + cfg["epsilon"])
 
     def metrics(self, images):
         out = []
@@ -313,10 +315,23 @@ class FitJob:
             if cancel_event is not None and cancel_event.is_set():
                 raise Cancelled()
             te = time.monotonic()
-            terms, grads = self.objective(self.theta, self.epoch, cancel_event)
+            try:
+                terms, grads = self.objective(self.theta, self.epoch, cancel_event)
+            except SolverError as e:
+                # The last step took the tables where a drape fails (diverged rollout, no equilibrium):
+                # undo it and halve the learning rate. Nothing to undo before the first step.
+                if self.previous_theta is None:
+                    raise
+                self.theta = {k: v.copy() for k, v in self.previous_theta.items()}
+                self.previous_theta = None
+                self.lr_scale *= 0.5
+                self.warm = {}
+                self.history.append({"epoch": self.epoch, "rejected": str(e), "lr_scale": self.lr_scale})
+                continue
             m = self.metrics(terms["images"])
             if self.start_metrics is None:
                 self.start_metrics = m
+            self.previous_theta = {k: v.copy() for k, v in self.theta.items()}
             self.adam_step(grads)
             self.epoch += 1
             entry = {"epoch": self.epoch, "loss": terms["loss"], "data": terms["data"], "kl": terms["kl"],
@@ -336,7 +351,8 @@ class FitJob:
                 "images": [o.path for o in self.observations],
                 "theta": {k: v.tolist() for k, v in self.theta.items()},
                 "adam": {k: {"m": s["m"].tolist(), "v": s["v"].tolist()} for k, s in self.adam.items()},
-                "history": self.history, "elapsed": self.elapsed, "start_metrics": self.start_metrics}
+                "history": self.history, "elapsed": self.elapsed, "start_metrics": self.start_metrics,
+                "lr_scale": self.lr_scale}
 
     def save_checkpoint(self, path):
         measure.write_json(path, self.state())
@@ -359,6 +375,7 @@ class FitJob:
         self.history = list(st["history"])
         self.elapsed = float(st.get("elapsed", 0.0))
         self.start_metrics = st.get("start_metrics")
+        self.lr_scale = float(st.get("lr_scale", 1.0))
 
     # -- results
     def posterior(self):
@@ -374,7 +391,8 @@ class FitJob:
                          "per_element_log": mu.reshape(mu.shape[0], -1).tolist()}}
 
     def preset(self, fabric=None, options=None):
-        last = self.history[-1] if self.history else {}
+        accepted = [h for h in self.history if "rejected" not in h]
+        last = accepted[-1] if accepted else {}
         return {
             "schema_version": PRESET_SCHEMA_VERSION,
             "kind": "drapelab-material-preset",
@@ -390,6 +408,7 @@ class FitJob:
             "camera": {"kind": self.camera_kind, **self.observations[0].calibration},
             "simulation": {"mesh_level": self.mesh_level, "forward": self.config["forward"]},
             "training": {"epochs": self.epoch, "seconds": self.elapsed, "final_loss": last.get("loss"),
+                         "rejected_steps": len(self.history) - len(accepted),
                          "start": self.start_metrics, "history": self.history},
             "metrics": {"training_image": {"iou": last.get("iou"), "mse": last.get("mse")}},
             "provenance": {"images": [{"path": o.path, "sha256": o.sha256} for o in self.observations],
@@ -528,8 +547,12 @@ def evaluate(preset_or_path, images, meshes=None, samples=None, seed=0, threads=
             if cancel_event is not None and cancel_event.is_set():
                 raise Cancelled()
             p = m.parameters(stretch=stretch, bend=draws[i])
-            x = m.simulate(p, mode=fwd, record=False, **mode_opts) if fwd == "dynamic" else \
-                m.simulate(p, mode="static", **mode_opts)
+            try:
+                x = m.simulate(p, mode=fwd, record=False, **mode_opts) if fwd == "dynamic" else \
+                    m.simulate(p, mode="static", **mode_opts)
+            except SolverError as e:  # a draw whose drape fails is reported, not fatal
+                shapes[i] = {"error": str(e)}
+                continue
             img = _hard_image(camera, x, m.faces)
             r = measure.r_theta(img, cal_obj)
             shapes[i] = {"x": x, "image": img, "dc": measure.drape_coefficient(img, cal["px_per_m"]),
@@ -545,6 +568,10 @@ def evaluate(preset_or_path, images, meshes=None, samples=None, seed=0, threads=
         with concurrent.futures.ThreadPoolExecutor(lanes) as pool:
             for f in [pool.submit(run, l) for l in range(lanes)]:
                 f.result()
+    failed = [s["error"] for s in shapes if "error" in s]
+    shapes = [s for s in shapes if "error" not in s]
+    if not shapes:
+        raise SolverError(f"evaluate: every one of the {n} posterior draws failed to drape; first: {failed[0]}")
     dcs = np.array([s["dc"] for s in shapes])
     nodes = np.array([s["nodes"] for s in shapes])
     values, counts = np.unique(nodes, return_counts=True)
@@ -575,4 +602,5 @@ def evaluate(preset_or_path, images, meshes=None, samples=None, seed=0, threads=
     if meshes:
         mean["hausdorff_m"] = float(np.mean([e["hausdorff_m"] for e in per_image]))
     return {"preset": preset_or_path if isinstance(preset_or_path, str) else None, "model": kind, "samples": n,
+            "failed_samples": len(failed),
             "forward": fwd, "mesh_level": level, "images": per_image, "mean": mean}
