@@ -121,38 +121,32 @@ void BendTerm::add_hessian_product(const Eigen::VectorXd& x, const Eigen::Vector
   }
 }
 
-void BendTerm::add_energy_parameter_gradient(const Eigen::VectorXd& x, const Eigen::VectorXd& p,
+void BendTerm::add_energy_parameter_gradient(const Eigen::VectorXd& x, const Eigen::VectorXd& /*p*/,
                                              Eigen::VectorXd& gp) const {
-  using P15 = Jet<double, 15>;
-  double xe[12];
-  P15 pj[15];
+  double xe[12], phi[4];
+  int index[4];
   for (int e = 0; e < num_elements(); ++e) {
     gather_local(e, x, xe);
     const int off = parameter_offset(e);
-    for (int k = 0; k < 15; ++k) pj[k] = P15(p[off + k], k);
-    const P15 E = energy_of_angle(e, P15(dihedral_angle(xe) - rest_angle_[e]), pj);
-    for (int k = 0; k < 15; ++k) gp[off + k] += E.v[k];
+    const int n = table_coefficients(e, dihedral_angle(xe) - rest_angle_[e], index, phi);
+    for (int j = 0; j < n; ++j) gp[off + index[j]] += phi[j];
   }
 }
 
-void BendTerm::add_gradient_parameter_product(const Eigen::VectorXd& x, const Eigen::VectorXd& p,
+void BendTerm::add_gradient_parameter_product(const Eigen::VectorXd& x, const Eigen::VectorXd& /*p*/,
                                               const Eigen::VectorXd& lambda, double scale, Eigen::VectorXd& gp) const {
-  using P15 = Jet<double, 15>;
-  using Q = Jet<P15, 1>;
   double xe[12], gt[12];
-  Q pj[15];
+  D1 phi[4];
+  int index[4];
   for (int e = 0; e < num_elements(); ++e) {
     gather_local(e, x, xe);
     const auto& v = verts_[e];
     const int off = parameter_offset(e);
-    for (int k = 0; k < 15; ++k) pj[k] = Q(P15(p[off + k], k));
-    Q d{P15(dihedral_angle(xe) - rest_angle_[e])};
-    d.v[0] = P15(1.0);
-    const Q E = energy_of_angle(e, d, pj);
+    const int n = table_coefficients(e, D1(dihedral_angle(xe) - rest_angle_[e], 0), index, phi);
     dihedral_gradient(xe, gt);
     double gl = 0;
     for (int i = 0; i < 12; ++i) gl += gt[i] * lambda[3 * v[i / 3] + i % 3];
-    for (int k = 0; k < 15; ++k) gp[off + k] += scale * gl * E.v[0].v[k];
+    for (int j = 0; j < n; ++j) gp[off + index[j]] += scale * gl * phi[j].v[0];
   }
 }
 
@@ -160,11 +154,10 @@ void BendTerm::add_step_matrix_derivatives(const Eigen::VectorXd& x, const Eigen
                                            const Eigen::VectorXd& lambda, const Eigen::VectorXd& w, double scale,
                                            Eigen::VectorXd& gx, Eigen::VectorXd& gp) const {
   using T2 = Jet<double, 2>;
-  using P15 = Jet<double, 15>;
-  using R = Jet<Jet<P15, 1>, 1>;
   double xe[12], ge[12];
   T2 xj[12], gj[12];
-  R pj[15];
+  D2 phi[4];
+  int index[4];
   for (int e = 0; e < num_elements(); ++e) {
     gather_local(e, x, xe);
     const auto& v = verts_[e];
@@ -189,12 +182,73 @@ void BendTerm::add_step_matrix_derivatives(const Eigen::VectorXd& x, const Eigen
     const double E3v = E3.v[0].v[0].v[0];
     for (int i = 0; i < 12; ++i) ge[i] = E3v * gj[i].a * gl * gw + E2 * (gj[i].v[0] * gw + gl * gj[i].v[1]);
     scatter_vector(e, ge, scale, gx);
-    for (int k = 0; k < 15; ++k) pj[k] = R(Jet<P15, 1>(P15(p[off + k], k)));
-    R dj{Jet<P15, 1>(P15(d), 0)};
-    dj.v[0] = Jet<P15, 1>(P15(1.0));
-    const R Ep = energy_of_angle(e, dj, pj);
-    for (int k = 0; k < 15; ++k) gp[off + k] += scale * gl * gw * Ep.v[0].v[0].v[k];
+    const int n = table_coefficients(e, seed2(d), index, phi);
+    for (int j = 0; j < n; ++j) gp[off + index[j]] += scale * gl * gw * phi[j].v[0].v[0];
   }
+}
+
+bool BendTerm::add_step_matrix_product(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& dir,
+                                       double scale, Eigen::VectorXd& out) const {
+  double xe[12], gt[12], r, S;
+  for (int e = 0; e < num_elements(); ++e) {
+    gather_local(e, x, xe);
+    element_gauss_newton(e, xe, p.data() + parameter_offset(e), &r, &S);
+    if (!(S != 0.0)) continue;
+    const auto& v = verts_[e];
+    dihedral_gradient(xe, gt);
+    double gd = 0;
+    for (int i = 0; i < 12; ++i) gd += gt[i] * dir[3 * v[i / 3] + i % 3];
+    const double sgd = S * gd;
+    for (int i = 0; i < 12; ++i) gt[i] *= sgd;
+    scatter_vector(e, gt, scale, out);
+  }
+  return true;
+}
+
+bool BendTerm::add_step_adjoint(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& lambda,
+                                const Eigen::VectorXd& w, double h, Eigen::VectorXd& gx, Eigen::VectorXd& gv,
+                                Eigen::VectorXd& gp) const {
+  using T2 = Jet<double, 2>;
+  double xe[12], ge[12], kl[12];
+  T2 xj[12], gj[12];
+  D2 phi[4];
+  int index[4];
+  const double h2 = h * h;
+  for (int e = 0; e < num_elements(); ++e) {
+    gather_local(e, x, xe);
+    const auto& v = verts_[e];
+    const int off = parameter_offset(e);
+    for (int i = 0; i < 12; ++i) {
+      const int dof = 3 * v[i / 3] + i % 3;
+      xj[i] = T2(xe[i]);
+      xj[i].v[0] = lambda[dof];
+      xj[i].v[1] = w[dof];
+    }
+    dihedral_gradient(xj, gj);  // .a: grad theta, .v[0]: Hess theta lambda, .v[1]: Hess theta w
+    double gl = 0, gw = 0;
+    for (int i = 0; i < 12; ++i) {
+      gl += gj[i].a * xj[i].v[0];
+      gw += gj[i].a * xj[i].v[1];
+    }
+    const double d = dihedral_angle(xe) - rest_angle_[e];
+    const D3 E = energy_of_angle(e, seed3(d), p.data() + off);
+    const double E1 = E.v[0].a.a, E2 = E.v[0].v[0].a, E3 = E.v[0].v[0].v[0];
+    const int n = table_coefficients(e, seed2(d), index, phi);
+    // -h Hess E lambda
+    for (int i = 0; i < 12; ++i) ge[i] = -h * (E2 * gj[i].a * gl + E1 * gj[i].v[0]);
+    // -h d(lambda . grad E)/dp
+    for (int j = 0; j < n; ++j) gp[off + index[j]] += -h * gl * phi[j].v[0].a;
+    if (E2 > 0) {  // S = E'' (else S = 0 with zero derivatives)
+      for (int i = 0; i < 12; ++i) {
+        ge[i] += -h2 * (E3 * gj[i].a * gl * gw + E2 * (gj[i].v[0] * gw + gl * gj[i].v[1]));
+        kl[i] = -h2 * E2 * gl * gj[i].a;
+      }
+      for (int j = 0; j < n; ++j) gp[off + index[j]] += -h2 * gl * gw * phi[j].v[0].v[0];
+      scatter_vector(e, kl, 1.0, gv);
+    }
+    scatter_vector(e, ge, 1.0, gx);
+  }
+  return true;
 }
 
 }  // namespace drapelab

@@ -78,6 +78,41 @@ class BendTerm : public ElementTerm<BendTerm, 4, 15, 1> {
     return k;
   }
 
+  // E is linear in the table: E = sum_j phi_j(d) p[index_j] over the (at most 4) entries used at angle change
+  // d. Writes index_j and phi_j(d) = dE/dp[index_j] (T: scalar jets in d give their d-derivatives); returns
+  // the count.
+  template <class T>
+  int table_coefficients(int e, const T& d, int* index, T* phi) const {
+    const T half_sine = sin(0.5 * d);
+    const double hsum = height_sum_[e];
+    T alpha = (value_of(half_sine) >= 0 ? half_sine : -half_sine) / hsum;
+    const T t = alpha / kBendSampleCurvature;
+    const double tv = value_of(t);
+    int k0;
+    T f;
+    if (tv >= 4) {
+      k0 = 3;
+      f = T(1.0);
+    } else {
+      k0 = static_cast<int>(tv);
+      if (k0 > 3) k0 = 3;
+      f = smoothstep(t - static_cast<double>(k0));
+    }
+    const T G = 2.0 * (rest_length_[e] / height_sum_[e]) * (1.0 - cos(0.5 * d));
+    const T gf = G * f, g1f = G - gf;
+    const auto& rw = row_weights_[e];
+    int n = 0;
+    for (int r = 0; r < 2; ++r) {
+      if (rw[r] == 0.0) continue;
+      const int row = row_index_[e][r];
+      index[n] = 5 * row + k0;
+      phi[n++] = rw[r] * g1f;
+      index[n] = 5 * row + k0 + 1;
+      phi[n++] = rw[r] * gf;
+    }
+    return n;
+  }
+
   // Energy as a function of the angle change d = theta - theta_rest.
   template <class T, class P>
   T energy_of_angle(int e, const T& d, const P* p) const {
@@ -159,6 +194,11 @@ class BendTerm : public ElementTerm<BendTerm, 4, 15, 1> {
   void add_step_matrix_derivatives(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& lambda,
                                    const Eigen::VectorXd& w, double scale, Eigen::VectorXd& gx,
                                    Eigen::VectorXd& gp) const override;
+  bool add_step_matrix_product(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& dir,
+                               double scale, Eigen::VectorXd& out) const override;
+  bool add_step_adjoint(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& lambda,
+                        const Eigen::VectorXd& w, double h, Eigen::VectorXd& gx, Eigen::VectorXd& gv,
+                        Eigen::VectorXd& gp) const override;
 
  private:
   void gather_local(int e, const Eigen::VectorXd& x, double* xe) const {

@@ -96,6 +96,41 @@ class ElementTerm : public Term {
     }
   }
 
+  bool add_step_matrix_product(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& dir,
+                               double scale, Eigen::VectorXd& out) const override {
+    if constexpr (kResiduals > 0) {
+      using J = Jet<double, D>;
+      J xe[D], pe[kParams > 0 ? kParams : 1], r[kResiduals], S[kResiduals * kResiduals];
+      double de[D], out_e[D];
+      for (int e = 0; e < self().num_elements(); ++e) {
+        seed_x(e, x, xe);
+        gather(e, dir, de);
+        const double* pv = p.data() + self().parameter_offset(e);
+        for (int k = 0; k < kParams; ++k) pe[k] = J(pv[k]);
+        self().template element_gauss_newton<J>(e, xe, pe, r, S);
+        // K d = J_r^T S (J_r d)
+        double Jd[kResiduals], SJd[kResiduals];
+        for (int a = 0; a < kResiduals; ++a) {
+          double s = 0;
+          for (int j = 0; j < D; ++j) s += r[a].v[j] * de[j];
+          Jd[a] = s;
+        }
+        for (int a = 0; a < kResiduals; ++a) {
+          double s = 0;
+          for (int b = 0; b < kResiduals; ++b) s += S[a * kResiduals + b].a * Jd[b];
+          SJd[a] = s;
+        }
+        for (int i = 0; i < D; ++i) {
+          double s = 0;
+          for (int a = 0; a < kResiduals; ++a) s += r[a].v[i] * SJd[a];
+          out_e[i] = s;
+        }
+        scatter_vector(e, out_e, scale, out);
+      }
+    }
+    return true;
+  }
+
   void add_hessian(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double scale,
                    Eigen::VectorXd& values) const override {
     using J1 = Jet<double, D>;

@@ -278,74 +278,178 @@ void StretchTerm::add_gradient_parameter_product(const Eigen::VectorXd& x, const
   }
 }
 
+namespace {
+// Directional data of one face along a vector u (lambda, w, a direction): dF = sum_v B_v u_v^T and the
+// strain derivative J_eps u.
+struct Directional {
+  double dF[3][2];
+  double de[3];
+};
+}  // namespace
+
 void StretchTerm::add_step_matrix_derivatives(const Eigen::VectorXd& x, const Eigen::VectorXd& p,
                                               const Eigen::VectorXd& lambda, const Eigen::VectorXd& w, double scale,
                                               Eigen::VectorXd& gx, Eigen::VectorXd& gp) const {
-  using J7 = Jet<double, 7>;
   Local s;
   for (int e = 0; e < num_elements(); ++e) {
     local_state(e, x, s);
     const int off = parameter_offset(e);
-    // directional data: dF along lambda and w, strain derivatives along both
-    double dFl[3][2] = {{0}}, dFw[3][2] = {{0}};
-    for (int vv = 0; vv < 3; ++vv)
-      for (int c = 0; c < 3; ++c) {
-        const double l = lambda[3 * s.v[vv] + c], ww = w[3 * s.v[vv] + c];
-        for (int a = 0; a < 2; ++a) {
-          dFl[c][a] += s.B[vv][a] * l;
-          dFw[c][a] += s.B[vv][a] * ww;
-        }
-      }
-    double el[3] = {0, 0, 0}, ew[3] = {0, 0, 0};
-    for (int c = 0; c < 3; ++c) {
-      el[0] += s.f[c][0] * dFl[c][0];
-      el[1] += s.f[c][1] * dFl[c][1];
-      el[2] += 0.5 * (s.f[c][0] * dFl[c][1] + s.f[c][1] * dFl[c][0]);
-      ew[0] += s.f[c][0] * dFw[c][0];
-      ew[1] += s.f[c][1] * dFw[c][1];
-      ew[2] += 0.5 * (s.f[c][0] * dFw[c][1] + s.f[c][1] * dFw[c][0]);
-    }
-    // C(eps) with d/deps (slots 0..2) and d/dc (slots 3..6); S+ through s = C eps
-    const J3 ej3[3] = {J3(s.eps[0], 0), J3(s.eps[1], 1), J3(s.eps[2], 2)};
-    J3 c3[4];
-    stiffness(ej3, p.data() + off, c3);
-    J7 c[4], ej[3];
-    for (int k = 0; k < 4; ++k) {
-      c[k] = J7(c3[k].a);
-      for (int i = 0; i < 3; ++i) c[k].v[i] = c3[k].v[i];
-      c[k].v[3 + k] = 1.0;
-    }
-    for (int k = 0; k < 3; ++k) ej[k] = J7(s.eps[k], k);
-    const J7 s00 = c[0] * ej[0] + c[1] * ej[1], s11 = c[1] * ej[0] + c[2] * ej[1], s01 = 0.5 * c[3] * ej[2];
-    J7 P[2][2];
-    positive_part(s00, s01, s11, P);
-    // q = A [ el^T C ew + sum_c sum_ab P_ab dFl[c][a] dFw[c][b] ]
-    double G[2][2] = {{0, 0}, {0, 0}};  // sum_c dFl[c][a] dFw[c][b]
-    for (int c = 0; c < 3; ++c)
-      for (int a = 0; a < 2; ++a)
-        for (int b = 0; b < 2; ++b) G[a][b] += dFl[c][a] * dFw[c][b];
-    const J7 q = s.A * (c[0] * (el[0] * ew[0]) + c[1] * (el[0] * ew[1] + el[1] * ew[0]) + c[2] * (el[1] * ew[1]) +
-                        c[3] * (el[2] * ew[2]) + P[0][0] * G[0][0] + P[0][1] * G[0][1] + P[1][0] * G[1][0] +
-                        P[1][1] * G[1][1]);
+    Directional L, Wd;
+    directional(s, lambda, L.dF, L.de);
+    directional(s, w, Wd.dF, Wd.de);
     double ge[9] = {0};
-    // through C(eps) and S+(eps)
-    const double qe[3] = {q.v[0], q.v[1], q.v[2]};
-    strain_transpose(s.f, s.B, qe, ge);
-    // through the strain derivatives el(x), ew(x) with C frozen: u = A C ew, t = A C el
-    const double cv[4] = {c3[0].a, c3[1].a, c3[2].a, c3[3].a};
-    const double u[3] = {s.A * (cv[0] * ew[0] + cv[1] * ew[1]), s.A * (cv[1] * ew[0] + cv[2] * ew[1]), s.A * cv[3] * ew[2]};
-    const double t[3] = {s.A * (cv[0] * el[0] + cv[1] * el[1]), s.A * (cv[1] * el[0] + cv[2] * el[1]), s.A * cv[3] * el[2]};
+    step_matrix_derivative_element(s, p.data() + off, L.dF, L.de, Wd.dF, Wd.de, scale, ge, gp.data() + off, 0.0, nullptr);
+    scatter_vector(e, ge, 1.0, gx);
+  }
+}
+
+bool StretchTerm::add_step_matrix_product(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& dir,
+                                          double scale, Eigen::VectorXd& out) const {
+  Local s;
+  for (int e = 0; e < num_elements(); ++e) {
+    local_state(e, x, s);
+    Directional D;
+    directional(s, dir, D.dF, D.de);
+    double c[4];
+    stiffness(s.eps, p.data() + parameter_offset(e), c);
+    const double s00 = c[0] * s.eps[0] + c[1] * s.eps[1], s11 = c[1] * s.eps[0] + c[2] * s.eps[1],
+                 s01 = 0.5 * c[3] * s.eps[2];
+    double P[2][2];
+    positive_part(s00, s01, s11, P);
+    double Kd[9] = {0};
+    const double y[3] = {s.A * (c[0] * D.de[0] + c[1] * D.de[1]), s.A * (c[1] * D.de[0] + c[2] * D.de[1]),
+                         s.A * c[3] * D.de[2]};
+    // J_eps^T y, with y the weights of the three strain gradients
+    for (int j = 0; j < 9; ++j) Kd[j] = s.Je[0][j] * y[0] + s.Je[1][j] * y[1] + s.Je[2][j] * y[2];
     for (int cc = 0; cc < 3; ++cc) {
-      const double d0 = u[0] * dFl[cc][0] + 0.5 * u[2] * dFl[cc][1] + t[0] * dFw[cc][0] + 0.5 * t[2] * dFw[cc][1];
-      const double d1 = u[1] * dFl[cc][1] + 0.5 * u[2] * dFl[cc][0] + t[1] * dFw[cc][1] + 0.5 * t[2] * dFw[cc][0];
-      for (int vv = 0; vv < 3; ++vv) ge[3 * vv + cc] += d0 * s.B[vv][0] + d1 * s.B[vv][1];
+      const double t0 = s.A * (P[0][0] * D.dF[cc][0] + P[0][1] * D.dF[cc][1]);
+      const double t1 = s.A * (P[1][0] * D.dF[cc][0] + P[1][1] * D.dF[cc][1]);
+      for (int v = 0; v < 3; ++v) Kd[3 * v + cc] += s.B[v][0] * t0 + s.B[v][1] * t1;
     }
-    scatter_vector(e, ge, scale, gx);
-    // parameters: dq/dp[4r+col] = dq/dc_col w_r(eps)
-    double wr[6];
-    table_weights(s.eps, wr);
-    for (int r = 0; r < 6; ++r)
-      for (int col = 0; col < 4; ++col) gp[off + 4 * r + col] += scale * q.v[3 + col] * wr[r];
+    scatter_vector(e, Kd, scale, out);
+  }
+  return true;
+}
+
+bool StretchTerm::add_step_adjoint(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& lambda,
+                                   const Eigen::VectorXd& w, double h, Eigen::VectorXd& gx, Eigen::VectorXd& gv,
+                                   Eigen::VectorXd& gp) const {
+  using H1 = Jet<double, 1>;
+  using H2 = Jet<H1, 3>;
+  Local s;
+  H1 dW[24];
+  for (int e = 0; e < num_elements(); ++e) {
+    local_state(e, x, s);
+    const int off = parameter_offset(e);
+    const double* pe = p.data() + off;
+    Directional L, Wd;
+    directional(s, lambda, L.dF, L.de);
+    directional(s, w, Wd.dF, Wd.de);
+    // Hessian-vector product: J_eps^T W_epseps (J_eps lambda) + (sum_ab Y_ab B_a B_b^T) (x) I3 lambda
+    H2 ej[3];
+    for (int k = 0; k < 3; ++k) {
+      H1 inner(s.eps[k]);
+      inner.v[0] = L.de[k];
+      ej[k] = H2(inner);
+      ej[k].v[k] = H1(1.0);
+    }
+    const H2 W = strain_energy(ej, pe);
+    double ge[9] = {0};
+    const double hy[3] = {-h * s.A * W.v[0].v[0], -h * s.A * W.v[1].v[0], -h * s.A * W.v[2].v[0]};
+    strain_transpose(s.f, s.B, hy, ge);
+    const double Y[2][2] = {{s.A * W.v[0].a, 0.5 * s.A * W.v[2].a}, {0.5 * s.A * W.v[2].a, s.A * W.v[1].a}};
+    for (int cc = 0; cc < 3; ++cc) {
+      const double t0 = -h * (Y[0][0] * L.dF[cc][0] + Y[0][1] * L.dF[cc][1]);
+      const double t1 = -h * (Y[1][0] * L.dF[cc][0] + Y[1][1] * L.dF[cc][1]);
+      for (int v = 0; v < 3; ++v) ge[3 * v + cc] += s.B[v][0] * t0 + s.B[v][1] * t1;
+    }
+    // d(lambda . grad E)/dp
+    H1 el[3];
+    for (int k = 0; k < 3; ++k) {
+      el[k] = H1(s.eps[k]);
+      el[k].v[0] = L.de[k];
+    }
+    strain_energy_table_gradient(el, dW);
+    for (int k = 0; k < 24; ++k) gp[off + k] += -h * s.A * dW[k].v[0];
+    // d(lambda^T K w)/d(x, p) and K lambda
+    double Kl[9] = {0};
+    step_matrix_derivative_element(s, pe, L.dF, L.de, Wd.dF, Wd.de, -h * h, ge, gp.data() + off, -h * h, Kl);
+    scatter_vector(e, ge, 1.0, gx);
+    scatter_vector(e, Kl, 1.0, gv);
+  }
+  return true;
+}
+
+void StretchTerm::directional(const Local& s, const Eigen::VectorXd& u, double dF[3][2], double de[3]) const {
+  for (int c = 0; c < 3; ++c) dF[c][0] = dF[c][1] = 0.0;
+  for (int vv = 0; vv < 3; ++vv)
+    for (int c = 0; c < 3; ++c) {
+      const double l = u[3 * s.v[vv] + c];
+      for (int a = 0; a < 2; ++a) dF[c][a] += s.B[vv][a] * l;
+    }
+  de[0] = de[1] = de[2] = 0.0;
+  for (int c = 0; c < 3; ++c) {
+    de[0] += s.f[c][0] * dF[c][0];
+    de[1] += s.f[c][1] * dF[c][1];
+    de[2] += 0.5 * (s.f[c][0] * dF[c][1] + s.f[c][1] * dF[c][0]);
+  }
+}
+
+void StretchTerm::step_matrix_derivative_element(const Local& s, const double* p, const double dFl[3][2],
+                                                 const double el[3], const double dFw[3][2], const double ew[3],
+                                                 double scale, double* ge, double* gp, double kscale, double* Kl) {
+  using J7 = Jet<double, 7>;
+  // table weights at eps with their strain derivatives; C = sum_r w_r row_r
+  const J3 ej3[3] = {J3(s.eps[0], 0), J3(s.eps[1], 1), J3(s.eps[2], 2)};
+  J3 w3[6];
+  table_weights(ej3, w3);
+  J3 c3[4];
+  for (int col = 0; col < 4; ++col) {
+    c3[col] = J3(0.0);
+    for (int r = 0; r < 6; ++r) c3[col] += w3[r] * p[4 * r + col];
+  }
+  // C(eps) with d/deps (slots 0..2) and d/dc (slots 3..6); S+ through s = C eps
+  J7 c[4], ej[3];
+  for (int k = 0; k < 4; ++k) {
+    c[k] = J7(c3[k].a);
+    for (int i = 0; i < 3; ++i) c[k].v[i] = c3[k].v[i];
+    c[k].v[3 + k] = 1.0;
+  }
+  for (int k = 0; k < 3; ++k) ej[k] = J7(s.eps[k], k);
+  const J7 s00 = c[0] * ej[0] + c[1] * ej[1], s11 = c[1] * ej[0] + c[2] * ej[1], s01 = 0.5 * c[3] * ej[2];
+  J7 P[2][2];
+  positive_part(s00, s01, s11, P);
+  // q = A [ el^T C ew + sum_c sum_ab P_ab dFl[c][a] dFw[c][b] ]
+  double G[2][2] = {{0, 0}, {0, 0}};
+  for (int cc = 0; cc < 3; ++cc)
+    for (int a = 0; a < 2; ++a)
+      for (int b = 0; b < 2; ++b) G[a][b] += dFl[cc][a] * dFw[cc][b];
+  const J7 q = s.A * (c[0] * (el[0] * ew[0]) + c[1] * (el[0] * ew[1] + el[1] * ew[0]) + c[2] * (el[1] * ew[1]) +
+                      c[3] * (el[2] * ew[2]) + P[0][0] * G[0][0] + P[0][1] * G[0][1] + P[1][0] * G[1][0] +
+                      P[1][1] * G[1][1]);
+  // through C(eps) and S+(eps)
+  const double qe[3] = {scale * q.v[0], scale * q.v[1], scale * q.v[2]};
+  strain_transpose(s.f, s.B, qe, ge);
+  // through the strain derivatives el(x), ew(x) with C frozen: u = A C ew, t = A C el
+  const double cv[4] = {c3[0].a, c3[1].a, c3[2].a, c3[3].a};
+  const double u[3] = {s.A * (cv[0] * ew[0] + cv[1] * ew[1]), s.A * (cv[1] * ew[0] + cv[2] * ew[1]), s.A * cv[3] * ew[2]};
+  const double t[3] = {s.A * (cv[0] * el[0] + cv[1] * el[1]), s.A * (cv[1] * el[0] + cv[2] * el[1]), s.A * cv[3] * el[2]};
+  for (int cc = 0; cc < 3; ++cc) {
+    const double d0 = u[0] * dFl[cc][0] + 0.5 * u[2] * dFl[cc][1] + t[0] * dFw[cc][0] + 0.5 * t[2] * dFw[cc][1];
+    const double d1 = u[1] * dFl[cc][1] + 0.5 * u[2] * dFl[cc][0] + t[1] * dFw[cc][1] + 0.5 * t[2] * dFw[cc][0];
+    for (int vv = 0; vv < 3; ++vv) ge[3 * vv + cc] += scale * (d0 * s.B[vv][0] + d1 * s.B[vv][1]);
+  }
+  // parameters: dq/dp[4r+col] = dq/dc_col w_r(eps)
+  for (int r = 0; r < 6; ++r)
+    for (int col = 0; col < 4; ++col) gp[4 * r + col] += scale * q.v[3 + col] * w3[r].a;
+  if (Kl) {  // K lambda = J_eps^T (A C el) + A (S+ (x) I3) dF_lambda
+    const double y[3] = {kscale * t[0], kscale * t[1], kscale * t[2]};
+    for (int j = 0; j < 9; ++j) Kl[j] += s.Je[0][j] * y[0] + s.Je[1][j] * y[1] + s.Je[2][j] * y[2];
+    for (int cc = 0; cc < 3; ++cc) {
+      const double t0 = kscale * s.A * (P[0][0].a * dFl[cc][0] + P[0][1].a * dFl[cc][1]);
+      const double t1 = kscale * s.A * (P[1][0].a * dFl[cc][0] + P[1][1].a * dFl[cc][1]);
+      for (int vv = 0; vv < 3; ++vv) Kl[3 * vv + cc] += s.B[vv][0] * t0 + s.B[vv][1] * t1;
+    }
   }
 }
 

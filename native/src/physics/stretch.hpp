@@ -167,6 +167,11 @@ class StretchTerm : public ElementTerm<StretchTerm, 3, 24, 9> {
   void add_step_matrix_derivatives(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& lambda,
                                    const Eigen::VectorXd& w, double scale, Eigen::VectorXd& gx,
                                    Eigen::VectorXd& gp) const override;
+  bool add_step_matrix_product(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& dir,
+                               double scale, Eigen::VectorXd& out) const override;
+  bool add_step_adjoint(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& lambda,
+                        const Eigen::VectorXd& w, double h, Eigen::VectorXd& gx, Eigen::VectorXd& gv,
+                        Eigen::VectorXd& gp) const override;
 
   // Residuals (eps, F) and weights: material part A C(eps) on eps, geometric part A S+ (x) I3 on F, where
   // S+ is the positive part of the secant stress [[s_uu, s_uv/2], [s_uv/2, s_vv]], s = C(eps) eps. The
@@ -220,7 +225,12 @@ class StretchTerm : public ElementTerm<StretchTerm, 3, 24, 9> {
   // Per-element state of the hand-written kernels.
   struct Local;
   void local_state(int e, const Eigen::VectorXd& x, Local& s) const;
-
+  void directional(const Local& s, const Eigen::VectorXd& u, double dF[3][2], double de[3]) const;
+  // Per-face derivative of q = lambda^T K w: adds scale * dq/dx to ge and scale * dq/dp to gp; if Kl is given,
+  // also Kl += kscale * K lambda.
+  static void step_matrix_derivative_element(const Local& s, const double* p, const double dFl[3][2],
+                                             const double el[3], const double dFw[3][2], const double ew[3],
+                                             double scale, double* ge, double* gp, double kscale, double* Kl);
   // Cell index and fraction along one grid axis, clamped to the grid (constant extrapolation).
   template <class T>
   static void cell(const T& g, int n, int& i0, T& f) {

@@ -49,6 +49,29 @@ class Term {
   virtual void add_step_matrix_derivatives(const Eigen::VectorXd& x, const Eigen::VectorXd& p,
                                            const Eigen::VectorXd& lambda, const Eigen::VectorXd& w, double scale,
                                            Eigen::VectorXd& gx, Eigen::VectorXd& gp) const = 0;
+
+  // Optional, for speed (defaults are correct for every term):
+  // out += scale * K(x; p) dir without assembling K. Returns false if the term does not provide it (the
+  // caller then assembles K).
+  virtual bool add_step_matrix_product(const Eigen::VectorXd& /*x*/, const Eigen::VectorXd& /*p*/,
+                                       const Eigen::VectorXd& /*dir*/, double /*scale*/, Eigen::VectorXd& /*out*/) const {
+    return false;
+  }
+  // The per-term part of the adjoint of one implicit Euler step (solver/implicit_euler.hpp), fused so that a
+  // term can share its per-element state between the products (one pass over the elements):
+  //   gx -= h Hess E(x) lambda + h^2 d(lambda^T K w)/dx
+  //   gp -= h^2 d(lambda^T K w)/dp + h d(lambda . grad E)/dp
+  //   gv -= h^2 K lambda   (only if the return value is true; else the caller does it by assembling K)
+  virtual bool add_step_adjoint(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& lambda,
+                                const Eigen::VectorXd& w, double h, Eigen::VectorXd& gx, Eigen::VectorXd& gv,
+                                Eigen::VectorXd& gp) const {
+    Eigen::VectorXd Hl = Eigen::VectorXd::Zero(x.size());
+    add_hessian_product(x, p, lambda, Hl);
+    gx -= h * Hl;
+    add_step_matrix_derivatives(x, p, lambda, w, -h * h, gx, gp);
+    add_gradient_parameter_product(x, p, lambda, -h, gp);
+    return add_step_matrix_product(x, p, lambda, -h * h, gv);
+  }
 };
 
 }  // namespace drapelab

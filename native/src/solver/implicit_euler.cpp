@@ -103,17 +103,15 @@ RolloutGradient ImplicitEuler::backward(const Eigen::VectorXd& dL_dx, const Eige
     const Eigen::VectorXd v_next = r.v + r.y;
     Eigen::VectorXd gx_prev = gx;
     Eigen::VectorXd gv_prev = gv_total;
-    // b = h F(x) - h^2 K(x) v and A = M(rho) + h^2 K(x)
-    Eigen::VectorXd Hl = Eigen::VectorXd::Zero(n);
-    for (const auto& term : model_.terms()) {
-      term->add_hessian_product(r.x, p_, lambda, Hl);
-      term->add_step_matrix_derivatives(r.x, p_, lambda, v_next, -h * h, gx_prev, gp);
-      term->add_gradient_parameter_product(r.x, p_, lambda, -h, gp);
-    }
-    gx_prev -= h * Hl;
-    K.setZero(pattern.nnz());
-    for (const auto& term : model_.terms()) term->add_step_matrix(r.x, p_, h * h, K);
-    gv_prev -= symmetric_multiply(pattern, K, lambda);
+    // b = h F(x) - h^2 K(x) v and A = M(rho) + h^2 K(x): one fused pass per term (Term::add_step_adjoint);
+    // terms that do not provide K lambda get it from the assembled K.
+    K.setZero(0);
+    for (const auto& term : model_.terms())
+      if (!term->add_step_adjoint(r.x, p_, lambda, v_next, h, gx_prev, gv_prev, gp)) {
+        if (K.size() == 0) K.setZero(pattern.nnz());
+        term->add_step_matrix(r.x, p_, h * h, K);
+      }
+    if (K.size() != 0) gv_prev -= symmetric_multiply(pattern, K, lambda);
     double gdensity = 0;
     for (int i = 0; i < model_.num_vertices(); ++i) gdensity -= w[i] * lambda.segment<3>(3 * i).dot(r.y.segment<3>(3 * i));
     gp[density_block.offset] += gdensity;

@@ -5,6 +5,7 @@
 #include "../test_support.hpp"
 #include "physics/bend.hpp"
 #include "physics/stretch.hpp"
+#include "solver/cholmod_solver.hpp"
 
 using namespace drapelab;
 using namespace drapelab::testing;
@@ -93,6 +94,30 @@ void compare_kernels(bool heterogeneous) {
       ref.Ref::add_step_matrix_derivatives(x, p, l, w, -2.5, bx, bp);
       EXPECT_LT(rel_err(ax, bx), kTol) << "step matrix x-derivative";
       EXPECT_LT(rel_err(ap, bp), kTol) << "step matrix p-derivative";
+    }
+    {  // K d without assembling K, against the assembled reference K
+      Eigen::VectorXd a = Eigen::VectorXd::Zero(n), b = Eigen::VectorXd::Zero(n), K = Eigen::VectorXd::Zero(nnz);
+      ASSERT_TRUE(term.add_step_matrix_product(x, p, d, 0.3, a));
+      ASSERT_TRUE(ref.Ref::add_step_matrix_product(x, p, d, 0.3, b));
+      EXPECT_LT(rel_err(a, b), kTol) << "step matrix product (generic)";
+      ref.Ref::add_step_matrix(x, p, 0.3, K);
+      EXPECT_LT(rel_err(a, symmetric_multiply(model.pattern(), K, d)), kTol) << "step matrix product (assembled)";
+    }
+    {  // the fused adjoint pass against the separate reference products
+      const double h = 0.05;
+      Eigen::VectorXd gx = Eigen::VectorXd::Zero(n), gv = Eigen::VectorXd::Zero(n), gp = Eigen::VectorXd::Zero(np);
+      Eigen::VectorXd ex = gx, ev = gv, ep = gp;
+      ASSERT_TRUE(term.add_step_adjoint(x, p, l, w, h, gx, gv, gp));
+      Eigen::VectorXd Hl = Eigen::VectorXd::Zero(n), K = Eigen::VectorXd::Zero(nnz);
+      ref.Ref::add_hessian_product(x, p, l, Hl);
+      ex -= h * Hl;
+      ref.Ref::add_step_matrix_derivatives(x, p, l, w, -h * h, ex, ep);
+      ref.Ref::add_gradient_parameter_product(x, p, l, -h, ep);
+      ref.Ref::add_step_matrix(x, p, h * h, K);
+      ev -= symmetric_multiply(model.pattern(), K, l);
+      EXPECT_LT(rel_err(gx, ex), kTol) << "adjoint gx";
+      EXPECT_LT(rel_err(gv, ev), kTol) << "adjoint gv";
+      EXPECT_LT(rel_err(gp, ep), kTol) << "adjoint gp";
     }
   }
 }
