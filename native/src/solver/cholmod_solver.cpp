@@ -107,6 +107,8 @@ CholmodSolver::CholmodSolver(const SparsePattern& pattern) : pattern_(pattern) {
 }
 
 CholmodSolver::~CholmodSolver() {
+  if (factor_ && shared_values_) factor_->x = nullptr;  // owned by the kept factors
+  shared_values_.reset();
   if (factor_) cholmod_free_factor(&factor_, &common_);
   if (matrix_) cholmod_free_sparse(&matrix_, &common_);
   cholmod_finish(&common_);
@@ -115,6 +117,12 @@ CholmodSolver::~CholmodSolver() {
 bool CholmodSolver::factorize(const Eigen::VectorXd& values) {
   std::memcpy(matrix_->x, values.data(), sizeof(double) * pattern_.nnz());
   SerialOpenMP serial;
+  if (shared_values_) {  // the values belong to a kept factor: factorise into a new buffer
+    void* fresh = std::malloc(factor_->xsize * sizeof(double));
+    if (!fresh) throw SolverError("CHOLMOD: out of memory for the factor");
+    factor_->x = fresh;
+    shared_values_.reset();
+  }
   cholmod_factorize(matrix_, factor_, &common_);
   return common_.status == CHOLMOD_OK;
 }
@@ -147,18 +155,13 @@ CholmodSolver::Factor CholmodSolver::keep_factor() const {
     cholmod_common* c = &common_;
     return Factor(copy, [c](cholmod_factor* f) { cholmod_free_factor(&f, c); });
   }
-  // Supernodal: the structure is fixed by the analysis; keep the header and the numeric values only.
+  // Supernodal: the structure is fixed by the analysis; keep the header and share the numeric values (no copy).
+  if (!shared_values_) shared_values_ = std::shared_ptr<void>(factor_->x, [](void* x) { std::free(x); });
   auto* copy = new cholmod_factor(*factor_);
-  const size_t bytes = factor_->xsize * sizeof(double);
-  copy->x = std::malloc(bytes);
-  if (!copy->x) {
-    delete copy;
-    throw SolverError("CHOLMOD: out of memory keeping a factor for the adjoint");
-  }
-  std::memcpy(copy->x, factor_->x, bytes);
   copy->z = nullptr;
-  return Factor(copy, [](cholmod_factor* f) {
-    std::free(f->x);
+  auto values = shared_values_;
+  return Factor(copy, [values](cholmod_factor* f) mutable {
+    values.reset();
     delete f;
   });
 }

@@ -31,8 +31,9 @@ class CholmodSolver {
   // x = A^-1 b with the current factor.
   Eigen::VectorXd solve(const Eigen::VectorXd& b) const;
 
-  // A copy of the current factor's numeric values (kept per step for the adjoint) and solves with it. The
-  // copy shares the symbolic structure of this solver's factor: it must not outlive the solver.
+  // The current factor's numeric values, kept (per step for the adjoint), and solves with it. It shares the
+  // symbolic structure of this solver's factor: it must not outlive the solver. Supernodal factors are
+  // kept without a copy: the values move to the kept factor and the next factorize() writes a new buffer.
   using Factor = std::shared_ptr<cholmod_factor>;
   Factor keep_factor() const;
   Eigen::VectorXd solve_with(const Factor& factor, const Eigen::VectorXd& b) const;
@@ -49,6 +50,8 @@ class CholmodSolver {
   cholmod_sparse* matrix_ = nullptr;
   cholmod_factor* factor_ = nullptr;
   double lnz_ = 0, flops_ = 0;
+  // Set when factor_->x is shared with kept factors (keep_factor): the buffer is theirs, not CHOLMOD's.
+  mutable std::shared_ptr<void> shared_values_;
   Eigen::VectorXd solve_impl(cholmod_factor* factor, const Eigen::VectorXd& b) const;
 };
 

@@ -49,6 +49,7 @@ Eigen::VectorXd ImplicitEuler::forward(const Eigen::VectorXd& p, const RolloutOp
   if (options.record) tape_.reserve(options.steps);
   timing_ = {};
   Eigen::VectorXd A, b;
+  double kept_bytes = 0;
   for (int step = 0; step < options.steps; ++step) {
     auto t0 = std::chrono::steady_clock::now();
     step_system(x_, v_, p, h_, A, b);
@@ -72,7 +73,15 @@ Eigen::VectorXd ImplicitEuler::forward(const Eigen::VectorXd& p, const RolloutOp
         << " m/s); reduce the time step or check the parameters";
       throw SolverError(s.str());
     }
-    if (options.record) tape_.push_back({x_, v_, y, solver_.keep_factor()});
+    if (options.record) {
+      CholmodSolver::Factor kept;
+      const double bytes = static_cast<double>(solver_.kept_factor_bytes());
+      if (kept_bytes + bytes <= options.factor_memory_mb * 1048576.0) {
+        kept = solver_.keep_factor();
+        kept_bytes += bytes;
+      }
+      tape_.push_back({x_, v_, y, std::move(kept)});
+    }
     x_ = x_ + h_ * v_next;
     v_ = std::move(v_next);
     if (progress) progress->step(step + 1, options.steps);
@@ -99,7 +108,15 @@ RolloutGradient ImplicitEuler::backward(const Eigen::VectorXd& dL_dx, const Eige
     const StepRecord& r = tape_[t];
     // x' = x + h v', v' = v + y
     const Eigen::VectorXd gv_total = gv + h * gx;
-    const Eigen::VectorXd lambda = solver_.solve_with(r.factor, gv_total);
+    Eigen::VectorXd lambda;
+    if (r.factor) {
+      lambda = solver_.solve_with(r.factor, gv_total);
+    } else {  // not kept (memory budget): the same matrix, refactorised
+      Eigen::VectorXd A, b;
+      step_system(r.x, r.v, p_, h, A, b);
+      if (!solver_.factorize(A)) throw SolverError("backward: step matrix is not positive definite");
+      lambda = solver_.solve(gv_total);
+    }
     const Eigen::VectorXd v_next = r.v + r.y;
     Eigen::VectorXd gx_prev = gx;
     Eigen::VectorXd gv_prev = gv_total;

@@ -4,7 +4,9 @@
 // Step t: A = M + h^2 K(x_t),  b = h F(x_t) - h^2 K(x_t) v_t,  A y = b,  v_{t+1} = v_t + y,
 //         x_{t+1} = x_t + h v_{t+1};  F = -dE/dx, K = the terms' PSD step matrix, M = lumped masses.
 // The adjoint differentiates exactly this map (including dK/dx and dK/dp) and solves A^T lambda = ...
-// with the forward factorisation kept for each step; memory grows by (x_t, v_t, factor_t) per step.
+// with the forward factorisation kept for each step while the kept factors fit in
+// RolloutOptions::factor_memory_mb (memory grows by (x_t, v_t, y_t, factor_t) per step); later steps keep
+// (x_t, v_t, y_t) only and the backward refactorises their matrix (same values, same result).
 #pragma once
 #include <Eigen/Core>
 #include <memory>
@@ -21,6 +23,7 @@ struct RolloutOptions {
   int steps = 100;
   double max_speed = 50.0;  // m/s: a step producing a faster vertex is reported as diverged
   bool record = true;       // keep what the adjoint needs
+  double factor_memory_mb = 1024.0;  // budget for the factors kept for the adjoint (beyond it: refactorised)
 };
 
 struct RolloutGradient {

@@ -35,3 +35,26 @@ TEST(ImplicitEuler, RolloutGradientMatchesCentralDifferences) {
     EXPECT_NEAR(an, fd, 1e-4 * std::abs(fd)) << "direction " << s;
   }
 }
+
+TEST(ImplicitEuler, FactorMemoryBudgetGivesTheSameGradient) {
+  // Factors kept for every step, for some, or for none (the backward refactorises): the same gradient.
+  ModelOptions o;
+  o.heterogeneous = true;
+  Model model(circle1(), o);
+  ImplicitEuler sim(model);
+  const Eigen::VectorXd p = jittered_parameters(model, 4);
+  const Eigen::VectorXd w = random_vector(model.num_dofs(), 6);
+  RolloutOptions ro;
+  ro.steps = 12;
+  sim.forward(p, ro);
+  const RolloutGradient all = sim.backward(w);
+  const double factor_mb = sim.linear_solver().kept_factor_bytes() / 1048576.0;
+  for (double budget : {0.0, 4.5 * factor_mb}) {
+    ro.factor_memory_mb = budget;
+    sim.forward(p, ro);
+    const RolloutGradient g = sim.backward(w);
+    EXPECT_LT((g.parameters - all.parameters).norm(), 1e-13 * all.parameters.norm()) << "budget " << budget;
+    EXPECT_LT((g.positions0 - all.positions0).norm(), 1e-13 * all.positions0.norm()) << "budget " << budget;
+    EXPECT_LT((g.velocities0 - all.velocities0).norm(), 1e-13 * all.velocities0.norm()) << "budget " << budget;
+  }
+}
