@@ -251,4 +251,31 @@ bool BendTerm::add_step_adjoint(const Eigen::VectorXd& x, const Eigen::VectorXd&
   return true;
 }
 
+bool BendTerm::add_step_system(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& v,
+                               double scale, Eigen::VectorXd& values, Eigen::VectorXd& Kv, Eigen::VectorXd& g) const {
+  double xe[12], gt[12], ge[12], K[144];
+  for (int e = 0; e < num_elements(); ++e) {
+    gather_local(e, x, xe);
+    const auto& vv = verts_[e];
+    const double d = dihedral_angle(xe) - rest_angle_[e];
+    // E' and E'' from one evaluation (E'' as in element_gauss_newton)
+    const D2 E = energy_of_angle(e, seed2(d), p.data() + parameter_offset(e));
+    const double E1 = E.v[0].a, E2 = E.v[0].v[0];
+    const double S = E2 > 0 ? E2 : 0.0;
+    dihedral_gradient(xe, gt);
+    for (int i = 0; i < 12; ++i) ge[i] = E1 * gt[i];
+    scatter_vector(e, ge, 1.0, g);
+    double gv = 0;
+    for (int i = 0; i < 12; ++i) gv += gt[i] * v[3 * vv[i / 3] + i % 3];
+    for (int i = 0; i < 12; ++i) {
+      const double si = S * gt[i];
+      for (int j = 0; j < 12; ++j) K[i * 12 + j] = si * gt[j];
+      ge[i] = si * gv;
+    }
+    scatter_matrix(e, K, scale, values);
+    scatter_vector(e, ge, scale, Kv);
+  }
+  return true;
+}
+
 }  // namespace drapelab

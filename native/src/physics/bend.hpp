@@ -196,6 +196,8 @@ class BendTerm : public ElementTerm<BendTerm, 4, 15, 1> {
                                    Eigen::VectorXd& gp) const override;
   bool add_step_matrix_product(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& dir,
                                double scale, Eigen::VectorXd& out) const override;
+  bool add_step_system(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& v, double scale,
+                       Eigen::VectorXd& values, Eigen::VectorXd& Kv, Eigen::VectorXd& g) const override;
   bool add_step_adjoint(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& lambda,
                         const Eigen::VectorXd& w, double h, Eigen::VectorXd& gx, Eigen::VectorXd& gv,
                         Eigen::VectorXd& gp) const override;

@@ -131,6 +131,13 @@ class ElementTerm : public Term {
     return true;
   }
 
+  bool add_step_system(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& v, double scale,
+                       Eigen::VectorXd& values, Eigen::VectorXd& Kv, Eigen::VectorXd& g) const override {
+    this->add_step_matrix(x, p, scale, values);
+    this->add_gradient(x, p, g);
+    return this->add_step_matrix_product(x, p, v, scale, Kv);  // always provided here
+  }
+
   void add_hessian(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double scale,
                    Eigen::VectorXd& values) const override {
     using J1 = Jet<double, D>;

@@ -1,6 +1,7 @@
 #include "physics/stretch.hpp"
 
 #include <Eigen/Eigenvalues>
+#include <algorithm>
 #include <cmath>
 
 #include "util/error.hpp"
@@ -48,6 +49,143 @@ StretchWeightGrid::StretchWeightGrid() {
 const StretchWeightGrid& stretch_weight_grid() {
   static const StretchWeightGrid grid;
   return grid;
+}
+
+namespace {
+// Fraction along one grid axis and its derivatives in y (the axis coordinate is (y - kMin) / kStep, or
+// |y| / kStep for the shear axis), as StretchTerm::cell: clamped outside the grid (constant).
+struct AxisBlend {
+  int i0;
+  double f, f1, f2;
+};
+inline AxisBlend axis_blend(double g, int n, double dgdy) {
+  AxisBlend b{0, 0.0, 0.0, 0.0};
+  if (g <= 0) return b;
+  if (g >= n - 1) {
+    b.i0 = n - 2;
+    b.f = 1.0;
+    return b;
+  }
+  b.i0 = static_cast<int>(g);
+  if (b.i0 > n - 2) b.i0 = n - 2;
+  const double u = g - static_cast<double>(b.i0);
+  b.f = u * u * (3.0 - 2.0 * u);
+  b.f1 = 6.0 * u * (1.0 - u) * dgdy;
+  b.f2 = (6.0 - 12.0 * u) * dgdy * dgdy;
+  return b;
+}
+}  // namespace
+
+const double* StretchTerm::node_stiffness(const double* p) {
+  struct Cache {
+    bool valid = false;
+    double key[24];
+    std::vector<double> nodes;
+  };
+  thread_local Cache cache;
+  if (cache.valid && std::equal(p, p + 24, cache.key)) return cache.nodes.data();
+  const StretchWeightGrid& grid = stretch_weight_grid();
+  cache.nodes.assign(grid.node_weights.size() * 4, 0.0);
+  for (size_t i = 0; i < grid.node_weights.size(); ++i) {
+    const auto& nw = grid.node_weights[i];
+    for (int r = 0; r < 6; ++r)
+      if (nw[r] != 0.0)
+        for (int col = 0; col < 4; ++col) cache.nodes[4 * i + col] += nw[r] * p[4 * r + col];
+  }
+  std::copy(p, p + 24, cache.key);
+  cache.valid = true;
+  return cache.nodes.data();
+}
+
+void StretchTerm::stiffness_derivatives(const double* y, const double* p, const double* nodes, int order, double c[4],
+                                        double dc[4][3], double d2c[4][6]) {
+  using G = StretchWeightGrid;
+  const StretchWeightGrid& grid = stretch_weight_grid();
+  const double sgn = y[2] >= 0 ? 1.0 : -1.0;
+  const AxisBlend ba = axis_blend((y[0] - G::kMin) / G::kStep, G::kNormal, 1.0 / G::kStep);
+  const AxisBlend bb = axis_blend((y[1] - G::kMin) / G::kStep, G::kNormal, 1.0 / G::kStep);
+  const AxisBlend bc = axis_blend((y[2] >= 0 ? y[2] : -y[2]) / G::kStep, G::kShear, 1.0 / G::kStep);
+  const double Na[2][3] = {{1.0 - ba.f, -ba.f1, -ba.f2}, {ba.f, ba.f1, ba.f2}};
+  const double Nb[2][3] = {{1.0 - bb.f, -bb.f1, -bb.f2}, {bb.f, bb.f1, bb.f2}};
+  const double Nc[2][3] = {{1.0 - bc.f, -sgn * bc.f1, -bc.f2}, {bc.f, sgn * bc.f1, bc.f2}};
+  for (int col = 0; col < 4; ++col) {
+    c[col] = 0.0;
+    if (order >= 1) dc[col][0] = dc[col][1] = dc[col][2] = 0.0;
+    if (order >= 2)
+      for (int k = 0; k < 6; ++k) d2c[col][k] = 0.0;
+  }
+  for (int di = 0; di < 2; ++di)
+    for (int dj = 0; dj < 2; ++dj)
+      for (int dk = 0; dk < 2; ++dk) {
+        const int node = ((ba.i0 + di) * G::kNormal + (bb.i0 + dj)) * G::kShear + bc.i0 + dk;
+        double cn[4] = {0, 0, 0, 0};
+        if (nodes) {
+          for (int col = 0; col < 4; ++col) cn[col] = nodes[4 * node + col];
+        } else {
+          const auto& nw = grid.node_weights[node];
+          for (int r = 0; r < 6; ++r)
+            if (nw[r] != 0.0)
+              for (int col = 0; col < 4; ++col) cn[col] += nw[r] * p[4 * r + col];
+        }
+        const double* a = Na[di];
+        const double* b = Nb[dj];
+        const double* g = Nc[dk];
+        const double t = a[0] * b[0] * g[0];
+        for (int col = 0; col < 4; ++col) c[col] += t * cn[col];
+        if (order >= 1) {
+          const double t0 = a[1] * b[0] * g[0], t1 = a[0] * b[1] * g[0], t2 = a[0] * b[0] * g[1];
+          for (int col = 0; col < 4; ++col) {
+            dc[col][0] += t0 * cn[col];
+            dc[col][1] += t1 * cn[col];
+            dc[col][2] += t2 * cn[col];
+          }
+        }
+        if (order >= 2) {
+          const double tt[6] = {a[2] * b[0] * g[0], a[0] * b[2] * g[0], a[0] * b[0] * g[2],
+                                a[1] * b[1] * g[0], a[1] * b[0] * g[1], a[0] * b[1] * g[1]};
+          for (int col = 0; col < 4; ++col)
+            for (int k = 0; k < 6; ++k) d2c[col][k] += tt[k] * cn[col];
+        }
+      }
+}
+
+void StretchTerm::strain_energy_derivatives(const double* eps, const double* p, const double* nodes, int order,
+                                            double& W, double dW[3], double d2W[3][3]) {
+  // W = sum_q k_q sum_col C_col(t_q eps) Q_col(eps), Q = (e0^2, 2 e0 e1, e1^2, e2^2)
+  const double Q[4] = {eps[0] * eps[0], 2.0 * eps[0] * eps[1], eps[1] * eps[1], eps[2] * eps[2]};
+  const double dQ[4][3] = {{2.0 * eps[0], 0.0, 0.0}, {2.0 * eps[1], 2.0 * eps[0], 0.0}, {0.0, 2.0 * eps[1], 0.0},
+                           {0.0, 0.0, 2.0 * eps[2]}};
+  W = 0.0;
+  if (order >= 1) dW[0] = dW[1] = dW[2] = 0.0;
+  if (order >= 2)
+    for (int k = 0; k < 3; ++k) d2W[k][0] = d2W[k][1] = d2W[k][2] = 0.0;
+  static const int kl[3][3] = {{0, 3, 4}, {3, 1, 5}, {4, 5, 2}};
+  for (int q = 0; q < 3; ++q) {
+    const double t = kQuadT[q], kq = kQuadW[q] * (1.0 - kQuadT[q]);
+    const double y[3] = {t * eps[0], t * eps[1], t * eps[2]};
+    double c[4], dc[4][3], d2c[4][6];
+    stiffness_derivatives(y, p, nodes, order, c, dc, d2c);
+    W += kq * (c[0] * Q[0] + c[1] * Q[1] + c[2] * Q[2] + c[3] * Q[3]);
+    if (order >= 1)
+      for (int k = 0; k < 3; ++k) {
+        double s = 0;
+        for (int col = 0; col < 4; ++col) s += t * dc[col][k] * Q[col] + c[col] * dQ[col][k];
+        dW[k] += kq * s;
+      }
+    if (order >= 2)
+      for (int k = 0; k < 3; ++k)
+        for (int l = 0; l < 3; ++l) {
+          double s = 0;
+          for (int col = 0; col < 4; ++col)
+            s += t * t * d2c[col][kl[k][l]] * Q[col] + t * dc[col][k] * dQ[col][l] + t * dc[col][l] * dQ[col][k];
+          // second derivatives of Q: d2Q0/de0^2 = 2, d2Q1/de0de1 = 2, d2Q2/de1^2 = 2, d2Q3/de2^2 = 2
+          if (k == 0 && l == 0) s += 2.0 * c[0];
+          if ((k == 0 && l == 1) || (k == 1 && l == 0)) s += 2.0 * c[1];
+          if (k == 1 && l == 1) s += 2.0 * c[2];
+          if (k == 2 && l == 2) s += 2.0 * c[3];
+          d2W[k][l] += kq * s;
+        }
+  }
 }
 
 StretchTerm::StretchTerm(const TriangleMesh& mesh, int parameter_offset, bool shared)
@@ -140,12 +278,13 @@ void StretchTerm::local_state(int e, const Eigen::VectorXd& x, Local& s) const {
 }
 
 void StretchTerm::add_gradient(const Eigen::VectorXd& x, const Eigen::VectorXd& p, Eigen::VectorXd& g) const {
+  const double* nodes = shared_nodes(p);
   Local s;
   for (int e = 0; e < num_elements(); ++e) {
     local_state(e, x, s);
-    const J3 ej[3] = {J3(s.eps[0], 0), J3(s.eps[1], 1), J3(s.eps[2], 2)};
-    const J3 W = strain_energy(ej, p.data() + parameter_offset(e));
-    const double y[3] = {s.A * W.v[0], s.A * W.v[1], s.A * W.v[2]};
+    double W, dW[3], d2W[3][3];
+    strain_energy_derivatives(s.eps, p.data() + parameter_offset(e), nodes, 1, W, dW, d2W);
+    const double y[3] = {s.A * dW[0], s.A * dW[1], s.A * dW[2]};
     double ge[9] = {0};
     strain_transpose(s.f, s.B, y, ge);
     scatter_vector(e, ge, 1.0, g);
@@ -182,27 +321,22 @@ void StretchTerm::add_step_matrix(const Eigen::VectorXd& x, const Eigen::VectorX
 
 void StretchTerm::add_hessian(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double scale,
                               Eigen::VectorXd& values) const {
-  using H1 = Jet<double, 3>;
-  using H2 = Jet<H1, 3>;
+  const double* nodes = shared_nodes(p);
   Local s;
   double H[81];
   for (int e = 0; e < num_elements(); ++e) {
     local_state(e, x, s);
-    H2 ej[3];
-    for (int k = 0; k < 3; ++k) {
-      ej[k] = H2(H1(s.eps[k], k));
-      ej[k].v[k] = H1(1.0);
-    }
-    const H2 W = strain_energy(ej, p.data() + parameter_offset(e));
+    double W, dW[3], d2W[3][3];
+    strain_energy_derivatives(s.eps, p.data() + parameter_offset(e), nodes, 2, W, dW, d2W);
     double M[3][9];
     for (int a = 0; a < 3; ++a)
       for (int j = 0; j < 9; ++j)
-        M[a][j] = s.A * (W.v[a].v[0] * s.Je[0][j] + W.v[a].v[1] * s.Je[1][j] + W.v[a].v[2] * s.Je[2][j]);
+        M[a][j] = s.A * (d2W[a][0] * s.Je[0][j] + d2W[a][1] * s.Je[1][j] + d2W[a][2] * s.Je[2][j]);
     for (int i = 0; i < 9; ++i)
       for (int j = i; j < 9; ++j) H[i * 9 + j] = s.Je[0][i] * M[0][j] + s.Je[1][i] * M[1][j] + s.Je[2][i] * M[2][j];
     for (int i = 0; i < 9; ++i)
       for (int j = 0; j < i; ++j) H[i * 9 + j] = H[j * 9 + i];
-    const double Y[2][2] = {{s.A * W.v[0].a, 0.5 * s.A * W.v[2].a}, {0.5 * s.A * W.v[2].a, s.A * W.v[1].a}};
+    const double Y[2][2] = {{s.A * dW[0], 0.5 * s.A * dW[2]}, {0.5 * s.A * dW[2], s.A * dW[1]}};
     add_shape_block(s.B, Y, H);
     scatter_matrix(e, H, scale, values);
   }
@@ -210,29 +344,26 @@ void StretchTerm::add_hessian(const Eigen::VectorXd& x, const Eigen::VectorXd& p
 
 void StretchTerm::add_hessian_product(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& dir,
                                       Eigen::VectorXd& out) const {
-  using H1 = Jet<double, 1>;
-  using H2 = Jet<H1, 3>;
+  const double* nodes = shared_nodes(p);
   Local s;
   for (int e = 0; e < num_elements(); ++e) {
     local_state(e, x, s);
     double d[9];
     for (int k = 0; k < 3; ++k)
       for (int c = 0; c < 3; ++c) d[3 * k + c] = dir[3 * s.v[k] + c];
-    H2 ej[3];
+    double de[3];
     for (int k = 0; k < 3; ++k) {
-      double de = 0;
-      for (int j = 0; j < 9; ++j) de += s.Je[k][j] * d[j];
-      H1 inner(s.eps[k]);
-      inner.v[0] = de;
-      ej[k] = H2(inner);
-      ej[k].v[k] = H1(1.0);
+      de[k] = 0;
+      for (int j = 0; j < 9; ++j) de[k] += s.Je[k][j] * d[j];
     }
-    const H2 W = strain_energy(ej, p.data() + parameter_offset(e));
+    double W, dW[3], d2W[3][3];
+    strain_energy_derivatives(s.eps, p.data() + parameter_offset(e), nodes, 2, W, dW, d2W);
     double Hd[9] = {0};
-    const double hy[3] = {s.A * W.v[0].v[0], s.A * W.v[1].v[0], s.A * W.v[2].v[0]};
+    double hy[3];
+    for (int k = 0; k < 3; ++k) hy[k] = s.A * (d2W[k][0] * de[0] + d2W[k][1] * de[1] + d2W[k][2] * de[2]);
     strain_transpose(s.f, s.B, hy, Hd);
     // (sum_ab Y_ab B_a B_b^T) (x) I3 d with Y from grad W
-    const double Y[2][2] = {{s.A * W.v[0].a, 0.5 * s.A * W.v[2].a}, {0.5 * s.A * W.v[2].a, s.A * W.v[1].a}};
+    const double Y[2][2] = {{s.A * dW[0], 0.5 * s.A * dW[2]}, {0.5 * s.A * dW[2], s.A * dW[1]}};
     for (int c = 0; c < 3; ++c) {
       double dF[2] = {0, 0};
       for (int w = 0; w < 3; ++w)
@@ -334,10 +465,10 @@ bool StretchTerm::add_step_matrix_product(const Eigen::VectorXd& x, const Eigen:
 bool StretchTerm::add_step_adjoint(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& lambda,
                                    const Eigen::VectorXd& w, double h, Eigen::VectorXd& gx, Eigen::VectorXd& gv,
                                    Eigen::VectorXd& gp) const {
+  const double* nodes = shared_nodes(p);
   using H1 = Jet<double, 1>;
-  using H2 = Jet<H1, 3>;
   Local s;
-  H1 dW[24];
+  H1 dWp[24];
   for (int e = 0; e < num_elements(); ++e) {
     local_state(e, x, s);
     const int off = parameter_offset(e);
@@ -346,18 +477,13 @@ bool StretchTerm::add_step_adjoint(const Eigen::VectorXd& x, const Eigen::Vector
     directional(s, lambda, L.dF, L.de);
     directional(s, w, Wd.dF, Wd.de);
     // Hessian-vector product: J_eps^T W_epseps (J_eps lambda) + (sum_ab Y_ab B_a B_b^T) (x) I3 lambda
-    H2 ej[3];
-    for (int k = 0; k < 3; ++k) {
-      H1 inner(s.eps[k]);
-      inner.v[0] = L.de[k];
-      ej[k] = H2(inner);
-      ej[k].v[k] = H1(1.0);
-    }
-    const H2 W = strain_energy(ej, pe);
+    double Wv, dW[3], d2W[3][3];
+    strain_energy_derivatives(s.eps, pe, nodes, 2, Wv, dW, d2W);
     double ge[9] = {0};
-    const double hy[3] = {-h * s.A * W.v[0].v[0], -h * s.A * W.v[1].v[0], -h * s.A * W.v[2].v[0]};
+    double hy[3];
+    for (int k = 0; k < 3; ++k) hy[k] = -h * s.A * (d2W[k][0] * L.de[0] + d2W[k][1] * L.de[1] + d2W[k][2] * L.de[2]);
     strain_transpose(s.f, s.B, hy, ge);
-    const double Y[2][2] = {{s.A * W.v[0].a, 0.5 * s.A * W.v[2].a}, {0.5 * s.A * W.v[2].a, s.A * W.v[1].a}};
+    const double Y[2][2] = {{s.A * dW[0], 0.5 * s.A * dW[2]}, {0.5 * s.A * dW[2], s.A * dW[1]}};
     for (int cc = 0; cc < 3; ++cc) {
       const double t0 = -h * (Y[0][0] * L.dF[cc][0] + Y[0][1] * L.dF[cc][1]);
       const double t1 = -h * (Y[1][0] * L.dF[cc][0] + Y[1][1] * L.dF[cc][1]);
@@ -369,8 +495,8 @@ bool StretchTerm::add_step_adjoint(const Eigen::VectorXd& x, const Eigen::Vector
       el[k] = H1(s.eps[k]);
       el[k].v[0] = L.de[k];
     }
-    strain_energy_table_gradient(el, dW);
-    for (int k = 0; k < 24; ++k) gp[off + k] += -h * s.A * dW[k].v[0];
+    strain_energy_table_gradient(el, dWp);
+    for (int k = 0; k < 24; ++k) gp[off + k] += -h * s.A * dWp[k].v[0];
     // d(lambda^T K w)/d(x, p) and K lambda
     double Kl[9] = {0};
     step_matrix_derivative_element(s, pe, L.dF, L.de, Wd.dF, Wd.de, -h * h, ge, gp.data() + off, -h * h, Kl);
@@ -451,6 +577,51 @@ void StretchTerm::step_matrix_derivative_element(const Local& s, const double* p
       for (int vv = 0; vv < 3; ++vv) Kl[3 * vv + cc] += s.B[vv][0] * t0 + s.B[vv][1] * t1;
     }
   }
+}
+
+bool StretchTerm::add_step_system(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& v,
+                                  double scale, Eigen::VectorXd& values, Eigen::VectorXd& Kv,
+                                  Eigen::VectorXd& g) const {
+  const double* nodes = shared_nodes(p);
+  Local s;
+  double K[81], ve[9], kv[9];
+  for (int e = 0; e < num_elements(); ++e) {
+    local_state(e, x, s);
+    const double* pe = p.data() + parameter_offset(e);
+    // gradient
+    double W, dW[3], d2W[3][3];
+    strain_energy_derivatives(s.eps, pe, nodes, 1, W, dW, d2W);
+    const double y[3] = {s.A * dW[0], s.A * dW[1], s.A * dW[2]};
+    double ge[9] = {0};
+    strain_transpose(s.f, s.B, y, ge);
+    scatter_vector(e, ge, 1.0, g);
+    // step matrix (as add_step_matrix) and K v
+    double c[4];
+    stiffness(s.eps, pe, c);
+    const double Cm[3][3] = {{s.A * c[0], s.A * c[1], 0.0}, {s.A * c[1], s.A * c[2], 0.0}, {0.0, 0.0, s.A * c[3]}};
+    double M[3][9];
+    for (int a = 0; a < 3; ++a)
+      for (int j = 0; j < 9; ++j) M[a][j] = Cm[a][0] * s.Je[0][j] + Cm[a][1] * s.Je[1][j] + Cm[a][2] * s.Je[2][j];
+    for (int i = 0; i < 9; ++i)
+      for (int j = i; j < 9; ++j) K[i * 9 + j] = s.Je[0][i] * M[0][j] + s.Je[1][i] * M[1][j] + s.Je[2][i] * M[2][j];
+    for (int i = 0; i < 9; ++i)
+      for (int j = 0; j < i; ++j) K[i * 9 + j] = K[j * 9 + i];
+    const double s00 = c[0] * s.eps[0] + c[1] * s.eps[1], s11 = c[1] * s.eps[0] + c[2] * s.eps[1],
+                 s01 = 0.5 * c[3] * s.eps[2];
+    double P[2][2];
+    positive_part(s00, s01, s11, P);
+    const double Y[2][2] = {{s.A * P[0][0], s.A * P[0][1]}, {s.A * P[1][0], s.A * P[1][1]}};
+    add_shape_block(s.B, Y, K);
+    scatter_matrix(e, K, scale, values);
+    gather(e, v, ve);
+    for (int i = 0; i < 9; ++i) {
+      double t = 0;
+      for (int j = 0; j < 9; ++j) t += K[i * 9 + j] * ve[j];
+      kv[i] = t;
+    }
+    scatter_vector(e, kv, scale, Kv);
+  }
+  return true;
 }
 
 }  // namespace drapelab

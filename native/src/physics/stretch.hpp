@@ -110,6 +110,19 @@ class StretchTerm : public ElementTerm<StretchTerm, 3, 24, 9> {
     }
   }
 
+  // C(y) and its y-derivatives up to `order` (0, 1, 2) in closed form (the blend is a tensor product of 1-D
+  // smoothstep fractions): dc[col][k] = dC_col/dy_k, d2c[col][kl] with kl = 00, 11, 22, 01, 02, 12.
+  // nodes: optional table of C at every grid node for this p (node_stiffness), else computed on the fly.
+  static void stiffness_derivatives(const double* y, const double* p, const double* nodes, int order, double c[4],
+                                    double dc[4][3], double d2c[4][6]);
+  // C at every grid node (4 per node) for table p: cached per thread, recomputed when p's values change.
+  // For a table shared by all faces.
+  static const double* node_stiffness(const double* p);
+  // W(eps), grad W and (order 2) the Hessian of W in strain space, in closed form.
+  static void strain_energy_derivatives(const double* eps, const double* p, const double* nodes, int order, double& W,
+                                        double dW[3], double d2W[3][3]);
+  const double* shared_nodes(const Eigen::VectorXd& p) const { return shared_ ? node_stiffness(p.data() + offset_) : nullptr; }
+
   // Strain energy density W(eps) [J/m^2] (see the header comment).
   template <class T, class P>
   static T strain_energy(const T* eps, const P* p) {
@@ -169,6 +182,8 @@ class StretchTerm : public ElementTerm<StretchTerm, 3, 24, 9> {
                                    Eigen::VectorXd& gp) const override;
   bool add_step_matrix_product(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& dir,
                                double scale, Eigen::VectorXd& out) const override;
+  bool add_step_system(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& v, double scale,
+                       Eigen::VectorXd& values, Eigen::VectorXd& Kv, Eigen::VectorXd& g) const override;
   bool add_step_adjoint(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& lambda,
                         const Eigen::VectorXd& w, double h, Eigen::VectorXd& gx, Eigen::VectorXd& gv,
                         Eigen::VectorXd& gp) const override;

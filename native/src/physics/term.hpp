@@ -57,6 +57,14 @@ class Term {
                                        const Eigen::VectorXd& /*dir*/, double /*scale*/, Eigen::VectorXd& /*out*/) const {
     return false;
   }
+  // The per-term part of one implicit Euler step's system (solver/implicit_euler.hpp), fused:
+  //   values += scale * K(x) (upper triangle, pattern order), Kv += scale * K(x) v, g += grad E(x).
+  // Returns false, having done nothing, if the term does not provide it (the caller then uses the methods above).
+  virtual bool add_step_system(const Eigen::VectorXd& /*x*/, const Eigen::VectorXd& /*p*/, const Eigen::VectorXd& /*v*/,
+                               double /*scale*/, Eigen::VectorXd& /*values*/, Eigen::VectorXd& /*Kv*/,
+                               Eigen::VectorXd& /*g*/) const {
+    return false;
+  }
   // The per-term part of the adjoint of one implicit Euler step (solver/implicit_euler.hpp), fused so that a
   // term can share its per-element state between the products (one pass over the elements):
   //   gx -= h Hess E(x) lambda + h^2 d(lambda^T K w)/dx

@@ -20,12 +20,19 @@ void ImplicitEuler::step_system(const Eigen::VectorXd& x, const Eigen::VectorXd&
                                 double h, Eigen::VectorXd& A, Eigen::VectorXd& b) const {
   const SparsePattern& pattern = model_.pattern();
   A.setZero(pattern.nnz());
-  for (const auto& t : model_.terms()) t->add_step_matrix(x, p, h * h, A);
-  // b = h F - h^2 K v = -h grad E - (A_K v) with A_K = h^2 K (before adding masses)
-  b = -symmetric_multiply(pattern, A, v);
-  Eigen::VectorXd g = Eigen::VectorXd::Zero(x.size());
-  model_.add_gradient(x, p, g);
-  b -= h * g;
+  // b = h F - h^2 K v = -h grad E - h^2 K v; one fused pass per term (Term::add_step_system), else assembled.
+  Eigen::VectorXd Kv = Eigen::VectorXd::Zero(x.size()), g = Eigen::VectorXd::Zero(x.size()), other;
+  for (const auto& t : model_.terms())
+    if (!t->add_step_system(x, p, v, h * h, A, Kv, g)) {
+      if (other.size() == 0) other.setZero(pattern.nnz());
+      t->add_step_matrix(x, p, h * h, other);
+      t->add_gradient(x, p, g);
+    }
+  if (other.size() != 0) {
+    Kv += symmetric_multiply(pattern, other, v);
+    A += other;
+  }
+  b = -Kv - h * g;
   const Eigen::VectorXd m = model_.masses(p);
   for (int i = 0; i < model_.num_vertices(); ++i)
     for (int k = 0; k < 3; ++k) A[pattern.diagonal(3 * i + k)] += m[i];

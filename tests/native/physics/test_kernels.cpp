@@ -103,6 +103,16 @@ void compare_kernels(bool heterogeneous) {
       ref.Ref::add_step_matrix(x, p, 0.3, K);
       EXPECT_LT(rel_err(a, symmetric_multiply(model.pattern(), K, d)), kTol) << "step matrix product (assembled)";
     }
+    {  // the fused step system against the separate reference methods
+      Eigen::VectorXd A = Eigen::VectorXd::Zero(nnz), Kv = Eigen::VectorXd::Zero(n), g = Eigen::VectorXd::Zero(n);
+      ASSERT_TRUE(term.add_step_system(x, p, w, 0.0025, A, Kv, g));
+      Eigen::VectorXd eA = Eigen::VectorXd::Zero(nnz), eg = Eigen::VectorXd::Zero(n);
+      ref.Ref::add_step_matrix(x, p, 0.0025, eA);
+      ref.Ref::add_gradient(x, p, eg);
+      EXPECT_LT(rel_err(A, eA), kTol) << "step system matrix";
+      EXPECT_LT(rel_err(Kv, symmetric_multiply(model.pattern(), eA, w)), kTol) << "step system K v";
+      EXPECT_LT(rel_err(g, eg), kTol) << "step system gradient";
+    }
     {  // the fused adjoint pass against the separate reference products
       const double h = 0.05;
       Eigen::VectorXd gx = Eigen::VectorXd::Zero(n), gv = Eigen::VectorXd::Zero(n), gp = Eigen::VectorXd::Zero(np);
