@@ -411,7 +411,7 @@ class ClothModel:
     # -- simulation
     def simulate(self, params, mode="dynamic", steps=DEFAULT_STEPS, time_step=DEFAULT_TIME_STEP, progress=None,
                  cancel_event=None, force_tolerance=DEFAULT_FORCE_TOLERANCE, max_iterations=DEFAULT_MAX_ITERATIONS,
-                 max_speed=DEFAULT_MAX_SPEED, record=True, positions0=None, velocities0=None):
+                 max_speed=DEFAULT_MAX_SPEED, record=True, positions0=None, velocities0=None, factor_memory_mb=None):
         """Drapes the cloth from its flat rest state; returns the final positions (V, 3).
 
         mode "dynamic": ``steps`` implicit Euler steps of ``time_step`` seconds (record=False skips what
@@ -419,6 +419,8 @@ class ClothModel:
         below force_tolerance times its weight, within max_iterations. Details in ``last_result``.
         positions0 (V, 3): start here instead of the flat rest state (e.g. to warm-start a static solve);
         velocities0 (V, 3): initial velocities of a dynamic rollout (default at rest).
+        factor_memory_mb: memory (MB) for the per-step factorisations kept for backward (default 1024);
+        steps beyond it are refactorised during backward (same result, slower).
         """
         if mode not in MODES:
             raise InputError(f"mode: expected one of {MODES}, got {mode!r}")
@@ -427,6 +429,8 @@ class ClothModel:
             steps = _positive_int(steps, "steps")
             time_step = _scalar(time_step, "time_step", 0.0, strictly=True, unit="s")
             max_speed = _scalar(max_speed, "max_speed", 0.0, strictly=True, unit="m/s")
+            memory = {} if factor_memory_mb is None else {
+                "factor_memory_mb": _scalar(factor_memory_mb, "factor_memory_mb", 0.0, unit="MB")}
         else:
             force_tolerance = _scalar(force_tolerance, "force_tolerance", 0.0, strictly=True)
             max_iterations = _positive_int(max_iterations, "max_iterations")
@@ -441,7 +445,7 @@ class ClothModel:
                 if self._dynamic is None:
                     self._dynamic = native.ImplicitEuler(self._native)
                 x = self._dynamic.forward(p, time_step=time_step, steps=steps, max_speed=max_speed,
-                                          record=bool(record), progress=sink, x0=x0, v0=v0)
+                                          record=bool(record), progress=sink, x0=x0, v0=v0, **memory)
                 self.last_result = {"mode": mode, "steps": steps, "time_step": time_step, "recorded": bool(record),
                                     "timing": dict(self._dynamic.timing)}
             else:

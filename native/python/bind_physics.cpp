@@ -178,19 +178,23 @@ void bind_physics(py::module_& m) {
       .def(
           "forward",
           [](PyImplicitEuler& s, const Vector& p, double time_step, int steps, double max_speed, bool record,
-             std::shared_ptr<PyProgress> progress, std::optional<Vector> x0, std::optional<Vector> v0) {
+             std::shared_ptr<PyProgress> progress, std::optional<Vector> x0, std::optional<Vector> v0,
+             double factor_memory_mb) {
             RolloutOptions o;
             o.time_step = time_step;
             o.steps = steps;
             o.max_speed = max_speed;
             o.record = record;
+            o.factor_memory_mb = factor_memory_mb;
             py::gil_scoped_release no_gil;
             std::lock_guard<std::mutex> lock(s.mutex);
             return s.solver.forward(p, o, sink_of(progress), x0 ? &*x0 : nullptr, v0 ? &*v0 : nullptr);
           },
           py::arg("parameters"), py::arg("time_step") = 0.05, py::arg("steps") = 100, py::arg("max_speed") = 50.0,
           py::arg("record") = true, py::arg("progress") = nullptr, py::arg("x0") = py::none(),
-          py::arg("v0") = py::none(), "Rolls out from (x0, v0) (default: rest, at rest); returns final positions (3V).")
+          py::arg("v0") = py::none(), py::arg("factor_memory_mb") = RolloutOptions{}.factor_memory_mb,
+          "Rolls out from (x0, v0) (default: rest, at rest); returns final positions (3V). Factors for the adjoint "
+          "are kept up to factor_memory_mb (MB); later steps are refactorised in the backward.")
       .def(
           "backward",
           [](PyImplicitEuler& s, const Vector& dL_dx, std::optional<Vector> dL_dv, std::shared_ptr<PyProgress> progress) {

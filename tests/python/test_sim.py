@@ -338,3 +338,16 @@ def test_progress_callback_exception_propagates(model):
 
     with pytest.raises(ZeroDivisionError, match="from the callback"):
         model.simulate(model.parameters(), steps=3, progress=progress)
+
+
+def test_factor_memory_budget_gives_the_same_gradient(model):
+    p = model.parameters()
+    weights = np.random.default_rng(2).standard_normal((model.num_vertices, 3))
+    x_kept = model.simulate(p, steps=6)
+    g_kept = model.backward(weights, flat=True)
+    x_refactorised = model.simulate(p, steps=6, factor_memory_mb=0)
+    g_refactorised = model.backward(weights, flat=True)
+    np.testing.assert_array_equal(x_kept, x_refactorised)
+    np.testing.assert_allclose(g_refactorised, g_kept, rtol=1e-9, atol=1e-12)
+    with pytest.raises(ValueError, match="factor_memory_mb"):
+        model.simulate(p, steps=1, factor_memory_mb=-1)
