@@ -45,6 +45,14 @@ class SerialOpenMP {
   int saved_ = 1;
 };
 
+// A buffer for factor values (malloc: CHOLMOD frees the ones it allocated with free()). Transparent huge
+// pages were tried: they cut the page faults of a fresh factor per step but stalled on compaction.
+std::shared_ptr<void> allocate_values(size_t bytes) {
+  void* p = std::malloc(bytes);
+  if (!p) throw SolverError("CHOLMOD: out of memory for the factor");
+  return std::shared_ptr<void>(p, [](void* q) { std::free(q); });
+}
+
 // Fill-reducing ordering of the dofs: nested dissection of the vertex graph, 3 dofs per vertex kept together.
 // Empty if the partitioner is unavailable (CHOLMOD then chooses).
 std::vector<int> vertex_block_ordering(const SparsePattern& pattern, cholmod_common* common) {
@@ -107,8 +115,8 @@ CholmodSolver::CholmodSolver(const SparsePattern& pattern) : pattern_(pattern) {
 }
 
 CholmodSolver::~CholmodSolver() {
-  if (factor_ && shared_values_) factor_->x = nullptr;  // owned by the kept factors
-  shared_values_.reset();
+  if (factor_ && values_) factor_->x = nullptr;  // ours (or the kept factors'), not CHOLMOD's
+  values_.reset();
   if (factor_) cholmod_free_factor(&factor_, &common_);
   if (matrix_) cholmod_free_sparse(&matrix_, &common_);
   cholmod_finish(&common_);
@@ -117,11 +125,10 @@ CholmodSolver::~CholmodSolver() {
 bool CholmodSolver::factorize(const Eigen::VectorXd& values) {
   std::memcpy(matrix_->x, values.data(), sizeof(double) * pattern_.nnz());
   SerialOpenMP serial;
-  if (shared_values_) {  // the values belong to a kept factor: factorise into a new buffer
-    void* fresh = std::malloc(factor_->xsize * sizeof(double));
-    if (!fresh) throw SolverError("CHOLMOD: out of memory for the factor");
-    factor_->x = fresh;
-    shared_values_.reset();
+  if (values_kept_) {  // the values belong to a kept factor: factorise into a new buffer
+    values_ = allocate_values(factor_->xsize * sizeof(double));
+    factor_->x = values_.get();
+    values_kept_ = false;
   }
   cholmod_factorize(matrix_, factor_, &common_);
   return common_.status == CHOLMOD_OK;
@@ -156,10 +163,11 @@ CholmodSolver::Factor CholmodSolver::keep_factor() const {
     return Factor(copy, [c](cholmod_factor* f) { cholmod_free_factor(&f, c); });
   }
   // Supernodal: the structure is fixed by the analysis; keep the header and share the numeric values (no copy).
-  if (!shared_values_) shared_values_ = std::shared_ptr<void>(factor_->x, [](void* x) { std::free(x); });
+  if (!values_) values_ = std::shared_ptr<void>(factor_->x, [](void* x) { std::free(x); });  // CHOLMOD's malloc
+  values_kept_ = true;
   auto* copy = new cholmod_factor(*factor_);
   copy->z = nullptr;
-  auto values = shared_values_;
+  auto values = values_;
   return Factor(copy, [values](cholmod_factor* f) mutable {
     values.reset();
     delete f;

@@ -50,8 +50,10 @@ class CholmodSolver {
   cholmod_sparse* matrix_ = nullptr;
   cholmod_factor* factor_ = nullptr;
   double lnz_ = 0, flops_ = 0;
-  // Set when factor_->x is shared with kept factors (keep_factor): the buffer is theirs, not CHOLMOD's.
-  mutable std::shared_ptr<void> shared_values_;
+  // Owner of factor_->x once it is no longer CHOLMOD's own buffer (kept factors share it); values_kept_: the
+  // current values belong to a kept factor, so the next factorisation writes a new buffer.
+  mutable std::shared_ptr<void> values_;
+  mutable bool values_kept_ = false;
   Eigen::VectorXd solve_impl(cholmod_factor* factor, const Eigen::VectorXd& b) const;
 };
 
