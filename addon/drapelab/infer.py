@@ -12,6 +12,10 @@ Models (the paper's):
     heter  one deterministic table per edge:  log B_w = mu_w
     bdp    mean-field Gaussian, per element:  log B_w = mu + softplus(eta) * eps_w,  eps_w ~ N(0, I)
 
+Forward model (fit.json "forward"): "dynamic" = the paper's 100-step rollout from the flat state and its adjoint
+(default: the same forward as evaluation, no dependence on the optimisation path); "static" = Newton to
+equilibrium warm-started from the previous epoch (cheaper per epoch, path dependent).
+
 Loss (negative ELBO, Monte Carlo over S samples per epoch, stated in fit.json):
     L = mean_s [ mean_pixels (I_hat_s - I)^2 / (2 sigma_obs^2) ] + kl_weight * KL(q || p)
 where the first term is the per-pixel Gaussian negative log-likelihood averaged over pixels (constant
@@ -20,8 +24,8 @@ q = N(mu, softplus(eta)^2) and the isotropic prior p = N(mu0, s0^2) (mu0 = the s
 fit.json), i.e. log q - log p averaged over elements as in the paper's released code. HOMO and HETER are
 fitted as MAP point estimates under the same prior (the term is -log p up to a constant; averaged over
 elements for HETER): the paper's deterministic baselines are maximum likelihood, but one silhouette does
-not pin 15 free entries and the unregularised tables wander far (measured: entries spread over 3 decades). Gradients: soft-render VJP -> drape adjoint -> dL/dB_w ->
-reparameterisation (dL/dmu = sum_w g_w, dL/deta = sum_w g_w eps_w sigmoid(eta), g_w = B_w dL/dB_w).
+not pin 15 free entries and the unregularised tables wander far (measured: entries spread over 3 decades).
+Gradients: soft-render VJP -> drape adjoint -> dL/dB_w -> reparameterisation (dL/dmu = sum_w g_w, dL/deta = sum_w g_w eps_w sigmoid(eta), g_w = B_w dL/dB_w).
 
 A fit is a job: progress callback per epoch, cancel (threading.Event), a checkpoint after every epoch
 (atomic JSON, resumable, bit-identical continuation: the noise of epoch k sample s is drawn from
