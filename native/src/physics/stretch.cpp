@@ -149,6 +149,35 @@ void StretchTerm::stiffness_derivatives(const double* y, const double* p, const 
       }
 }
 
+void StretchTerm::table_weight_derivatives(const double* y, double w[6], double dw[6][3]) {
+  using G = StretchWeightGrid;
+  const StretchWeightGrid& grid = stretch_weight_grid();
+  const double sgn = y[2] >= 0 ? 1.0 : -1.0;
+  const AxisBlend ba = axis_blend((y[0] - G::kMin) / G::kStep, G::kNormal, 1.0 / G::kStep);
+  const AxisBlend bb = axis_blend((y[1] - G::kMin) / G::kStep, G::kNormal, 1.0 / G::kStep);
+  const AxisBlend bc = axis_blend((y[2] >= 0 ? y[2] : -y[2]) / G::kStep, G::kShear, 1.0 / G::kStep);
+  const double Na[2][2] = {{1.0 - ba.f, -ba.f1}, {ba.f, ba.f1}};
+  const double Nb[2][2] = {{1.0 - bb.f, -bb.f1}, {bb.f, bb.f1}};
+  const double Nc[2][2] = {{1.0 - bc.f, -sgn * bc.f1}, {bc.f, sgn * bc.f1}};
+  for (int r = 0; r < 6; ++r) w[r] = dw[r][0] = dw[r][1] = dw[r][2] = 0.0;
+  for (int di = 0; di < 2; ++di)
+    for (int dj = 0; dj < 2; ++dj)
+      for (int dk = 0; dk < 2; ++dk) {
+        const auto& nw = grid.node_weights[((ba.i0 + di) * G::kNormal + (bb.i0 + dj)) * G::kShear + bc.i0 + dk];
+        const double* a = Na[di];
+        const double* b = Nb[dj];
+        const double* g = Nc[dk];
+        const double t = a[0] * b[0] * g[0], t0 = a[1] * b[0] * g[0], t1 = a[0] * b[1] * g[0], t2 = a[0] * b[0] * g[1];
+        for (int r = 0; r < 6; ++r)
+          if (nw[r] != 0.0) {
+            w[r] += t * nw[r];
+            dw[r][0] += t0 * nw[r];
+            dw[r][1] += t1 * nw[r];
+            dw[r][2] += t2 * nw[r];
+          }
+      }
+}
+
 void StretchTerm::strain_energy_derivatives(const double* eps, const double* p, const double* nodes, int order,
                                             double& W, double dW[3], double d2W[3][3]) {
   // W = sum_q k_q sum_col C_col(t_q eps) Q_col(eps), Q = (e0^2, 2 e0 e1, e1^2, e2^2)
@@ -466,9 +495,7 @@ bool StretchTerm::add_step_adjoint(const Eigen::VectorXd& x, const Eigen::Vector
                                    const Eigen::VectorXd& w, double h, Eigen::VectorXd& gx, Eigen::VectorXd& gv,
                                    Eigen::VectorXd& gp) const {
   const double* nodes = shared_nodes(p);
-  using H1 = Jet<double, 1>;
   Local s;
-  H1 dWp[24];
   for (int e = 0; e < num_elements(); ++e) {
     local_state(e, x, s);
     const int off = parameter_offset(e);
@@ -489,14 +516,26 @@ bool StretchTerm::add_step_adjoint(const Eigen::VectorXd& x, const Eigen::Vector
       const double t1 = -h * (Y[1][0] * L.dF[cc][0] + Y[1][1] * L.dF[cc][1]);
       for (int v = 0; v < 3; ++v) ge[3 * v + cc] += s.B[v][0] * t0 + s.B[v][1] * t1;
     }
-    // d(lambda . grad E)/dp
-    H1 el[3];
-    for (int k = 0; k < 3; ++k) {
-      el[k] = H1(s.eps[k]);
-      el[k].v[0] = L.de[k];
+    // d(lambda . grad E)/dp: d/ds dW/dp(eps + s el), dW/dp[4r+col] = sum_q k_q w_r(t_q eps) Q_col(eps)
+    {
+      const double* e0 = s.eps;
+      const double* el = L.de;
+      const double Q[4] = {e0[0] * e0[0], 2.0 * e0[0] * e0[1], e0[1] * e0[1], e0[2] * e0[2]};
+      const double dQ[4] = {2.0 * e0[0] * el[0], 2.0 * (el[0] * e0[1] + e0[0] * el[1]), 2.0 * e0[1] * el[1],
+                            2.0 * e0[2] * el[2]};
+      double acc[24] = {0};
+      for (int q = 0; q < 3; ++q) {
+        const double t = kQuadT[q], kq = kQuadW[q] * (1.0 - kQuadT[q]);
+        const double y[3] = {t * e0[0], t * e0[1], t * e0[2]};
+        double w[6], dw[6][3];
+        table_weight_derivatives(y, w, dw);
+        for (int r = 0; r < 6; ++r) {
+          const double wdir = t * (dw[r][0] * el[0] + dw[r][1] * el[1] + dw[r][2] * el[2]);
+          for (int col = 0; col < 4; ++col) acc[4 * r + col] += kq * (wdir * Q[col] + w[r] * dQ[col]);
+        }
+      }
+      for (int k = 0; k < 24; ++k) gp[off + k] += -h * s.A * acc[k];
     }
-    strain_energy_table_gradient(el, dWp);
-    for (int k = 0; k < 24; ++k) gp[off + k] += -h * s.A * dWp[k].v[0];
     // d(lambda^T K w)/d(x, p) and K lambda
     double Kl[9] = {0};
     step_matrix_derivative_element(s, pe, L.dF, L.de, Wd.dF, Wd.de, -h * h, ge, gp.data() + off, -h * h, Kl);
@@ -526,13 +565,15 @@ void StretchTerm::step_matrix_derivative_element(const Local& s, const double* p
                                                  double scale, double* ge, double* gp, double kscale, double* Kl) {
   using J7 = Jet<double, 7>;
   // table weights at eps with their strain derivatives; C = sum_r w_r row_r
-  const J3 ej3[3] = {J3(s.eps[0], 0), J3(s.eps[1], 1), J3(s.eps[2], 2)};
-  J3 w3[6];
-  table_weights(ej3, w3);
+  double wr[6], dwr[6][3];
+  table_weight_derivatives(s.eps, wr, dwr);
   J3 c3[4];
   for (int col = 0; col < 4; ++col) {
     c3[col] = J3(0.0);
-    for (int r = 0; r < 6; ++r) c3[col] += w3[r] * p[4 * r + col];
+    for (int r = 0; r < 6; ++r) {
+      c3[col].a += wr[r] * p[4 * r + col];
+      for (int k = 0; k < 3; ++k) c3[col].v[k] += dwr[r][k] * p[4 * r + col];
+    }
   }
   // C(eps) with d/deps (slots 0..2) and d/dc (slots 3..6); S+ through s = C eps
   J7 c[4], ej[3];
@@ -567,7 +608,7 @@ void StretchTerm::step_matrix_derivative_element(const Local& s, const double* p
   }
   // parameters: dq/dp[4r+col] = dq/dc_col w_r(eps)
   for (int r = 0; r < 6; ++r)
-    for (int col = 0; col < 4; ++col) gp[4 * r + col] += scale * q.v[3 + col] * w3[r].a;
+    for (int col = 0; col < 4; ++col) gp[4 * r + col] += scale * q.v[3 + col] * wr[r];
   if (Kl) {  // K lambda = J_eps^T (A C el) + A (S+ (x) I3) dF_lambda
     const double y[3] = {kscale * t[0], kscale * t[1], kscale * t[2]};
     for (int j = 0; j < 9; ++j) Kl[j] += s.Je[0][j] * y[0] + s.Je[1][j] * y[1] + s.Je[2][j] * y[2];

@@ -115,6 +115,8 @@ class StretchTerm : public ElementTerm<StretchTerm, 3, 24, 9> {
   // nodes: optional table of C at every grid node for this p (node_stiffness), else computed on the fly.
   static void stiffness_derivatives(const double* y, const double* p, const double* nodes, int order, double c[4],
                                     double dc[4][3], double d2c[4][6]);
+  // Row weights w_r(y) and their y-derivatives dw[r][k] in closed form (as table_weights).
+  static void table_weight_derivatives(const double* y, double w[6], double dw[6][3]);
   // C at every grid node (4 per node) for table p: cached per thread, recomputed when p's values change.
   // For a table shared by all faces.
   static const double* node_stiffness(const double* p);
