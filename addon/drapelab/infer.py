@@ -224,6 +224,7 @@ class FitJob:
         self.adam = {k: {"m": np.zeros_like(v), "v": np.zeros_like(v)} for k, v in self.theta.items()}
         self.warm = {}  # Monte Carlo slot -> last equilibrium (static mode warm starts)
         self.previous_theta = None  # before the last Adam step (undone if the next drape fails)
+        self.scale = None  # result of the initial scale search
         self.lr_scale = 1.0
         self.epoch = 0
         self.history = []
@@ -313,6 +314,37 @@ class FitJob:
             out.append({"iou": measure.iou(hard, o.mask), "mse": measure.pixel_mse(hard, o.mask)})
         return {"iou": float(np.mean([m["iou"] for m in out])), "mse": float(np.mean([m["mse"] for m in out]))}
 
+    def scale_search(self, cancel_event=None):
+        """Initialisation: the one-parameter family start_table * s (s from fit.json init.scale_search) drapes
+        most like the training images; theta, and the prior mean, move to the best s. One silhouette pins the
+        overall bending scale well (and fabrics differ by decades), so this takes the fit to the right basin
+        in a few drapes; the table's shape is then learned by the gradient epochs."""
+        factors = self.config["init"].get("scale_search") or []
+        if not factors:
+            return None
+        w = self.workers[0]
+        scores = []
+        for f in factors:
+            if cancel_event is not None and cancel_event.is_set():
+                raise Cancelled()
+            bend = np.exp(self.log_bend0) * float(f)
+            p = w.model.parameters(stretch=self.stretch, bend=bend if self.kind == "homo" else
+                                   np.broadcast_to(bend, (self.num_edges,) + BEND_SHAPE))
+            try:
+                x = w.model.simulate(p, mode="dynamic", record=False, **self.config["dynamic"])
+            except SolverError:
+                scores.append(np.inf)
+                continue
+            img = np.asarray(render.hard_silhouette(self.camera, x, w.faces), dtype=np.float64)
+            scores.append(float(np.mean([measure.pixel_mse(img, o.mask) for o in self.observations])))
+        best = float(factors[int(np.argmin(scores))])
+        shift = np.log(best)
+        self.log_bend0 = self.log_bend0 + shift
+        self.prior_mu = self.prior_mu + shift
+        self.theta["mu"] = self.theta["mu"] + shift
+        self.scale = {"factors": list(map(float, factors)), "mse": scores, "chosen": best}
+        return self.scale
+
     def run(self, epochs=None, time_budget=None, progress=None, cancel_event=None, checkpoint=None):
         """Runs epochs until `epochs` in total are done or `time_budget` seconds pass. Returns the history."""
         if epochs is None and time_budget is None:
@@ -322,6 +354,10 @@ class FitJob:
         if time_budget is not None and not (float(time_budget) > 0):
             raise InputError(f"time_budget: must be > 0 seconds, got {time_budget}")
         t0 = time.monotonic()
+        if self.epoch == 0 and self.scale is None:
+            ts = time.monotonic()
+            self.scale_search(cancel_event)
+            self.elapsed += time.monotonic() - ts
         while True:
             if epochs is not None and self.epoch >= int(epochs):
                 break
@@ -367,7 +403,8 @@ class FitJob:
                 "theta": {k: v.tolist() for k, v in self.theta.items()},
                 "adam": {k: {"m": s["m"].tolist(), "v": s["v"].tolist()} for k, s in self.adam.items()},
                 "history": self.history, "elapsed": self.elapsed, "start_metrics": self.start_metrics,
-                "lr_scale": self.lr_scale}
+                "lr_scale": self.lr_scale, "prior_mu": self.prior_mu.tolist(), "log_bend0": self.log_bend0.tolist(),
+                "scale": self.scale}
 
     def save_checkpoint(self, path):
         measure.write_json(path, self.state())
@@ -391,6 +428,9 @@ class FitJob:
         self.elapsed = float(st.get("elapsed", 0.0))
         self.start_metrics = st.get("start_metrics")
         self.lr_scale = float(st.get("lr_scale", 1.0))
+        self.prior_mu = np.asarray(st.get("prior_mu", self.prior_mu), dtype=float)
+        self.log_bend0 = np.asarray(st.get("log_bend0", self.log_bend0), dtype=float)
+        self.scale = st.get("scale")
 
     # -- results
     def posterior(self):
@@ -423,7 +463,7 @@ class FitJob:
             "camera": {"kind": self.camera_kind, **self.observations[0].calibration},
             "simulation": {"mesh_level": self.mesh_level, "forward": self.config["forward"]},
             "training": {"epochs": self.epoch, "seconds": self.elapsed, "final_loss": last.get("loss"),
-                         "rejected_steps": len(self.history) - len(accepted),
+                         "rejected_steps": len(self.history) - len(accepted), "scale_search": self.scale,
                          "start": self.start_metrics, "history": self.history},
             "metrics": {"training_image": {"iou": last.get("iou"), "mse": last.get("mse")}},
             "provenance": {"images": [{"path": o.path, "sha256": o.sha256} for o in self.observations],
