@@ -20,12 +20,26 @@ TriangleMesh make_cusick_specimen(int target_vertices, const CusickGeometry& g) 
     throw InputError("Cusick specimen: need 0 < support radius < specimen radius");
   // Rings k = 1..K hold about 2*pi*k vertices each: 1 + pi K (K + 1) ~= target.
   const int K = std::max(1, static_cast<int>(std::lround((-M_PI + std::sqrt(M_PI * M_PI + 4 * M_PI * (target_vertices - 1))) / (2 * M_PI))));
+  // Ring sizes ~ 2 pi k, then adjusted one vertex per ring (outermost first) to hit the target exactly.
+  std::vector<int> ring_size(K + 1, 1);
+  int total = 1;
+  for (int k = 1; k <= K; ++k) {
+    ring_size[k] = std::max(6, static_cast<int>(std::lround(2 * M_PI * k)));
+    total += ring_size[k];
+  }
+  for (int pass = 0; total != target_vertices && pass < 8; ++pass)
+    for (int k = K; k >= 1 && total != target_vertices; --k) {
+      const int step = total < target_vertices ? 1 : -1;
+      if (ring_size[k] + step < 6) continue;
+      ring_size[k] += step;
+      total += step;
+    }
   std::vector<std::vector<int>> rings(K + 1);
   std::vector<Eigen::Vector2d> pts;
   pts.emplace_back(0.0, 0.0);
   rings[0] = {0};
   for (int k = 1; k <= K; ++k) {
-    const int n = std::max(6, static_cast<int>(std::lround(2 * M_PI * k)));
+    const int n = ring_size[k];
     const double r = g.specimen_radius * k / K;
     const double offset = (k % 2) * M_PI / n;  // stagger rings for better triangles
     for (int i = 0; i < n; ++i) {

@@ -12,7 +12,7 @@ struct CusickGeometry {
 };
 
 // A flat disk mesh (z = 0, centred at the origin, u = x weft, v = y warp) of concentric rings with
-// about `target_vertices` vertices (at least 7).
+// exactly `target_vertices` vertices (at least 7).
 TriangleMesh make_cusick_specimen(int target_vertices, const CusickGeometry& geometry = {});
 
 // Loads ../shared/data/cusick/template_meshes/circle{level}.obj when `template_dir` holds it,

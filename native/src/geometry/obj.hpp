@@ -6,9 +6,9 @@
 
 namespace drapelab {
 
-// Reads positions and faces. The rest (u,v) pattern comes from `vt` when every face vertex has one
-// and `vt` spans metres-scale coordinates consistently; otherwise from (x, y) of the positions
-// (flat specimens lie in z = 0). Throws InputError naming the file and the problem.
+// Reads positions and faces. The rest (u,v) pattern is (x, y) of the positions (flat specimens lie in
+// z = 0; `vt` is not read: texture space has no unit). Garment patterns come with the garment module.
+// Throws InputError naming the file and the problem.
 TriangleMesh read_obj(const std::string& path);
 
 // Writes positions (and uv as vt) atomically: a temporary file renamed into place.
