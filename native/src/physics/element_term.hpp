@@ -6,6 +6,10 @@
 //        the step matrix is K_e = J_r^T S J_r with J_r = dr/dx.
 //   int num_elements(); const std::array<int, kVertices>& element_vertices(int e); int parameter_offset(int e).
 // Every derivative in Term is then derived with forward-mode jets (util/jet.hpp): exact by construction.
+// These generic versions are slow (9- and 12-wide jets through the whole element); the hot terms (stretch,
+// bend) override them with hand-written kernels and keep these as their `Reference`, which
+// tests/native/physics/test_kernels.cpp compares them against (1e-12 relative) on random states. New terms
+// get correct derivatives from here alone and can add kernels later.
 #pragma once
 #include <array>
 #include <vector>

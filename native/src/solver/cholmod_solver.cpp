@@ -45,14 +45,6 @@ class SerialOpenMP {
   int saved_ = 1;
 };
 
-// A buffer for factor values (malloc: CHOLMOD frees the ones it allocated with free()). Transparent huge
-// pages were tried: they cut the page faults of a fresh factor per step but stalled on compaction.
-std::shared_ptr<void> allocate_values(size_t bytes) {
-  void* p = std::malloc(bytes);
-  if (!p) throw SolverError("CHOLMOD: out of memory for the factor");
-  return std::shared_ptr<void>(p, [](void* q) { std::free(q); });
-}
-
 // Fill-reducing ordering of the dofs: nested dissection of the vertex graph, 3 dofs per vertex kept together.
 // Empty if the partitioner is unavailable (CHOLMOD then chooses).
 std::vector<int> vertex_block_ordering(const SparsePattern& pattern, cholmod_common* common) {
@@ -81,7 +73,38 @@ std::vector<int> vertex_block_ordering(const SparsePattern& pattern, cholmod_com
 }
 }  // namespace
 
-CholmodSolver::CholmodSolver(const SparsePattern& pattern) : pattern_(pattern) {
+// Value buffers (all of one size, malloc'd: CHOLMOD frees its own with free()) of released kept factors.
+struct CholmodSolver::BufferPool {
+  std::mutex mutex;
+  std::vector<void*> free_buffers;
+  ~BufferPool() {
+    for (void* b : free_buffers) std::free(b);
+  }
+  void give(void* b) {
+    std::lock_guard<std::mutex> lock(mutex);
+    free_buffers.push_back(b);
+  }
+  void* take(size_t bytes) {
+    {
+      std::lock_guard<std::mutex> lock(mutex);
+      if (!free_buffers.empty()) {
+        void* b = free_buffers.back();
+        free_buffers.pop_back();
+        return b;
+      }
+    }
+    void* b = std::malloc(bytes);
+    if (!b) throw SolverError("CHOLMOD: out of memory for the factor");
+    return b;
+  }
+  void clear() {
+    std::lock_guard<std::mutex> lock(mutex);
+    for (void* b : free_buffers) std::free(b);
+    free_buffers.clear();
+  }
+};
+
+CholmodSolver::CholmodSolver(const SparsePattern& pattern) : pattern_(pattern), pool_(std::make_shared<BufferPool>()) {
   cholmod_start(&common_);
   common_.print = 0;
   common_.error_handler = nullptr;
@@ -126,7 +149,8 @@ bool CholmodSolver::factorize(const Eigen::VectorXd& values) {
   std::memcpy(matrix_->x, values.data(), sizeof(double) * pattern_.nnz());
   SerialOpenMP serial;
   if (values_kept_) {  // the values belong to a kept factor: factorise into a new buffer
-    values_ = allocate_values(factor_->xsize * sizeof(double));
+    std::shared_ptr<BufferPool> pool = pool_;
+    values_ = std::shared_ptr<void>(pool_->take(factor_->xsize * sizeof(double)), [pool](void* x) { pool->give(x); });
     factor_->x = values_.get();
     values_kept_ = false;
   }
@@ -163,7 +187,10 @@ CholmodSolver::Factor CholmodSolver::keep_factor() const {
     return Factor(copy, [c](cholmod_factor* f) { cholmod_free_factor(&f, c); });
   }
   // Supernodal: the structure is fixed by the analysis; keep the header and share the numeric values (no copy).
-  if (!values_) values_ = std::shared_ptr<void>(factor_->x, [](void* x) { std::free(x); });  // CHOLMOD's malloc
+  if (!values_) {  // CHOLMOD's own buffer (malloc): from now on in the pool's cycle
+    std::shared_ptr<BufferPool> pool = pool_;
+    values_ = std::shared_ptr<void>(factor_->x, [pool](void* x) { pool->give(x); });
+  }
   values_kept_ = true;
   auto* copy = new cholmod_factor(*factor_);
   copy->z = nullptr;
@@ -173,6 +200,8 @@ CholmodSolver::Factor CholmodSolver::keep_factor() const {
     delete f;
   });
 }
+
+void CholmodSolver::release_unused_buffers() { pool_->clear(); }
 
 size_t CholmodSolver::kept_factor_bytes() const {
   if (factor_->is_super) return factor_->xsize * sizeof(double);

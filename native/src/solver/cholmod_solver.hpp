@@ -12,6 +12,7 @@
 
 #include <Eigen/Core>
 #include <memory>
+#include <mutex>
 #include <vector>
 
 #include "physics/sparse_pattern.hpp"
@@ -40,6 +41,10 @@ class CholmodSolver {
   size_t factor_bytes() const;
   // Bytes held by one kept factor (its numeric values).
   size_t kept_factor_bytes() const;
+  // Frees the value buffers of released kept factors that are waiting for reuse (see keep_factor: buffers of
+  // kept factors that are released go to a pool that the next factorisations draw on, so that a rollout
+  // after a rollout writes its factors into memory it already has instead of fresh pages).
+  void release_unused_buffers();
   // Nonzeros of L and flops of one numeric factorisation (from the symbolic analysis).
   double factor_nonzeros() const { return lnz_; }
   double factor_flops() const { return flops_; }
@@ -54,6 +59,8 @@ class CholmodSolver {
   // current values belong to a kept factor, so the next factorisation writes a new buffer.
   mutable std::shared_ptr<void> values_;
   mutable bool values_kept_ = false;
+  struct BufferPool;
+  std::shared_ptr<BufferPool> pool_;  // shared with the kept factors' buffers (they may outlive the solver)
   Eigen::VectorXd solve_impl(cholmod_factor* factor, const Eigen::VectorXd& b) const;
 };
 

@@ -52,7 +52,7 @@ Eigen::VectorXd ImplicitEuler::forward(const Eigen::VectorXd& p, const RolloutOp
   if (!x_.allFinite() || !v_.allFinite()) throw InputError("rollout: initial state is not finite");
   p_ = p;
   h_ = options.time_step;
-  tape_.clear();
+  tape_.clear();  // the kept factors' buffers go back to the solver's pool, for this rollout's factors
   if (options.record) tape_.reserve(options.steps);
   timing_ = {};
   Eigen::VectorXd A, b;
@@ -93,6 +93,7 @@ Eigen::VectorXd ImplicitEuler::forward(const Eigen::VectorXd& p, const RolloutOp
     v_ = std::move(v_next);
     if (progress) progress->step(step + 1, options.steps);
   }
+  solver_.release_unused_buffers();  // buffers of an earlier, longer rollout that this one did not need
   return x_;
 }
 
