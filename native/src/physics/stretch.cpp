@@ -306,6 +306,19 @@ void StretchTerm::local_state(int e, const Eigen::VectorXd& x, Local& s) const {
   s.A = area_[e];
 }
 
+double StretchTerm::energy(const Eigen::VectorXd& x, const Eigen::VectorXd& p) const {
+  const double* nodes = shared_nodes(p);
+  double E = 0, xe[9], eps[3];
+  for (int e = 0; e < num_elements(); ++e) {
+    gather(e, x, xe);
+    green_strain(e, xe, eps);
+    double W, dW[3], d2W[3][3];
+    strain_energy_derivatives(eps, p.data() + parameter_offset(e), nodes, 0, W, dW, d2W);
+    E += area_[e] * W;
+  }
+  return E;
+}
+
 void StretchTerm::add_gradient(const Eigen::VectorXd& x, const Eigen::VectorXd& p, Eigen::VectorXd& g) const {
   const double* nodes = shared_nodes(p);
   Local s;

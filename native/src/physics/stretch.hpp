@@ -168,6 +168,7 @@ class StretchTerm : public ElementTerm<StretchTerm, 3, 24, 9> {
   // the strain map eps(x) and its derivatives written out). Equal to the jet-derived reference
   // (ElementTerm's versions, kept as Reference) to round-off; see tests/native/physics/test_kernels.cpp.
   using Reference = ElementTerm<StretchTerm, 3, 24, 9>;
+  double energy(const Eigen::VectorXd& x, const Eigen::VectorXd& p) const override;
   void add_gradient(const Eigen::VectorXd& x, const Eigen::VectorXd& p, Eigen::VectorXd& g) const override;
   void add_step_matrix(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double scale,
                        Eigen::VectorXd& values) const override;
