@@ -97,58 +97,6 @@ const double* StretchTerm::node_stiffness(const double* p) {
   return cache.nodes.data();
 }
 
-void StretchTerm::stiffness_derivatives(const double* y, const double* p, const double* nodes, int order, double c[4],
-                                        double dc[4][3], double d2c[4][6]) {
-  using G = StretchWeightGrid;
-  const StretchWeightGrid& grid = stretch_weight_grid();
-  const double sgn = y[2] >= 0 ? 1.0 : -1.0;
-  const AxisBlend ba = axis_blend((y[0] - G::kMin) / G::kStep, G::kNormal, 1.0 / G::kStep);
-  const AxisBlend bb = axis_blend((y[1] - G::kMin) / G::kStep, G::kNormal, 1.0 / G::kStep);
-  const AxisBlend bc = axis_blend((y[2] >= 0 ? y[2] : -y[2]) / G::kStep, G::kShear, 1.0 / G::kStep);
-  const double Na[2][3] = {{1.0 - ba.f, -ba.f1, -ba.f2}, {ba.f, ba.f1, ba.f2}};
-  const double Nb[2][3] = {{1.0 - bb.f, -bb.f1, -bb.f2}, {bb.f, bb.f1, bb.f2}};
-  const double Nc[2][3] = {{1.0 - bc.f, -sgn * bc.f1, -bc.f2}, {bc.f, sgn * bc.f1, bc.f2}};
-  for (int col = 0; col < 4; ++col) {
-    c[col] = 0.0;
-    if (order >= 1) dc[col][0] = dc[col][1] = dc[col][2] = 0.0;
-    if (order >= 2)
-      for (int k = 0; k < 6; ++k) d2c[col][k] = 0.0;
-  }
-  for (int di = 0; di < 2; ++di)
-    for (int dj = 0; dj < 2; ++dj)
-      for (int dk = 0; dk < 2; ++dk) {
-        const int node = ((ba.i0 + di) * G::kNormal + (bb.i0 + dj)) * G::kShear + bc.i0 + dk;
-        double cn[4] = {0, 0, 0, 0};
-        if (nodes) {
-          for (int col = 0; col < 4; ++col) cn[col] = nodes[4 * node + col];
-        } else {
-          const auto& nw = grid.node_weights[node];
-          for (int r = 0; r < 6; ++r)
-            if (nw[r] != 0.0)
-              for (int col = 0; col < 4; ++col) cn[col] += nw[r] * p[4 * r + col];
-        }
-        const double* a = Na[di];
-        const double* b = Nb[dj];
-        const double* g = Nc[dk];
-        const double t = a[0] * b[0] * g[0];
-        for (int col = 0; col < 4; ++col) c[col] += t * cn[col];
-        if (order >= 1) {
-          const double t0 = a[1] * b[0] * g[0], t1 = a[0] * b[1] * g[0], t2 = a[0] * b[0] * g[1];
-          for (int col = 0; col < 4; ++col) {
-            dc[col][0] += t0 * cn[col];
-            dc[col][1] += t1 * cn[col];
-            dc[col][2] += t2 * cn[col];
-          }
-        }
-        if (order >= 2) {
-          const double tt[6] = {a[2] * b[0] * g[0], a[0] * b[2] * g[0], a[0] * b[0] * g[2],
-                                a[1] * b[1] * g[0], a[1] * b[0] * g[1], a[0] * b[1] * g[1]};
-          for (int col = 0; col < 4; ++col)
-            for (int k = 0; k < 6; ++k) d2c[col][k] += tt[k] * cn[col];
-        }
-      }
-}
-
 void StretchTerm::table_weight_derivatives(const double* y, double w[6], double dw[6][3]) {
   using G = StretchWeightGrid;
   const StretchWeightGrid& grid = stretch_weight_grid();
@@ -178,6 +126,73 @@ void StretchTerm::table_weight_derivatives(const double* y, double w[6], double 
       }
 }
 
+namespace {
+// C(y) and its y-derivatives in closed form: the blend is a tensor product of 1-D smoothstep fractions, so it
+// is evaluated axis by axis (shear, then G_vv, then G_uu) on the 8 surrounding nodes' stiffness.
+// kOrder 0: C; 1: and dC/dy; 2: and d2C/dy2 (kl = 00, 11, 22, 01, 02, 12).
+template <int kOrder>
+void blend_separable(const AxisBlend& ba, const AxisBlend& bb, const AxisBlend& bc, double sgn, const double* nodes,
+                     const double* p, double c[4], double dc[4][3], double d2c[4][6]) {
+  constexpr bool kGrad = kOrder >= 1;
+  using G = StretchWeightGrid;
+  const StretchWeightGrid& grid = stretch_weight_grid();
+  // along the shear axis (k) for the 4 (i, j) corners
+  double v[2][2][4], vk[2][2][4], vkk[2][2][4];
+  const double n0 = 1.0 - bc.f, n1 = bc.f, d1 = sgn * bc.f1, d2 = bc.f2;
+  for (int di = 0; di < 2; ++di)
+    for (int dj = 0; dj < 2; ++dj) {
+      const int node = ((ba.i0 + di) * G::kNormal + (bb.i0 + dj)) * G::kShear + bc.i0;
+      double c0[4], c1[4];
+      if (nodes) {
+        for (int col = 0; col < 4; ++col) {
+          c0[col] = nodes[4 * node + col];
+          c1[col] = nodes[4 * (node + 1) + col];
+        }
+      } else {
+        for (int col = 0; col < 4; ++col) c0[col] = c1[col] = 0.0;
+        const auto& w0 = grid.node_weights[node];
+        const auto& w1 = grid.node_weights[node + 1];
+        for (int r = 0; r < 6; ++r)
+          for (int col = 0; col < 4; ++col) {
+            if (w0[r] != 0.0) c0[col] += w0[r] * p[4 * r + col];
+            if (w1[r] != 0.0) c1[col] += w1[r] * p[4 * r + col];
+          }
+      }
+      for (int col = 0; col < 4; ++col) {
+        v[di][dj][col] = n0 * c0[col] + n1 * c1[col];
+        if (kGrad) vk[di][dj][col] = d1 * (c1[col] - c0[col]);
+        if (kOrder >= 2) vkk[di][dj][col] = d2 * (c1[col] - c0[col]);
+      }
+    }
+  // along j, then i
+  const double m0 = 1.0 - bb.f, m1 = bb.f, e1 = bb.f1;
+  const double l0 = 1.0 - ba.f, l1 = ba.f, g1 = ba.f1;
+  for (int col = 0; col < 4; ++col) {
+    const double u0 = m0 * v[0][0][col] + m1 * v[0][1][col], u1 = m0 * v[1][0][col] + m1 * v[1][1][col];
+    c[col] = l0 * u0 + l1 * u1;
+    if (kGrad) {
+      const double uj0 = e1 * (v[0][1][col] - v[0][0][col]), uj1 = e1 * (v[1][1][col] - v[1][0][col]);
+      const double uk0 = m0 * vk[0][0][col] + m1 * vk[0][1][col], uk1 = m0 * vk[1][0][col] + m1 * vk[1][1][col];
+      dc[col][0] = g1 * (u1 - u0);
+      dc[col][1] = l0 * uj0 + l1 * uj1;
+      dc[col][2] = l0 * uk0 + l1 * uk1;
+      if (kOrder >= 2) {
+        const double e2 = bb.f2, g2 = ba.f2;
+        const double ujj0 = e2 * (v[0][1][col] - v[0][0][col]), ujj1 = e2 * (v[1][1][col] - v[1][0][col]);
+        const double ukk0 = m0 * vkk[0][0][col] + m1 * vkk[0][1][col], ukk1 = m0 * vkk[1][0][col] + m1 * vkk[1][1][col];
+        const double ujk0 = e1 * (vk[0][1][col] - vk[0][0][col]), ujk1 = e1 * (vk[1][1][col] - vk[1][0][col]);
+        d2c[col][0] = g2 * (u1 - u0);
+        d2c[col][1] = l0 * ujj0 + l1 * ujj1;
+        d2c[col][2] = l0 * ukk0 + l1 * ukk1;
+        d2c[col][3] = g1 * (uj1 - uj0);
+        d2c[col][4] = g1 * (uk1 - uk0);
+        d2c[col][5] = l0 * ujk0 + l1 * ujk1;
+      }
+    }
+  }
+}
+}  // namespace
+
 void StretchTerm::strain_energy_derivatives(const double* eps, const double* p, const double* nodes, int order,
                                             double& W, double dW[3], double d2W[3][3]) {
   // W = sum_q k_q sum_col C_col(t_q eps) Q_col(eps), Q = (e0^2, 2 e0 e1, e1^2, e2^2)
@@ -193,7 +208,16 @@ void StretchTerm::strain_energy_derivatives(const double* eps, const double* p, 
     const double t = kQuadT[q], kq = kQuadW[q] * (1.0 - kQuadT[q]);
     const double y[3] = {t * eps[0], t * eps[1], t * eps[2]};
     double c[4], dc[4][3], d2c[4][6];
-    stiffness_derivatives(y, p, nodes, order, c, dc, d2c);
+    {
+      using G = StretchWeightGrid;
+      const double sgn = y[2] >= 0 ? 1.0 : -1.0;
+      const AxisBlend ba = axis_blend((y[0] - G::kMin) / G::kStep, G::kNormal, 1.0 / G::kStep);
+      const AxisBlend bb = axis_blend((y[1] - G::kMin) / G::kStep, G::kNormal, 1.0 / G::kStep);
+      const AxisBlend bc = axis_blend((y[2] >= 0 ? y[2] : -y[2]) / G::kStep, G::kShear, 1.0 / G::kStep);
+      if (order >= 2) blend_separable<2>(ba, bb, bc, sgn, nodes, p, c, dc, d2c);
+      else if (order == 1) blend_separable<1>(ba, bb, bc, sgn, nodes, p, c, dc, d2c);
+      else blend_separable<0>(ba, bb, bc, sgn, nodes, p, c, dc, d2c);
+    }
     W += kq * (c[0] * Q[0] + c[1] * Q[1] + c[2] * Q[2] + c[3] * Q[3]);
     if (order >= 1)
       for (int k = 0; k < 3; ++k) {

@@ -110,17 +110,13 @@ class StretchTerm : public ElementTerm<StretchTerm, 3, 24, 9> {
     }
   }
 
-  // C(y) and its y-derivatives up to `order` (0, 1, 2) in closed form (the blend is a tensor product of 1-D
-  // smoothstep fractions): dc[col][k] = dC_col/dy_k, d2c[col][kl] with kl = 00, 11, 22, 01, 02, 12.
-  // nodes: optional table of C at every grid node for this p (node_stiffness), else computed on the fly.
-  static void stiffness_derivatives(const double* y, const double* p, const double* nodes, int order, double c[4],
-                                    double dc[4][3], double d2c[4][6]);
   // Row weights w_r(y) and their y-derivatives dw[r][k] in closed form (as table_weights).
   static void table_weight_derivatives(const double* y, double w[6], double dw[6][3]);
   // C at every grid node (4 per node) for table p: cached per thread, recomputed when p's values change.
   // For a table shared by all faces.
   static const double* node_stiffness(const double* p);
-  // W(eps), grad W and (order 2) the Hessian of W in strain space, in closed form.
+  // W(eps), grad W (order >= 1) and the Hessian of W (order 2) in strain space, in closed form (C(y) and its
+  // derivatives by the tensor-product smoothstep blend); nodes: node_stiffness(p) for a shared table, or null.
   static void strain_energy_derivatives(const double* eps, const double* p, const double* nodes, int order, double& W,
                                         double dW[3], double d2W[3][3]);
   const double* shared_nodes(const Eigen::VectorXd& p) const { return shared_ ? node_stiffness(p.data() + offset_) : nullptr; }
