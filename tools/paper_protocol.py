@@ -44,7 +44,7 @@ def path(rel):
 
 
 def slug(row):
-    name = row["name"] or f"fabric {int(row['fabric']):02d}"
+    name = row["name"] or f"{row['material']} {row['weave']}"
     return re.sub(r"[^a-z0-9]+", "_", f"fabric_{int(row['fabric']):02d}_{name}".lower()).strip("_")
 
 
