@@ -39,39 +39,81 @@ namespace drapelab {
 
 namespace {
 using D1 = Jet<double, 1>;
-using D2 = Jet<D1, 1>;
-using D3 = Jet<D2, 1>;
 
-inline D2 seed2(double d) {
-  D2 r{D1(d, 0)};
-  r.v[0] = D1(1.0);
-  return r;
-}
-inline D3 seed3(double d) {
-  D3 r{seed2(d)};
-  r.v[0] = D2(D1(1.0));
-  return r;
-}
 }  // namespace
+
+void BendTerm::angle_derivatives(int e, double d, const double* p, AngleDerivatives& out) const {
+  // G(d) = 2 (L / H) (1 - cos(d / 2)); t = |sin(d / 2)| / (H kBendSampleCurvature); f = smoothstep(t - k0)
+  // (constant 1 beyond the table); k = K0 + f (K1 - K0); E = k G.
+  const double h = 0.5 * d;
+  const double s = std::sin(h), c = std::cos(h);
+  const double LH = rest_length_[e] / height_sum_[e];
+  const double G[4] = {2.0 * LH * (1.0 - c), LH * s, 0.5 * LH * c, -0.25 * LH * s};
+  const double hsum = height_sum_[e];
+  const double sg = s >= 0 ? 1.0 : -1.0;
+  const double a = 1.0 / (hsum * kBendSampleCurvature);
+  const double t = (s >= 0 ? s : -s) / hsum / kBendSampleCurvature;
+  const double t1 = sg * a * 0.5 * c, t2 = -sg * a * 0.25 * s, t3 = -sg * a * 0.125 * c;
+  int k0;
+  double f[4] = {1.0, 0.0, 0.0, 0.0};
+  if (!(t >= 4)) {
+    k0 = static_cast<int>(t);
+    if (k0 > 3) k0 = 3;
+    const double u = t - static_cast<double>(k0);
+    const double s1 = 6.0 * u * (1.0 - u), s2 = 6.0 - 12.0 * u;  // smoothstep' and '' in u
+    f[0] = u * u * (3.0 - 2.0 * u);
+    f[1] = s1 * t1;
+    f[2] = s2 * t1 * t1 + s1 * t2;
+    f[3] = -12.0 * t1 * t1 * t1 + 3.0 * s2 * t1 * t2 + s1 * t3;
+  } else {
+    k0 = 3;
+  }
+  const auto& rw = row_weights_[e];
+  double K0 = 0, K1 = 0;
+  out.count = 0;
+  for (int r = 0; r < 2; ++r) {
+    if (rw[r] == 0.0) continue;
+    const int row = row_index_[e][r];
+    K0 += rw[r] * p[5 * row + k0];
+    K1 += rw[r] * p[5 * row + k0 + 1];
+    // phi for (1 - f) G and f G
+    const double fG[3] = {f[0] * G[0], f[1] * G[0] + f[0] * G[1], f[2] * G[0] + 2.0 * f[1] * G[1] + f[0] * G[2]};
+    out.index[out.count] = 5 * row + k0;
+    for (int n = 0; n < 3; ++n) out.phi[out.count][n] = rw[r] * (G[n] - fG[n]);
+    ++out.count;
+    out.index[out.count] = 5 * row + k0 + 1;
+    for (int n = 0; n < 3; ++n) out.phi[out.count][n] = rw[r] * fG[n];
+    ++out.count;
+  }
+  const double dK = K1 - K0;
+  const double k[4] = {K0 + f[0] * dK, f[1] * dK, f[2] * dK, f[3] * dK};
+  out.E[0] = k[0] * G[0];
+  out.E[1] = k[1] * G[0] + k[0] * G[1];
+  out.E[2] = k[2] * G[0] + 2.0 * k[1] * G[1] + k[0] * G[2];
+  out.E[3] = k[3] * G[0] + 3.0 * k[2] * G[1] + 3.0 * k[1] * G[2] + k[0] * G[3];
+}
 
 void BendTerm::add_gradient(const Eigen::VectorXd& x, const Eigen::VectorXd& p, Eigen::VectorXd& g) const {
   double xe[12], gt[12];
   for (int e = 0; e < num_elements(); ++e) {
     gather_local(e, x, xe);
     const double d = dihedral_angle(xe) - rest_angle_[e];
-    const D1 E = energy_of_angle(e, D1(d, 0), p.data() + parameter_offset(e));
+    AngleDerivatives ad;
+    angle_derivatives(e, d, p.data() + parameter_offset(e), ad);
     dihedral_gradient(xe, gt);
-    for (int i = 0; i < 12; ++i) gt[i] *= E.v[0];
+    for (int i = 0; i < 12; ++i) gt[i] *= ad.E[1];
     scatter_vector(e, gt, 1.0, g);
   }
 }
 
 void BendTerm::add_step_matrix(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double scale,
                                Eigen::VectorXd& values) const {
-  double xe[12], gt[12], K[144], r, S;
+  double xe[12], gt[12], K[144];
   for (int e = 0; e < num_elements(); ++e) {
     gather_local(e, x, xe);
-    element_gauss_newton(e, xe, p.data() + parameter_offset(e), &r, &S);
+    AngleDerivatives ad;
+    angle_derivatives(e, dihedral_angle(xe) - rest_angle_[e], p.data() + parameter_offset(e), ad);
+    const double S = ad.E[2] > 0 ? ad.E[2] : 0.0;  // as element_gauss_newton
     dihedral_gradient(xe, gt);
     for (int i = 0; i < 12; ++i) {
       const double si = S * gt[i];
@@ -89,8 +131,9 @@ void BendTerm::add_hessian(const Eigen::VectorXd& x, const Eigen::VectorXd& p, d
   for (int e = 0; e < num_elements(); ++e) {
     gather_local(e, x, xe);
     const double d = dihedral_angle(xe) - rest_angle_[e];
-    const D2 E = energy_of_angle(e, seed2(d), p.data() + parameter_offset(e));
-    const double E1 = E.v[0].a, E2 = E.v[0].v[0];
+    AngleDerivatives ad;
+    angle_derivatives(e, d, p.data() + parameter_offset(e), ad);
+    const double E1 = ad.E[1], E2 = ad.E[2];
     for (int i = 0; i < 12; ++i) xj[i] = G(xe[i], i);
     dihedral_gradient(xj, gj);
     for (int i = 0; i < 12; ++i)
@@ -111,8 +154,9 @@ void BendTerm::add_hessian_product(const Eigen::VectorXd& x, const Eigen::Vector
       xj[i].v[0] = dir[3 * v[i / 3] + i % 3];
     }
     const double d = dihedral_angle(xe) - rest_angle_[e];
-    const D2 E = energy_of_angle(e, seed2(d), p.data() + parameter_offset(e));
-    const double E1 = E.v[0].a, E2 = E.v[0].v[0];
+    AngleDerivatives ad;
+    angle_derivatives(e, d, p.data() + parameter_offset(e), ad);
+    const double E1 = ad.E[1], E2 = ad.E[2];
     dihedral_gradient(xj, gj);
     double gd = 0;
     for (int i = 0; i < 12; ++i) gd += gj[i].a * xj[i].v[0];
@@ -156,8 +200,6 @@ void BendTerm::add_step_matrix_derivatives(const Eigen::VectorXd& x, const Eigen
   using T2 = Jet<double, 2>;
   double xe[12], ge[12];
   T2 xj[12], gj[12];
-  D2 phi[4];
-  int index[4];
   for (int e = 0; e < num_elements(); ++e) {
     gather_local(e, x, xe);
     const auto& v = verts_[e];
@@ -176,23 +218,25 @@ void BendTerm::add_step_matrix_derivatives(const Eigen::VectorXd& x, const Eigen
     }
     const double d = dihedral_angle(xe) - rest_angle_[e];
     // S = max(E'', 0): its angle derivative E''' and its table derivatives dE''/dp where E'' > 0.
-    const D3 E3 = energy_of_angle(e, seed3(d), p.data() + off);
-    const double E2 = E3.v[0].v[0].a;
+    AngleDerivatives ad;
+    angle_derivatives(e, d, p.data() + off, ad);
+    const double E2 = ad.E[2];
     if (!(E2 > 0)) continue;  // S = 0 with zero derivatives
-    const double E3v = E3.v[0].v[0].v[0];
+    const double E3v = ad.E[3];
     for (int i = 0; i < 12; ++i) ge[i] = E3v * gj[i].a * gl * gw + E2 * (gj[i].v[0] * gw + gl * gj[i].v[1]);
     scatter_vector(e, ge, scale, gx);
-    const int n = table_coefficients(e, seed2(d), index, phi);
-    for (int j = 0; j < n; ++j) gp[off + index[j]] += scale * gl * gw * phi[j].v[0].v[0];
+    for (int j = 0; j < ad.count; ++j) gp[off + ad.index[j]] += scale * gl * gw * ad.phi[j][2];
   }
 }
 
 bool BendTerm::add_step_matrix_product(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& dir,
                                        double scale, Eigen::VectorXd& out) const {
-  double xe[12], gt[12], r, S;
+  double xe[12], gt[12];
   for (int e = 0; e < num_elements(); ++e) {
     gather_local(e, x, xe);
-    element_gauss_newton(e, xe, p.data() + parameter_offset(e), &r, &S);
+    AngleDerivatives ad;
+    angle_derivatives(e, dihedral_angle(xe) - rest_angle_[e], p.data() + parameter_offset(e), ad);
+    const double S = ad.E[2] > 0 ? ad.E[2] : 0.0;  // as element_gauss_newton
     if (!(S != 0.0)) continue;
     const auto& v = verts_[e];
     dihedral_gradient(xe, gt);
@@ -211,8 +255,6 @@ bool BendTerm::add_step_adjoint(const Eigen::VectorXd& x, const Eigen::VectorXd&
   using T2 = Jet<double, 2>;
   double xe[12], ge[12], kl[12];
   T2 xj[12], gj[12];
-  D2 phi[4];
-  int index[4];
   const double h2 = h * h;
   for (int e = 0; e < num_elements(); ++e) {
     gather_local(e, x, xe);
@@ -231,19 +273,20 @@ bool BendTerm::add_step_adjoint(const Eigen::VectorXd& x, const Eigen::VectorXd&
       gw += gj[i].a * xj[i].v[1];
     }
     const double d = dihedral_angle(xe) - rest_angle_[e];
-    const D3 E = energy_of_angle(e, seed3(d), p.data() + off);
-    const double E1 = E.v[0].a.a, E2 = E.v[0].v[0].a, E3 = E.v[0].v[0].v[0];
-    const int n = table_coefficients(e, seed2(d), index, phi);
+    AngleDerivatives ad;
+    angle_derivatives(e, d, p.data() + off, ad);
+    const double E1 = ad.E[1], E2 = ad.E[2], E3 = ad.E[3];
+    const int n = ad.count;
     // -h Hess E lambda
     for (int i = 0; i < 12; ++i) ge[i] = -h * (E2 * gj[i].a * gl + E1 * gj[i].v[0]);
     // -h d(lambda . grad E)/dp
-    for (int j = 0; j < n; ++j) gp[off + index[j]] += -h * gl * phi[j].v[0].a;
+    for (int j = 0; j < n; ++j) gp[off + ad.index[j]] += -h * gl * ad.phi[j][1];
     if (E2 > 0) {  // S = E'' (else S = 0 with zero derivatives)
       for (int i = 0; i < 12; ++i) {
         ge[i] += -h2 * (E3 * gj[i].a * gl * gw + E2 * (gj[i].v[0] * gw + gl * gj[i].v[1]));
         kl[i] = -h2 * E2 * gl * gj[i].a;
       }
-      for (int j = 0; j < n; ++j) gp[off + index[j]] += -h2 * gl * gw * phi[j].v[0].v[0];
+      for (int j = 0; j < n; ++j) gp[off + ad.index[j]] += -h2 * gl * gw * ad.phi[j][2];
       scatter_vector(e, kl, 1.0, gv);
     }
     scatter_vector(e, ge, 1.0, gx);
@@ -258,9 +301,9 @@ bool BendTerm::add_step_system(const Eigen::VectorXd& x, const Eigen::VectorXd& 
     gather_local(e, x, xe);
     const auto& vv = verts_[e];
     const double d = dihedral_angle(xe) - rest_angle_[e];
-    // E' and E'' from one evaluation (E'' as in element_gauss_newton)
-    const D2 E = energy_of_angle(e, seed2(d), p.data() + parameter_offset(e));
-    const double E1 = E.v[0].a, E2 = E.v[0].v[0];
+    AngleDerivatives ad;
+    angle_derivatives(e, d, p.data() + parameter_offset(e), ad);
+    const double E1 = ad.E[1], E2 = ad.E[2];
     const double S = E2 > 0 ? E2 : 0.0;
     dihedral_gradient(xe, gt);
     for (int i = 0; i < 12; ++i) ge[i] = E1 * gt[i];

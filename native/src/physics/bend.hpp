@@ -113,6 +113,16 @@ class BendTerm : public ElementTerm<BendTerm, 4, 15, 1> {
     return n;
   }
 
+  // E(d) and its first three d-derivatives, and the table coefficients phi_j(d) (see table_coefficients) with
+  // their first two d-derivatives, in closed form (one sincos): the hot paths' version of the jets above.
+  struct AngleDerivatives {
+    double E[4];
+    int count;
+    int index[4];
+    double phi[4][3];
+  };
+  void angle_derivatives(int e, double d, const double* p, AngleDerivatives& out) const;
+
   // Energy as a function of the angle change d = theta - theta_rest.
   template <class T, class P>
   T energy_of_angle(int e, const T& d, const P* p) const {
