@@ -110,7 +110,7 @@ def sample_bend_tables(model_kind, theta, num_edges, noise=None):
 
 
 class _Observation:
-    def __init__(self, path, calibration, camera):
+    def __init__(self, path, calibration):
         self.path = path
         sil = measure.load_silhouette(path, calibration)
         self.mask = np.asarray(sil.mask, dtype=np.float64)
@@ -118,7 +118,6 @@ class _Observation:
         self.calibration = {"px_per_m": float(c.px_per_m), "centre_px": [float(c.cx), float(c.cy)]}
         with open(path, "rb") as f:
             self.sha256 = hashlib.sha256(f.read()).hexdigest()
-        self.camera = camera
 
 
 def _camera_for(kind, calibration, shape):
@@ -188,7 +187,7 @@ class FitJob:
         self.density = check_density(density)
         self.seed = int(seed)
         self.config = config or load_config()
-        self.observations = [_Observation(p, calibration, None) for p in images]
+        self.observations = [_Observation(p, calibration) for p in images]
         shape = self.observations[0].mask.shape
         for o in self.observations:
             if o.mask.shape != shape:
@@ -582,15 +581,14 @@ def evaluate(preset_or_path, images, meshes=None, samples=None, seed=0, threads=
     if n < 1:
         raise InputError(f"samples: must be >= 1, got {samples}")
     cal = preset["camera"]
-    observations = [_Observation(p, None, None) for p in images]
+    observations = [_Observation(p, None) for p in images]
     shape = observations[0].mask.shape
     camera = _camera_for(preset["camera"].get("kind", "ortho"),
                          {"px_per_m": cal["px_per_m"], "centre_px": cal["centre_px"]}, shape)
     level = mesh_level or preset["simulation"]["mesh_level"]
     mesh = sim.cusick_specimen(level, template_dir=template_dir)
-    heterogeneous = True
     lanes = max(1, min(int(threads or min(os.cpu_count() or 1, 2)), n))
-    models = [sim.ClothModel(mesh, heterogeneous=heterogeneous, density=preset["density_kg_m2"]) for _ in range(lanes)]
+    models = [sim.ClothModel(mesh, heterogeneous=True, density=preset["density_kg_m2"]) for _ in range(lanes)]
     num_edges = models[0].num_bending_edges
     stretch = np.asarray(preset["stretch_N_m"])
     fwd = forward or config["evaluate"]["forward"]
