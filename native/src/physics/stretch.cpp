@@ -357,30 +357,35 @@ void StretchTerm::add_gradient(const Eigen::VectorXd& x, const Eigen::VectorXd& 
   }
 }
 
+// K_e = J_eps^T (A C) J_eps (material part) + A S+ (x) I3 on F (geometric part), 9 x 9 row-major.
+void StretchTerm::element_step_matrix(const Local& s, const double* pe, double* K) {
+  double c[4];
+  stiffness(s.eps, pe, c);
+  // material part J_eps^T (A C) J_eps
+  const double Cm[3][3] = {{s.A * c[0], s.A * c[1], 0.0}, {s.A * c[1], s.A * c[2], 0.0}, {0.0, 0.0, s.A * c[3]}};
+  double M[3][9];
+  for (int a = 0; a < 3; ++a)
+    for (int j = 0; j < 9; ++j) M[a][j] = Cm[a][0] * s.Je[0][j] + Cm[a][1] * s.Je[1][j] + Cm[a][2] * s.Je[2][j];
+  for (int i = 0; i < 9; ++i)
+    for (int j = i; j < 9; ++j) K[i * 9 + j] = s.Je[0][i] * M[0][j] + s.Je[1][i] * M[1][j] + s.Je[2][i] * M[2][j];
+  for (int i = 0; i < 9; ++i)
+    for (int j = 0; j < i; ++j) K[i * 9 + j] = K[j * 9 + i];
+  // geometric part A S+ (x) I3 on F
+  const double s00 = c[0] * s.eps[0] + c[1] * s.eps[1], s11 = c[1] * s.eps[0] + c[2] * s.eps[1],
+               s01 = 0.5 * c[3] * s.eps[2];
+  double P[2][2];
+  positive_part(s00, s01, s11, P);
+  const double Y[2][2] = {{s.A * P[0][0], s.A * P[0][1]}, {s.A * P[1][0], s.A * P[1][1]}};
+  add_shape_block(s.B, Y, K);
+}
+
 void StretchTerm::add_step_matrix(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double scale,
                                   Eigen::VectorXd& values) const {
   Local s;
   double K[81];
   for (int e = 0; e < num_elements(); ++e) {
     local_state(e, x, s);
-    double c[4];
-    stiffness(s.eps, p.data() + parameter_offset(e), c);
-    // material part J_eps^T (A C) J_eps
-    const double Cm[3][3] = {{s.A * c[0], s.A * c[1], 0.0}, {s.A * c[1], s.A * c[2], 0.0}, {0.0, 0.0, s.A * c[3]}};
-    double M[3][9];
-    for (int a = 0; a < 3; ++a)
-      for (int j = 0; j < 9; ++j) M[a][j] = Cm[a][0] * s.Je[0][j] + Cm[a][1] * s.Je[1][j] + Cm[a][2] * s.Je[2][j];
-    for (int i = 0; i < 9; ++i)
-      for (int j = i; j < 9; ++j) K[i * 9 + j] = s.Je[0][i] * M[0][j] + s.Je[1][i] * M[1][j] + s.Je[2][i] * M[2][j];
-    for (int i = 0; i < 9; ++i)
-      for (int j = 0; j < i; ++j) K[i * 9 + j] = K[j * 9 + i];
-    // geometric part A S+ (x) I3 on F
-    const double s00 = c[0] * s.eps[0] + c[1] * s.eps[1], s11 = c[1] * s.eps[0] + c[2] * s.eps[1],
-                 s01 = 0.5 * c[3] * s.eps[2];
-    double P[2][2];
-    positive_part(s00, s01, s11, P);
-    const double Y[2][2] = {{s.A * P[0][0], s.A * P[0][1]}, {s.A * P[1][0], s.A * P[1][1]}};
-    add_shape_block(s.B, Y, K);
+    element_step_matrix(s, p.data() + parameter_offset(e), K);
     scatter_matrix(e, K, scale, values);
   }
 }
@@ -674,22 +679,7 @@ bool StretchTerm::add_step_system(const Eigen::VectorXd& x, const Eigen::VectorX
     strain_transpose(s.f, s.B, y, ge);
     scatter_vector(e, ge, 1.0, g);
     // step matrix (as add_step_matrix) and K v
-    double c[4];
-    stiffness(s.eps, pe, c);
-    const double Cm[3][3] = {{s.A * c[0], s.A * c[1], 0.0}, {s.A * c[1], s.A * c[2], 0.0}, {0.0, 0.0, s.A * c[3]}};
-    double M[3][9];
-    for (int a = 0; a < 3; ++a)
-      for (int j = 0; j < 9; ++j) M[a][j] = Cm[a][0] * s.Je[0][j] + Cm[a][1] * s.Je[1][j] + Cm[a][2] * s.Je[2][j];
-    for (int i = 0; i < 9; ++i)
-      for (int j = i; j < 9; ++j) K[i * 9 + j] = s.Je[0][i] * M[0][j] + s.Je[1][i] * M[1][j] + s.Je[2][i] * M[2][j];
-    for (int i = 0; i < 9; ++i)
-      for (int j = 0; j < i; ++j) K[i * 9 + j] = K[j * 9 + i];
-    const double s00 = c[0] * s.eps[0] + c[1] * s.eps[1], s11 = c[1] * s.eps[0] + c[2] * s.eps[1],
-                 s01 = 0.5 * c[3] * s.eps[2];
-    double P[2][2];
-    positive_part(s00, s01, s11, P);
-    const double Y[2][2] = {{s.A * P[0][0], s.A * P[0][1]}, {s.A * P[1][0], s.A * P[1][1]}};
-    add_shape_block(s.B, Y, K);
+    element_step_matrix(s, pe, K);
     scatter_matrix(e, K, scale, values);
     gather(e, v, ve);
     for (int i = 0; i < 9; ++i) {

@@ -239,6 +239,7 @@ class StretchTerm : public ElementTerm<StretchTerm, 3, 24, 9> {
   // Per-element state of the hand-written kernels.
   struct Local;
   void local_state(int e, const Eigen::VectorXd& x, Local& s) const;
+  static void element_step_matrix(const Local& s, const double* pe, double* K);
   void directional(const Local& s, const Eigen::VectorXd& u, double dF[3][2], double de[3]) const;
   // Per-face derivative of q = lambda^T K w: adds scale * dq/dx to ge and scale * dq/dp to gp; if Kl is given,
   // also Kl += kscale * K lambda.
