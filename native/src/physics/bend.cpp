@@ -194,6 +194,29 @@ void BendTerm::add_gradient_parameter_product(const Eigen::VectorXd& x, const Ei
   }
 }
 
+// Element state along two directions: local positions xe, jets xj seeded with (lambda, w), gj = d theta/dx
+// as jets (.a: grad theta, .v[0]: Hess theta lambda, .v[1]: Hess theta w), gl = grad theta . lambda,
+// gw = grad theta . w.
+void BendTerm::seed_directions(int e, const Eigen::VectorXd& x, const Eigen::VectorXd& lambda,
+                               const Eigen::VectorXd& w, double* xe, Jet<double, 2>* xj, Jet<double, 2>* gj,
+                               double& gl, double& gw) const {
+  gather_local(e, x, xe);
+  const auto& v = verts_[e];
+  for (int i = 0; i < 12; ++i) {
+    const int dof = 3 * v[i / 3] + i % 3;
+    xj[i] = Jet<double, 2>(xe[i]);
+    xj[i].v[0] = lambda[dof];
+    xj[i].v[1] = w[dof];
+  }
+  dihedral_gradient(xj, gj);
+  gl = 0;
+  gw = 0;
+  for (int i = 0; i < 12; ++i) {
+    gl += gj[i].a * xj[i].v[0];
+    gw += gj[i].a * xj[i].v[1];
+  }
+}
+
 void BendTerm::add_step_matrix_derivatives(const Eigen::VectorXd& x, const Eigen::VectorXd& p,
                                            const Eigen::VectorXd& lambda, const Eigen::VectorXd& w, double scale,
                                            Eigen::VectorXd& gx, Eigen::VectorXd& gp) const {
@@ -201,21 +224,9 @@ void BendTerm::add_step_matrix_derivatives(const Eigen::VectorXd& x, const Eigen
   double xe[12], ge[12];
   T2 xj[12], gj[12];
   for (int e = 0; e < num_elements(); ++e) {
-    gather_local(e, x, xe);
-    const auto& v = verts_[e];
     const int off = parameter_offset(e);
-    for (int i = 0; i < 12; ++i) {
-      const int dof = 3 * v[i / 3] + i % 3;
-      xj[i] = T2(xe[i]);
-      xj[i].v[0] = lambda[dof];
-      xj[i].v[1] = w[dof];
-    }
-    dihedral_gradient(xj, gj);  // .a: grad theta, .v[0]: Hess theta lambda, .v[1]: Hess theta w
-    double gl = 0, gw = 0;
-    for (int i = 0; i < 12; ++i) {
-      gl += gj[i].a * xj[i].v[0];
-      gw += gj[i].a * xj[i].v[1];
-    }
+    double gl, gw;
+    seed_directions(e, x, lambda, w, xe, xj, gj, gl, gw);
     const double d = dihedral_angle(xe) - rest_angle_[e];
     // S = max(E'', 0): its angle derivative E''' and its table derivatives dE''/dp where E'' > 0.
     AngleDerivatives ad;
@@ -257,21 +268,9 @@ bool BendTerm::add_step_adjoint(const Eigen::VectorXd& x, const Eigen::VectorXd&
   T2 xj[12], gj[12];
   const double h2 = h * h;
   for (int e = 0; e < num_elements(); ++e) {
-    gather_local(e, x, xe);
-    const auto& v = verts_[e];
     const int off = parameter_offset(e);
-    for (int i = 0; i < 12; ++i) {
-      const int dof = 3 * v[i / 3] + i % 3;
-      xj[i] = T2(xe[i]);
-      xj[i].v[0] = lambda[dof];
-      xj[i].v[1] = w[dof];
-    }
-    dihedral_gradient(xj, gj);  // .a: grad theta, .v[0]: Hess theta lambda, .v[1]: Hess theta w
-    double gl = 0, gw = 0;
-    for (int i = 0; i < 12; ++i) {
-      gl += gj[i].a * xj[i].v[0];
-      gw += gj[i].a * xj[i].v[1];
-    }
+    double gl, gw;
+    seed_directions(e, x, lambda, w, xe, xj, gj, gl, gw);
     const double d = dihedral_angle(xe) - rest_angle_[e];
     AngleDerivatives ad;
     angle_derivatives(e, d, p.data() + off, ad);

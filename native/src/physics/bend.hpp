@@ -52,14 +52,13 @@ class BendTerm : public ElementTerm<BendTerm, 4, 15, 1> {
     return atan2(s, c);
   }
 
-  template <class T, class P>
-  T stiffness(int e, const T& half_angle_sine, const P* p) const {
+  // Table column cell of alpha = |sin(d / 2)| / (h1 + h2): left column k0 and C1 blend fraction f.
+  template <class T>
+  void curvature_cell(int e, const T& half_angle_sine, int& k0, T& f) const {
     const double hsum = height_sum_[e];
     T alpha = (value_of(half_angle_sine) >= 0 ? half_angle_sine : -half_angle_sine) / hsum;
     const T t = alpha / kBendSampleCurvature;
     const double tv = value_of(t);
-    int k0;
-    T f;
     if (tv >= 4) {
       k0 = 3;
       f = T(1.0);
@@ -68,6 +67,13 @@ class BendTerm : public ElementTerm<BendTerm, 4, 15, 1> {
       if (k0 > 3) k0 = 3;
       f = smoothstep(t - static_cast<double>(k0));
     }
+  }
+
+  template <class T, class P>
+  T stiffness(int e, const T& half_angle_sine, const P* p) const {
+    int k0;
+    T f;
+    curvature_cell(e, half_angle_sine, k0, f);
     const auto& rw = row_weights_[e];
     T k = T(0.0);
     for (int r = 0; r < 2; ++r) {
@@ -84,20 +90,9 @@ class BendTerm : public ElementTerm<BendTerm, 4, 15, 1> {
   template <class T>
   int table_coefficients(int e, const T& d, int* index, T* phi) const {
     const T half_sine = sin(0.5 * d);
-    const double hsum = height_sum_[e];
-    T alpha = (value_of(half_sine) >= 0 ? half_sine : -half_sine) / hsum;
-    const T t = alpha / kBendSampleCurvature;
-    const double tv = value_of(t);
     int k0;
     T f;
-    if (tv >= 4) {
-      k0 = 3;
-      f = T(1.0);
-    } else {
-      k0 = static_cast<int>(tv);
-      if (k0 > 3) k0 = 3;
-      f = smoothstep(t - static_cast<double>(k0));
-    }
+    curvature_cell(e, half_sine, k0, f);
     const T G = 2.0 * (rest_length_[e] / height_sum_[e]) * (1.0 - cos(0.5 * d));
     const T gf = G * f, g1f = G - gf;
     const auto& rw = row_weights_[e];
@@ -213,6 +208,8 @@ class BendTerm : public ElementTerm<BendTerm, 4, 15, 1> {
                         Eigen::VectorXd& gp) const override;
 
  private:
+  void seed_directions(int e, const Eigen::VectorXd& x, const Eigen::VectorXd& lambda, const Eigen::VectorXd& w,
+                       double* xe, Jet<double, 2>* xj, Jet<double, 2>* gj, double& gl, double& gw) const;
   void gather_local(int e, const Eigen::VectorXd& x, double* xe) const {
     const auto& v = verts_[e];
     for (int i = 0; i < 12; ++i) xe[i] = x[3 * v[i / 3] + i % 3];
