@@ -7,6 +7,8 @@
 // 4 threads whatever the machine and made the factorisation 2-4x slower on 2 shared cores); BLAS threading is
 // left to OpenBLAS's own settings.
 // Kept factors share the solver's symbolic structure and hold only the numeric values (keep_factor).
+// The ordering is applied once to the pattern (the matrix is stored as the lower triangle of P A P^T), so the
+// per-step factorisation neither permutes nor transposes.
 #pragma once
 #include <cholmod.h>
 
@@ -61,6 +63,10 @@ class CholmodSolver {
   mutable bool values_kept_ = false;
   struct BufferPool;
   std::shared_ptr<BufferPool> pool_;  // shared with the kept factors' buffers (they may outlive the solver)
+  // The matrix is held as the lower triangle of P A P^T (P: the analysis' final ordering, perm_), position_[k]
+  // = where pattern entry k goes; factors are of P A P^T and solves permute in and out.
+  std::vector<int> perm_, position_;
+  void prepermute();
   Eigen::VectorXd solve_impl(cholmod_factor* factor, const Eigen::VectorXd& b) const;
 };
 

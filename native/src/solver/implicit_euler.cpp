@@ -93,7 +93,10 @@ Eigen::VectorXd ImplicitEuler::forward(const Eigen::VectorXd& p, const RolloutOp
     v_ = std::move(v_next);
     if (progress) progress->step(step + 1, options.steps);
   }
-  solver_.release_unused_buffers();  // buffers of an earlier, longer rollout that this one did not need
+  // Buffers of an earlier, longer recorded rollout that this one did not need go back to the system; an
+  // unrecorded rollout (evaluation, warm start) keeps them for the next recorded one (fresh pages cost more
+  // than the factorisation, see cholmod_solver.cpp).
+  if (options.record) solver_.release_unused_buffers();
   return x_;
 }
 
