@@ -70,7 +70,7 @@ def fit_and_evaluate(fabric, train_sample, model, time_budget, samples, out_dir)
 
 
 def table(args):
-    out = os.path.join(ROOT, "out", "protocol")
+    out = args.out or os.path.join(ROOT, "out", "protocol")
     os.makedirs(out, exist_ok=True)
     results = {}
     for model in args.models.split(","):
@@ -129,6 +129,7 @@ def main():
     ap.add_argument("--fabrics", default="1,2,3,4,5")
     ap.add_argument("--time-budget", type=float, default=300.0)
     ap.add_argument("--samples", type=int, default=1000)
+    ap.add_argument("--out", default=None, help="table: output folder (default out/protocol)")
     args = ap.parse_args()
     (table if args.what == "table" else presets)(args)
 
