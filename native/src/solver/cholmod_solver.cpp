@@ -203,6 +203,15 @@ void CholmodSolver::prepermute() {
   common_.status = CHOLMOD_OK;
   factor_ = cholmod_analyze(matrix_, &common_);
   if (!factor_) throw SolverError("CHOLMOD: symbolic analysis of the permuted matrix failed");
+  // One numeric factorisation (of the identity-diagonal matrix) makes CHOLMOD allocate the values; they move to
+  // a pool buffer at once, so that every factorisation writes into memory of the same alignment (OpenBLAS's
+  // rounding depends on it: results would otherwise depend on which solver instance ran which draw).
+  cholmod_factorize(matrix_, factor_, &common_);
+  if (common_.status != CHOLMOD_OK || !factor_->x) throw SolverError("CHOLMOD: cannot allocate the factor");
+  std::shared_ptr<BufferPool> pool = pool_;
+  values_ = std::shared_ptr<void>(pool_->take(factor_->xsize * sizeof(double)), [pool](void* x) { pool->give(x); });
+  std::free(factor_->x);
+  factor_->x = values_.get();
 }
 
 CholmodSolver::~CholmodSolver() {
