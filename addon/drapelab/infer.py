@@ -144,6 +144,19 @@ def placement_velocities(rest, rng, amplitude, modes, support_radius=0.09, speci
     return v
 
 
+def data_term(image, obs, sigma_obs, sigma_dc):
+    """The data term of the loss for one (soft or hard) silhouette against one observation, and its gradient
+    per pixel: mean_pixels (I_hat - I)^2 / (2 sigma_obs^2) + (DC_hat - DC)^2 / (2 sigma_dc^2) (0: no DC term)."""
+    diff = image - obs.mask
+    data = float(np.mean(diff ** 2) / (2 * sigma_obs ** 2))
+    g_image = diff / (sigma_obs ** 2 * diff.size)
+    if sigma_dc:
+        dc, d_dc = soft_drape_coefficient(image, obs.calibration["px_per_m"])
+        data += (dc - obs.dc) ** 2 / (2 * sigma_dc ** 2)
+        g_image = g_image + (dc - obs.dc) / sigma_dc ** 2 * d_dc
+    return data, g_image
+
+
 class _Observation:
     def __init__(self, path, calibration):
         self.path = path
@@ -202,13 +215,7 @@ class _Worker:
         """Data term and dL/dB (shaped like bend) for one drape against one observation."""
         x = self.drape(bend, warm, key, velocities0)
         image = self.renderer.render(x, self.faces)
-        diff = image - obs.mask
-        data = float(np.mean(diff ** 2) / (2 * sigma_obs ** 2))
-        g_image = diff / (sigma_obs ** 2 * diff.size)
-        if sigma_dc:
-            dc, d_dc = soft_drape_coefficient(image, obs.calibration["px_per_m"])
-            data += (dc - obs.dc) ** 2 / (2 * sigma_dc ** 2)
-            g_image = g_image + (dc - obs.dc) / sigma_dc ** 2 * d_dc
+        data, g_image = data_term(image, obs, sigma_obs, sigma_dc)
         g_x = self.renderer.backward(g_image)
         g = self.model.backward(g_x)
         return data, g["bend"], x, image
@@ -371,14 +378,6 @@ class FitJob:
             out.append({"iou": measure.iou(hard, o.mask), "mse": measure.pixel_mse(hard, o.mask)})
         return {"iou": float(np.mean([m["iou"] for m in out])), "mse": float(np.mean([m["mse"] for m in out]))}
 
-    def hard_data_term(self, image, obs):
-        """The data term of the loss for a hard silhouette (scale search)."""
-        d = measure.pixel_mse(image, obs.mask) / (2 * self.sigma_obs ** 2)
-        if self.sigma_dc:
-            dc = measure.drape_coefficient(image, obs.calibration["px_per_m"])
-            d += (dc - obs.dc) ** 2 / (2 * self.sigma_dc ** 2)
-        return float(d)
-
     def scale_search(self, cancel_event=None):
         """Initialisation: the one-parameter family start_table * s (s from fit.json init.scale_search) drapes
         most like the training images; theta, and the prior mean, move to the best s. One silhouette pins the
@@ -401,7 +400,7 @@ class FitJob:
                 scores.append(np.inf)
                 continue
             img = np.asarray(render.hard_silhouette(self.camera, x, w.faces), dtype=np.float64)
-            scores.append(float(np.mean([self.hard_data_term(img, o) for o in self.observations])))
+            scores.append(float(np.mean([data_term(img, o, self.sigma_obs, self.sigma_dc)[0] for o in self.observations])))
         best = float(factors[int(np.argmin(scores))])
         shift = np.log(best)
         self.log_bend0 = self.log_bend0 + shift
@@ -667,8 +666,6 @@ def evaluate(preset_or_path, images, meshes=None, samples=None, seed=0, threads=
     placement = preset.get("placement_noise") or (config.get("placement_noise") if kind == "bdp" else None) or {}
     amplitude, modes = float(placement.get("velocity_m_s", 0.0)), int(placement.get("angular_modes", 0))
     rest = models[0].rest_positions
-    starts = [placement_velocities(rest, np.random.default_rng([seed, i, 1]), amplitude, modes) if amplitude > 0 else None
-              for i in range(n)]
     cal_obj = measure.calibration(cal["px_per_m"], tuple(cal["centre_px"]))
     shapes = [None] * n
     done = [0]
@@ -680,8 +677,9 @@ def evaluate(preset_or_path, images, meshes=None, samples=None, seed=0, threads=
             if cancel_event is not None and cancel_event.is_set():
                 raise Cancelled()
             p = m.parameters(stretch=stretch, bend=draws[i])
+            v0 = placement_velocities(rest, np.random.default_rng([seed, i, 1]), amplitude, modes) if amplitude > 0 else None
             try:
-                x = m.simulate(p, mode=fwd, record=False, velocities0=starts[i], **mode_opts) if fwd == "dynamic" else \
+                x = m.simulate(p, mode=fwd, record=False, velocities0=v0, **mode_opts) if fwd == "dynamic" else \
                     m.simulate(p, mode="static", **mode_opts)
             except SolverError as e:  # a draw whose drape fails is reported, not fatal
                 shapes[i] = {"error": str(e)}

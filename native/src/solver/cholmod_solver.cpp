@@ -4,8 +4,6 @@
 #include <sys/mman.h>
 
 #include <algorithm>
-#include <numeric>
-#include <unordered_map>
 
 #include <cstdlib>
 #include <cstring>
@@ -78,21 +76,22 @@ std::vector<int> vertex_block_ordering(const SparsePattern& pattern, cholmod_com
 }
 }  // namespace
 
-// Value buffers (all of one size) of released kept factors, reused by later factorisations.
+// Value buffers (all of one size, mmap'd) of the factors, reused by later factorisations once released.
 // New buffers are mapped with MAP_POPULATE: a recorded rollout writes ~10 MB of factor values per step
 // (circle3), and first-touch page faults on fresh memory cost 13.6 ms per 10 MB on this machine (its VM), against
 // 5.1 ms populated in one call and 0.4 ms to rewrite memory already held (tools: a 100 x 10 MB memset test).
-// Transparent huge pages were slower still (27.8 ms). CHOLMOD's own first buffer (malloc) joins the pool too.
+// Transparent huge pages were slower still (27.8 ms).
 struct CholmodSolver::BufferPool {
+  explicit BufferPool(size_t bytes) : bytes(bytes) {}
+  const size_t bytes;
   std::mutex mutex;
   std::vector<void*> free_buffers;
-  std::unordered_map<void*, size_t> mapped;  // buffers from mmap (others: malloc, CHOLMOD's)
   ~BufferPool() { clear(); }
   void give(void* b) {
     std::lock_guard<std::mutex> lock(mutex);
     free_buffers.push_back(b);
   }
-  void* take(size_t bytes) {
+  void* take() {
     std::lock_guard<std::mutex> lock(mutex);
     if (!free_buffers.empty()) {
       void* b = free_buffers.back();
@@ -101,25 +100,16 @@ struct CholmodSolver::BufferPool {
     }
     void* b = mmap(nullptr, bytes, PROT_READ | PROT_WRITE, MAP_PRIVATE | MAP_ANONYMOUS | MAP_POPULATE, -1, 0);
     if (b == MAP_FAILED) throw SolverError("CHOLMOD: out of memory for the factor");
-    mapped[b] = bytes;
     return b;
   }
   void clear() {
     std::lock_guard<std::mutex> lock(mutex);
-    for (void* b : free_buffers) {
-      const auto it = mapped.find(b);
-      if (it == mapped.end()) {
-        std::free(b);
-      } else {
-        munmap(b, it->second);
-        mapped.erase(it);
-      }
-    }
+    for (void* b : free_buffers) munmap(b, bytes);
     free_buffers.clear();
   }
 };
 
-CholmodSolver::CholmodSolver(const SparsePattern& pattern) : pattern_(pattern), pool_(std::make_shared<BufferPool>()) {
+CholmodSolver::CholmodSolver(const SparsePattern& pattern) : pattern_(pattern) {
   cholmod_start(&common_);
   common_.print = 0;
   common_.error_handler = nullptr;
@@ -163,11 +153,6 @@ void CholmodSolver::prepermute() {
   for (int i = 0; i < n; ++i) inverse[perm_[i]] = i;
   const auto& cs = pattern_.column_start();
   const auto& ri = pattern_.row_index();
-  std::vector<int> count(n + 1, 0);
-  for (int c = 0; c < n; ++c)
-    for (int k = cs[c]; k < cs[c + 1]; ++k) ++count[std::min(inverse[ri[k]], inverse[c]) + 1];
-  std::partial_sum(count.begin(), count.end(), count.begin());
-  // Entries of each permuted column in increasing row order.
   std::vector<std::vector<std::pair<int, int>>> columns(n);  // per permuted column: (row, pattern position)
   for (int c = 0; c < n; ++c)
     for (int k = cs[c]; k < cs[c + 1]; ++k) {
@@ -180,16 +165,16 @@ void CholmodSolver::prepermute() {
   position_.assign(pattern_.nnz(), 0);
   int* lp = static_cast<int*>(lower->p);
   int* li = static_cast<int*>(lower->i);
+  int q = 0;
   for (int j = 0; j < n; ++j) {
-    lp[j] = count[j];
-    std::sort(columns[j].begin(), columns[j].end());
-    int q = count[j];
+    lp[j] = q;
+    std::sort(columns[j].begin(), columns[j].end());  // increasing row order
     for (const auto& [row, k] : columns[j]) {
       li[q] = row;
       position_[k] = q++;
     }
   }
-  lp[n] = count[n];
+  lp[n] = q;
   double* lx = static_cast<double*>(lower->x);
   for (int k = 0; k < pattern_.nnz(); ++k) lx[position_[k]] = static_cast<const double*>(matrix_->x)[k];
   cholmod_free_sparse(&matrix_, &common_);
@@ -208,14 +193,22 @@ void CholmodSolver::prepermute() {
   // rounding depends on it: results would otherwise depend on which solver instance ran which draw).
   cholmod_factorize(matrix_, factor_, &common_);
   if (common_.status != CHOLMOD_OK || !factor_->x) throw SolverError("CHOLMOD: cannot allocate the factor");
+  pool_ = std::make_shared<BufferPool>(factor_->xsize * sizeof(double));
+  if (factor_->is_super) {  // (simplicial values are CHOLMOD's to reallocate: they stay its own)
+    std::free(factor_->x);
+    take_values_buffer();
+  }
+}
+
+void CholmodSolver::take_values_buffer() {
   std::shared_ptr<BufferPool> pool = pool_;
-  values_ = std::shared_ptr<void>(pool_->take(factor_->xsize * sizeof(double)), [pool](void* x) { pool->give(x); });
-  std::free(factor_->x);
+  values_ = std::shared_ptr<void>(pool_->take(), [pool](void* x) { pool->give(x); });
   factor_->x = values_.get();
+  values_kept_ = false;
 }
 
 CholmodSolver::~CholmodSolver() {
-  if (factor_ && values_) factor_->x = nullptr;  // ours (or the kept factors'), not CHOLMOD's
+  if (factor_ && values_) factor_->x = nullptr;  // the pool's (or the kept factors'), not CHOLMOD's
   values_.reset();
   if (factor_) cholmod_free_factor(&factor_, &common_);
   if (matrix_) cholmod_free_sparse(&matrix_, &common_);
@@ -226,12 +219,7 @@ bool CholmodSolver::factorize(const Eigen::VectorXd& values) {
   double* x = static_cast<double*>(matrix_->x);
   for (int k = 0; k < pattern_.nnz(); ++k) x[position_[k]] = values[k];
   SerialOpenMP serial;
-  if (values_kept_) {  // the values belong to a kept factor: factorise into a new buffer
-    std::shared_ptr<BufferPool> pool = pool_;
-    values_ = std::shared_ptr<void>(pool_->take(factor_->xsize * sizeof(double)), [pool](void* x) { pool->give(x); });
-    factor_->x = values_.get();
-    values_kept_ = false;
-  }
+  if (values_kept_) take_values_buffer();  // the values belong to a kept factor: factorise into a new buffer
   cholmod_factorize(matrix_, factor_, &common_);
   return common_.status == CHOLMOD_OK;
 }
@@ -269,10 +257,6 @@ CholmodSolver::Factor CholmodSolver::keep_factor() const {
     return Factor(copy, [c](cholmod_factor* f) { cholmod_free_factor(&f, c); });
   }
   // Supernodal: the structure is fixed by the analysis; keep the header and share the numeric values (no copy).
-  if (!values_) {  // CHOLMOD's own buffer (malloc): from now on in the pool's cycle
-    std::shared_ptr<BufferPool> pool = pool_;
-    values_ = std::shared_ptr<void>(factor_->x, [pool](void* x) { pool->give(x); });
-  }
   values_kept_ = true;
   auto* copy = new cholmod_factor(*factor_);
   copy->z = nullptr;

@@ -57,8 +57,8 @@ class CholmodSolver {
   cholmod_sparse* matrix_ = nullptr;
   cholmod_factor* factor_ = nullptr;
   double lnz_ = 0, flops_ = 0;
-  // Owner of factor_->x once it is no longer CHOLMOD's own buffer (kept factors share it); values_kept_: the
-  // current values belong to a kept factor, so the next factorisation writes a new buffer.
+  // Owner of factor_->x, a pool buffer (supernodal factors; kept factors share it); values_kept_: the current
+  // values belong to a kept factor, so the next factorisation writes a new buffer.
   mutable std::shared_ptr<void> values_;
   mutable bool values_kept_ = false;
   struct BufferPool;
@@ -67,6 +67,7 @@ class CholmodSolver {
   // = where pattern entry k goes; factors are of P A P^T and solves permute in and out.
   std::vector<int> perm_, position_;
   void prepermute();
+  void take_values_buffer();  // the current factor's values go to a fresh pool buffer
   Eigen::VectorXd solve_impl(cholmod_factor* factor, const Eigen::VectorXd& b) const;
 };
 
