@@ -1,6 +1,7 @@
 // Shared helpers for the C++ tests: small meshes, perturbed states, data paths.
 #pragma once
 #include <Eigen/Core>
+#include <cmath>
 #include <fstream>
 #include <random>
 #include <string>
@@ -41,6 +42,20 @@ inline Eigen::VectorXd jittered_parameters(const Model& model, unsigned seed) {
   std::uniform_real_distribution<double> u(0.7, 1.3);
   Eigen::VectorXd p = model.default_parameters();
   for (int i = 0; i < p.size(); ++i) p[i] *= u(rng);
+  return p;
+}
+
+// Strongly heterogeneous parameters, as a BDP draw makes them: every element's stretch and bending table
+// scaled by its own log-normal factor exp(spread * N(0, 1)) (each table keeps its shape, so stays valid).
+inline Eigen::VectorXd lognormal_element_parameters(const Model& model, double spread, unsigned seed) {
+  std::mt19937 rng(seed);
+  std::normal_distribution<double> n01(0.0, 1.0);
+  Eigen::VectorXd p = model.default_parameters();
+  for (const char* name : {"stretch", "bend"}) {
+    const ParameterBlock& b = model.layout().block(name);
+    for (int e = 0; e < b.size / b.entries_per_element; ++e)
+      p.segment(b.offset + e * b.entries_per_element, b.entries_per_element) *= std::exp(spread * n01(rng));
+  }
   return p;
 }
 

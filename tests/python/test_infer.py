@@ -40,11 +40,29 @@ def test_kl_closed_form_matches_monte_carlo():
         assert d_sigma[i] == pytest.approx(fd_s, rel=1e-6)
 
 
+def _directional_checks(job, loss, grads, eps, names=("mu", "eta")):
+    rng = np.random.default_rng(1)
+    out = []
+    for name in names:
+        d = rng.standard_normal(job.theta[name].shape)
+        plus = {k: v.copy() for k, v in job.theta.items()}
+        minus = {k: v.copy() for k, v in job.theta.items()}
+        plus[name] += eps * d
+        minus[name] -= eps * d
+        out.append((name, float(np.sum(grads[name] * d)), (loss(plus) - loss(minus)) / (2 * eps)))
+    return out
+
+
+# The drape of a BDP draw (per-edge noise, random placement) is an exact-differentiable but rough function of
+# the tables: folds bifurcate, so central differences agree with the adjoint only for steps below ~1e-6 in
+# log-stiffness (at 1e-4..1e-5 they disagree with each other; measured, see README "Fitting"). Hence 1e-7.
+ROUGH_EPS = 1e-7
+
+
 def test_elbo_gradient_matches_central_differences_with_fixed_noise():
-    # Static drapes solved tightly from the same warm start, so the objective is a smooth function of theta.
-    # Pixel term only here (the drape-coefficient term is checked on the dynamic forward below).
+    # Static drapes solved tightly from the same warm start. Pixel term only here.
     cfg = small_config(samples_per_epoch=1, sigma_dc=0.0)
-    cfg["static"] = {"force_tolerance": 1e-9, "max_iterations": 300}
+    cfg["static"] = {"force_tolerance": 1e-11, "max_iterations": 300}
     job = infer.FitJob([ASSET_IMAGE], 0.192, model="bdp", seed=3, config=cfg, threads=1)
     job.theta["eta"] = job.theta["eta"] + 0.5  # a wider posterior: the noise matters
     job.objective(job.theta, 0)  # settles the warm start
@@ -56,19 +74,21 @@ def test_elbo_gradient_matches_central_differences_with_fixed_noise():
 
     job.warm = copy.deepcopy(warm)
     _, grads = job.objective(job.theta, 0)
-    rng = np.random.default_rng(1)
-    for name in ("mu", "eta"):
-        d = rng.standard_normal(job.theta[name].shape)
-        eps = 1e-5
-        plus = {k: v.copy() for k, v in job.theta.items()}
-        minus = {k: v.copy() for k, v in job.theta.items()}
-        plus[name] += eps * d
-        minus[name] -= eps * d
-        fd = (loss(plus) - loss(minus)) / (2 * eps)
-        an = float(np.sum(grads[name] * d))
-        # 1 %: per-edge noise makes the drape sensitive (see README, "Fitting", known defect); at 2e-3 this
-        # check flips with last-digit changes of the linear algebra.
-        assert an == pytest.approx(fd, rel=1e-2, abs=1e-6), name
+    for name, an, fd in _directional_checks(job, loss, grads, ROUGH_EPS):
+        assert an == pytest.approx(fd, rel=1e-4, abs=1e-6), name
+
+
+@pytest.mark.parametrize("widen", [0.0, 0.5])
+def test_bdp_draw_gradient_on_the_dynamic_forward_with_placement_noise(widen):
+    # A BDP draw as trained: per-edge noise, a random placement, 100-step rollout, pixel + drape-coefficient
+    # terms, KL. At the initial posterior width and at a wider one.
+    cfg = small_config(samples_per_epoch=1, forward="dynamic")
+    assert cfg["sigma_dc"] > 0 and cfg["placement_noise"]["velocity_m_s"] > 0
+    job = infer.FitJob([ASSET_IMAGE], 0.192, model="bdp", seed=5, config=cfg, threads=1)
+    job.theta["eta"] = job.theta["eta"] + widen
+    terms, grads = job.objective(job.theta, 0)
+    for name, an, fd in _directional_checks(job, lambda th: job.objective(th, 0)[0]["loss"], grads, ROUGH_EPS):
+        assert an == pytest.approx(fd, rel=1e-4), name
 
 
 def _synthetic_image(path, bend, level=1):
@@ -189,8 +209,6 @@ def test_preset_round_trip_and_nan_preset_rejected(tmp_path):
 def test_loss_gradient_with_drape_coefficient_term_on_the_dynamic_forward():
     # The default forward (100-step rollout) with both likelihood terms: rollout adjoint -> soft renderer VJP ->
     # pixel and drape-coefficient terms, against central differences. HOMO: a smooth function of the table.
-    # (Not checked here: BDP draws with per-edge noise or a random placement make the rollout sensitive enough
-    # that central differences at 1e-4 and 1e-5 disagree with each other; see the README, "Fitting".)
     cfg = small_config(samples_per_epoch=1, forward="dynamic")
     assert cfg["sigma_dc"] > 0
     job = infer.FitJob([ASSET_IMAGE], 0.192, model="homo", seed=5, config=cfg, threads=1)
@@ -241,3 +259,26 @@ def test_bdp_predictive_spreads_over_placements_and_bad_placement_rejected(tmp_p
     bad["placement_noise"]["velocity_m_s"] = -0.1
     with pytest.raises(infer.InputError, match="placement_noise"):
         infer.validate_preset(bad)
+
+
+def test_gradient_clipping_scales_only_the_data_term_and_follows_the_median():
+    cfg = small_config(samples_per_epoch=1, forward="dynamic")
+    job = infer.FitJob([ASSET_IMAGE], 0.192, model="bdp", seed=5, config=cfg, threads=1)
+    terms, full = job.objective(job.theta, 0)
+    assert terms["clip"] == 1.0 and terms["grad_norm"] > 0
+    half, clipped = job.objective(job.theta, 0, clip=0.5 * terms["grad_norm"])
+    assert half["clip"] == pytest.approx(0.5) and half["loss"] == terms["loss"]
+    # full = data + prior, clipped = data / 2 + prior: the data part has the reported norm, the prior part is
+    # the KL's own gradient (unchanged).
+    data = {k: 2 * (full[k] - clipped[k]) for k in full}
+    assert np.sqrt(sum(np.sum(g * g) for g in data.values())) == pytest.approx(terms["grad_norm"], rel=1e-9)
+    _, d_mu, d_sigma = infer.kl_divergence(job.theta["mu"], infer.softplus(job.theta["eta"]), job.prior_mu, job.prior_sigma)
+    assert np.allclose(full["mu"] - data["mu"], cfg["kl_weight"] * d_mu, rtol=1e-9, atol=1e-12)
+    # Threshold: factor x median of the recorded norms, once min_epochs are recorded; rejected epochs ignored.
+    assert job.clip_threshold() is None
+    job.history = [{"grad_norm": n} for n in (1.0, 50.0)] + [{"rejected": "x"}]
+    assert job.clip_threshold() is None
+    job.history.append({"grad_norm": 4.0})
+    assert job.clip_threshold() == pytest.approx(cfg["gradient_clip"]["factor"] * 4.0)
+    job.config = dict(cfg, gradient_clip={"factor": 0})
+    assert job.clip_threshold() is None
