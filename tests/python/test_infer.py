@@ -274,11 +274,15 @@ def test_gradient_clipping_scales_only_the_data_term_and_follows_the_median():
     assert np.sqrt(sum(np.sum(g * g) for g in data.values())) == pytest.approx(terms["grad_norm"], rel=1e-9)
     _, d_mu, d_sigma = infer.kl_divergence(job.theta["mu"], infer.softplus(job.theta["eta"]), job.prior_mu, job.prior_sigma)
     assert np.allclose(full["mu"] - data["mu"], cfg["kl_weight"] * d_mu, rtol=1e-9, atol=1e-12)
-    # Threshold: factor x median of the recorded norms, once min_epochs are recorded; rejected epochs ignored.
+    # Threshold: factor x median of the first `window` recorded norms, once min_epochs are recorded; rejected
+    # epochs ignored; later (exploding) norms do not move it.
+    factor, window = cfg["gradient_clip"]["factor"], cfg["gradient_clip"]["window"]
     assert job.clip_threshold() is None
     job.history = [{"grad_norm": n} for n in (1.0, 50.0)] + [{"rejected": "x"}]
     assert job.clip_threshold() is None
     job.history.append({"grad_norm": 4.0})
-    assert job.clip_threshold() == pytest.approx(cfg["gradient_clip"]["factor"] * 4.0)
+    assert job.clip_threshold() == pytest.approx(factor * 4.0)
+    job.history += [{"grad_norm": 2.0}] * (window - 3) + [{"grad_norm": 1e9}] * 3 * window
+    assert job.clip_threshold() == pytest.approx(factor * 2.0)
     job.config = dict(cfg, gradient_clip={"factor": 0})
     assert job.clip_threshold() is None
