@@ -1,14 +1,14 @@
 #!/usr/bin/python3
 """The paper's protocol on the real data, and the shipped presets.
 
-    tools/paper_protocol.py table   [--models homo,heter,bdp] [--fabrics 1,2,3,4,5] [--time-budget S] [--samples N]
-    tools/paper_protocol.py presets [--fabrics 1,...,20] [--time-budget S] [--samples N]
+    tools/paper_protocol.py table   [--models homo,heter,bdp] [--fabrics 1,2,3,4,5] [--time-budget S] [--samples N] [--out DIR]
+    tools/paper_protocol.py presets [--fabrics 1,...,20] [--time-budget S] [--samples N] [--out DIR]
 
 table: for each fabric, fit on the paper's training sample (capture 1: Cotton White 5, Cotton Blue 2, Viscose
 White 1, Cotton Pink 4, Wool Red 2), evaluate on the other 11 samples (capture-1 images and meshes), for each
 model; writes out/protocol/table.json and table.md (beside the paper's numbers).
 presets: the BDP posterior of every fabric as assets/presets/<fabric>.json with its evaluation on that
-fabric's other capture-1 samples: reused from the table run (out/protocol) where it fitted the fabric, else
+fabric's other capture-1 samples: reused from the table run (--out, default out/protocol) where it fitted the fabric, else
 fitted on the fabric's paper training sample (fabrics 1-5) or first sample (capture 1).
 Run with ./drapelab's environment: `./drapelab build && PYTHONPATH=addon:build/python tools/paper_protocol.py ...`.
 """
@@ -100,7 +100,7 @@ def presets(args):
     os.makedirs(out, exist_ok=True)
     fabrics = sorted({int(r["fabric"]) for r in manifest_rows()}) if args.fabrics == "all" else \
         [int(f) for f in args.fabrics.split(",")]
-    protocol_dir = os.path.join(ROOT, "out", "protocol")
+    protocol_dir = args.out or os.path.join(ROOT, "out", "protocol")
     table_path = os.path.join(protocol_dir, "table.json")
     protocol = json.load(open(table_path)) if os.path.exists(table_path) else {}
     for fabric in fabrics:
@@ -129,7 +129,7 @@ def main():
     ap.add_argument("--fabrics", default="1,2,3,4,5")
     ap.add_argument("--time-budget", type=float, default=300.0)
     ap.add_argument("--samples", type=int, default=1000)
-    ap.add_argument("--out", default=None, help="table: output folder (default out/protocol)")
+    ap.add_argument("--out", default=None, help="table: output folder; presets: the table run's folder to reuse fits from (default out/protocol)")
     args = ap.parse_args()
     (table if args.what == "table" else presets)(args)
 
