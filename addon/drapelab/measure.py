@@ -364,6 +364,9 @@ def _atomic_write(path, what, suffix, write):
         fd, tmp = tempfile.mkstemp(prefix=".tmp_", suffix=suffix, dir=folder)
         os.close(fd)
         write(tmp)
+        umask = os.umask(0)  # mkstemp makes the file private (0600); give it the permissions a plain open would
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)
         os.replace(tmp, path)
     except OSError as e:
         raise OSError(f"{path}: cannot write {what}: {e.strerror or e}") from None

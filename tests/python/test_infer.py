@@ -286,3 +286,17 @@ def test_gradient_clipping_scales_only_the_data_term_and_follows_the_median():
     assert job.clip_threshold() == pytest.approx(factor * 2.0)
     job.config = dict(cfg, gradient_clip={"factor": 0})
     assert job.clip_threshold() is None
+
+
+def test_shipped_presets_load_and_carry_their_settings_and_evaluation():
+    folder = os.path.join(ROOT, "assets", "presets")
+    names = sorted(f for f in os.listdir(folder) if f.endswith("_bdp.json"))
+    assert len(names) == 15  # fabrics 1-5 and 11-20 of the shared data
+    for name in names:
+        preset = infer.load_preset(os.path.join(folder, name))
+        assert preset["model"] == "bdp", name
+        assert preset["likelihood"]["sigma_dc"] > 0 and preset["placement_noise"]["velocity_m_s"] > 0, name
+        assert np.all(np.asarray(preset["posterior"]["bend"]["log_std"]) > 0), name
+        ev = preset["evaluation"]
+        assert ev["test_images"] >= 1 and ev["samples"] >= 1, name
+        assert 0 < ev["mean"]["iou"] <= 1 and 0 <= ev["mean"]["mse"] < 0.2, name

@@ -250,6 +250,9 @@ def test_write_json_is_atomic_and_reports_unwritable_paths(tmp_path):
     M.write_json(out, {"images": [1, 2]})
     assert json.loads(out.read_text()) == {"images": [1, 2]}
     assert sorted(os.listdir(tmp_path)) == ["out.json"]  # no temporary file left
+    umask = os.umask(0)
+    os.umask(umask)
+    assert out.stat().st_mode & 0o777 == 0o666 & ~umask  # like a plain open(), not the temporary file's 0600
     with pytest.raises(OSError, match="does not exist"):
         M.write_json(tmp_path / "missing" / "out.json", {})
     with pytest.raises(OSError, match="is a directory"):
