@@ -2,6 +2,7 @@
 """The paper's protocol on the real data, and the shipped presets.
 
     tools/paper_protocol.py table   [--models homo,heter,bdp] [--fabrics 1,2,3,4,5] [--time-budget S] [--samples N] [--out DIR]
+                                    [--reuse-fits]
     tools/paper_protocol.py presets [--fabrics 1,...,20] [--time-budget S] [--samples N] [--out DIR]
 
 table: for each fabric, fit on the paper's training sample (capture 1: Cotton White 5, Cotton Blue 2, Viscose
@@ -48,19 +49,30 @@ def slug(row):
     return re.sub(r"[^a-z0-9]+", "_", f"fabric_{int(row['fabric']):02d}_{name}".lower()).strip("_")
 
 
-def fit_and_evaluate(fabric, train_sample, model, time_budget, samples, out_dir):
+def fit_and_evaluate(fabric, train_sample, model, time_budget, samples, out_dir, reuse=False):
     rows = captures(fabric)
     train = [r for r in rows if int(r["sample"]) == train_sample][0]
     tests = [r for r in rows if int(r["sample"]) != train_sample]
     density = float(train["density_kg_m2"])
     preset_path = os.path.join(out_dir, f"{slug(train)}_{model}.json")
     t0 = time.monotonic()
-    preset = infer.fit([path(train["silhouette"])], density, model=model, time_budget=time_budget, seed=0,
-                       out=preset_path, checkpoint=preset_path + ".ckpt",
-                       fabric={"fabric": fabric, "name": train["name"], "material": train["material"],
-                               "weave": train["weave"], "thickness_mm": float(train["thickness_mm"]),
-                               "training_sample": train_sample})
-    fit_s = time.monotonic() - t0
+    if reuse and os.path.exists(preset_path):
+        preset = infer.load_preset(preset_path)
+        fit_s = preset["training"]["seconds"]
+        if model == "bdp" and "calibration" not in preset and infer.load_config()["calibration"]["enabled"]:
+            preset = infer.calibrate_preset(preset, [path(train["silhouette"])])
+            infer.write_preset(preset_path, preset)
+        if "calibration" in preset:
+            fit_s += preset["calibration"]["seconds"]
+    else:
+        preset = None
+    if preset is None:
+        preset = infer.fit([path(train["silhouette"])], density, model=model, time_budget=time_budget, seed=0,
+                           out=preset_path, checkpoint=preset_path + ".ckpt",
+                           fabric={"fabric": fabric, "name": train["name"], "material": train["material"],
+                                   "weave": train["weave"], "thickness_mm": float(train["thickness_mm"]),
+                                   "training_sample": train_sample})
+        fit_s = time.monotonic() - t0
     meshes = [path(r["mesh"]) for r in tests]
     result = infer.evaluate(preset_path, [path(r["silhouette"]) for r in tests],
                             meshes=meshes if all(meshes) else None, samples=samples)
@@ -76,7 +88,8 @@ def table(args):
     for model in args.models.split(","):
         for fabric in [int(f) for f in args.fabrics.split(",")]:
             samples = args.samples if model == "bdp" else 1
-            _, _, r = fit_and_evaluate(fabric, TRAINING_SAMPLE[fabric], model, args.time_budget, samples, out)
+            _, _, r = fit_and_evaluate(fabric, TRAINING_SAMPLE[fabric], model, args.time_budget, samples, out,
+                                       reuse=args.reuse_fits)
             results.setdefault(model, {})[fabric] = r
             print(model, fabric, json.dumps(r["mean"]), f"fit {r['fit_seconds']:.0f} s", flush=True)
             measure.write_json(os.path.join(out, "table.json"), results)
@@ -129,6 +142,8 @@ def main():
     ap.add_argument("--fabrics", default="1,2,3,4,5")
     ap.add_argument("--time-budget", type=float, default=300.0)
     ap.add_argument("--samples", type=int, default=1000)
+    ap.add_argument("--reuse-fits", action="store_true",
+                    help="table: evaluate the fits already in --out (bdp fits without a drape calibration get one)")
     ap.add_argument("--out", default=None, help="table: output folder; presets: the table run's folder to reuse fits from (default out/protocol)")
     args = ap.parse_args()
     (table if args.what == "table" else presets)(args)

@@ -298,3 +298,76 @@ def test_shipped_presets_load_and_carry_their_settings_and_evaluation():
         ev = preset["evaluation"]
         assert ev["test_images"] >= 1 and ev["samples"] >= 1, name
         assert 0 < ev["mean"]["iou"] <= 1 and 0 <= ev["mean"]["mse"] < 0.2, name
+
+
+def _bdp_preset(bend, level=1, std=0.1):
+    """A bdp preset with this median table (no fit): what calibrate_preset starts from."""
+    job = infer.FitJob([ASSET_IMAGE], 0.192, model="bdp", config=small_config(), threads=1)
+    job.theta = {"mu": np.log(np.asarray(bend, dtype=float)), "eta": np.full((3, 5), infer.inverse_softplus(std))}
+    preset = job.preset()
+    preset["simulation"]["mesh_level"] = level
+    return preset
+
+
+def test_drape_calibration_matches_the_training_drape_coefficient_and_spreads_the_predictive(tmp_path):
+    # Synthetic truth: the Cotton Blue table x 3 on circle1; the fit to calibrate is off by a factor 2.
+    path = str(tmp_path / "synthetic.png")
+    _synthetic_image(path, tables.COTTON_BLUE.bend * 3.0)
+    observed = measure.drape_coefficient(measure.load_silhouette(path).mask)
+    preset = _bdp_preset(tables.COTTON_BLUE.bend * 1.5)
+    cfg = small_config()
+    out = infer.calibrate_preset(preset, [path], config=cfg, threads=2)
+    c = out["calibration"]
+    assert c["dc_observed"] == pytest.approx(observed)
+    assert abs(c["dc_predicted_before"] - observed) > 0.02  # the uncalibrated fit is visibly off ...
+    assert abs(c["dc_predicted"] - observed) < 0.01, c     # ... the calibrated one is not
+    assert c["log_scale_shift"] > 0.2                      # towards the stiffer truth (log 2 = 0.69)
+    mu0 = np.asarray(preset["posterior"]["bend"]["log_mean"])
+    assert np.allclose(out["posterior"]["bend"]["log_mean"], mu0 + c["log_scale_shift"])
+    assert np.allclose(out["posterior"]["bend"]["log_std"], preset["posterior"]["bend"]["log_std"])
+    assert c["slope_dc_per_log"] > 0
+    # The spread: global_log_std^2 + (simulated sd / slope)^2 = L^2 (1 + 1/n), one training image.
+    L = cfg["calibration"]["drape_log_sd"]
+    g = out["posterior"]["bend"]["global_log_std"]
+    assert g ** 2 + (c["dc_sd_simulated"] / c["slope_dc_per_log"]) ** 2 == pytest.approx(2 * L ** 2, rel=1e-9)
+    # The predictive now scatters by about L * sqrt(2) * slope in drape coefficient (64 draws: within 40 %).
+    result = infer.evaluate(out, [path], samples=64, threads=2, config=cfg, seed=3)
+    lo, hi = result["images"][0]["drape_coefficient"]["interval90"]
+    expected = 2 * 1.645 * np.sqrt(2) * L * c["slope_dc_per_log"]
+    assert 0.6 * expected < hi - lo < 1.4 * expected, (lo, hi, expected)
+    assert lo < observed < hi
+    # Idempotent: calibrating the calibrated preset starts again from the fit.
+    again = infer.calibrate_preset(out, [path], config=cfg, threads=1)
+    assert np.allclose(again["posterior"]["bend"]["log_mean"], out["posterior"]["bend"]["log_mean"])
+    assert again["posterior"]["bend"]["global_log_std"] == pytest.approx(g)
+    # Written and read back as a preset; homo/heter posteriors are not calibrated.
+    infer.write_preset(str(tmp_path / "cal.json"), out)
+    assert infer.load_preset(str(tmp_path / "cal.json"))["calibration"] == c
+    with pytest.raises(infer.InputError, match="only a bdp"):
+        infer.calibrate_preset(dict(preset, model="homo"), [path], config=cfg)
+
+
+def test_global_log_std_scales_whole_draws_and_bad_values_are_rejected():
+    preset = _bdp_preset(tables.COTTON_BLUE.bend, std=0.05)
+    plain = infer.preset_bend_samples(preset, 50, np.random.default_rng(0), 400)
+    preset["posterior"]["bend"]["global_log_std"] = 0.3
+    scaled = infer.preset_bend_samples(preset, 50, np.random.default_rng(0), 400)
+    # Same element noise (drawn first); each draw moved by one factor exp(g z).
+    factor = np.log(scaled / plain)
+    assert np.allclose(factor, factor[:, :1, :1, :1], atol=1e-12)
+    assert np.std(factor[:, 0, 0, 0]) == pytest.approx(0.3, rel=0.15)
+    for bad in (float("nan"), -0.1, "0.3", True):
+        preset["posterior"]["bend"]["global_log_std"] = bad
+        with pytest.raises(infer.InputError, match="global_log_std"):
+            infer.validate_preset(preset)
+
+
+def test_drape_variability_pools_variances_over_fabrics():
+    import importlib.util
+    spec = importlib.util.spec_from_file_location("drape_variability", os.path.join(ROOT, "tools", "drape_variability.py"))
+    tool = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(tool)
+    per = {1: [0.1, 0.3], 2: [0.5, 0.5, 0.5], 3: [0.7]}  # variances 0.02, 0 (fabric 3: one drape, ignored)
+    assert tool.pooled_sd(per) == pytest.approx(np.sqrt(0.01))
+    with pytest.raises(ValueError):
+        tool.pooled_sd({3: [0.7]})
