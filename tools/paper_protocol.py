@@ -3,7 +3,7 @@
 
     tools/paper_protocol.py table   [--models homo,heter,bdp] [--fabrics 1,2,3,4,5] [--time-budget S] [--samples N] [--out DIR]
                                     [--reuse-fits]
-    tools/paper_protocol.py presets [--fabrics 1,...,20] [--time-budget S] [--samples N] [--out DIR]
+    tools/paper_protocol.py presets [--fabrics 1,...,20] [--time-budget S] [--samples N] [--out DIR] [--reuse-fits]
 
 table: for each fabric, fit on the paper's training sample (capture 1: Cotton White 5, Cotton Blue 2, Viscose
 White 1, Cotton Pink 4, Wool Red 2), evaluate on the other 11 samples (capture-1 images and meshes), for each
@@ -59,7 +59,7 @@ def fit_and_evaluate(fabric, train_sample, model, time_budget, samples, out_dir,
     if reuse and os.path.exists(preset_path):
         preset = infer.load_preset(preset_path)
         fit_s = preset["training"]["seconds"]
-        if model == "bdp" and "calibration" not in preset and infer.load_config()["calibration"]["enabled"]:
+        if model == "bdp" and infer.load_config()["calibration"]["enabled"]:  # (again: idempotent, current settings)
             preset = infer.calibrate_preset(preset, [path(train["silhouette"])])
             infer.write_preset(preset_path, preset)
         if "calibration" in preset:
@@ -127,8 +127,9 @@ def presets(args):
             result = done
         else:
             preset_path, preset, result = fit_and_evaluate(fabric, train_sample, "bdp", args.time_budget,
-                                                           args.samples, out)
-            os.remove(preset_path + ".ckpt")
+                                                           args.samples, out, reuse=args.reuse_fits)
+            if os.path.exists(preset_path + ".ckpt"):
+                os.remove(preset_path + ".ckpt")
         preset["evaluation"] = {"test_images": len(result["images"]), "samples": result["samples"],
                                 "forward": result["forward"], "mean": result["mean"]}
         infer.write_preset(preset_path, preset)
@@ -143,7 +144,8 @@ def main():
     ap.add_argument("--time-budget", type=float, default=300.0)
     ap.add_argument("--samples", type=int, default=1000)
     ap.add_argument("--reuse-fits", action="store_true",
-                    help="table: evaluate the fits already in --out (bdp fits without a drape calibration get one)")
+                    help="table: evaluate the fits already in --out (bdp fits are drape-calibrated again with the current settings); "
+                         "presets: likewise for the shipped presets of fabrics the table run did not fit")
     ap.add_argument("--out", default=None, help="table: output folder; presets: the table run's folder to reuse fits from (default out/protocol)")
     args = ap.parse_args()
     (table if args.what == "table" else presets)(args)

@@ -8,6 +8,7 @@ PRESET.json.ckpt) and --resume continues from one. Ctrl-C cancels cleanly: the l
 """
 import os
 import signal
+import math
 import sys
 import threading
 
@@ -61,4 +62,9 @@ def run(args):
     t = preset["training"]
     print(f"wrote {args.out}: {args.model}, {t['epochs']} epochs in {t['seconds']:.1f} s, "
           f"training IoU {preset['metrics']['training_image']['iou']:.4f}")
+    c = preset.get("calibration")
+    if c:
+        print(f"drape calibration ({c['seconds']:.1f} s): drape coefficient {c['dc_predicted_before']:.3f} -> "
+              f"{c['dc_predicted']:.3f} (observed {c['dc_observed']:.3f}), scale x{math.exp(c['log_scale_shift']):.3f}, "
+              f"global log sd {c['global_log_std']:.3f}")
     return 0
