@@ -297,6 +297,9 @@ def test_shipped_presets_load_and_carry_their_settings_and_evaluation():
         assert np.all(np.asarray(preset["posterior"]["bend"]["log_std"]) > 0), name
         ev = preset["evaluation"]
         assert ev["test_images"] >= 1 and ev["samples"] >= 1, name
+        c = preset["calibration"]  # drape-calibrated: on the training DC, spread by the fabric scatter
+        assert abs(c["dc_predicted"] - c["dc_observed"]) < 0.02 and c["slope_dc_per_log"] > 0, name
+        assert preset["posterior"]["bend"]["global_log_std"] == c["global_log_std"] > 0, name
         assert 0 < ev["mean"]["iou"] <= 1 and 0 <= ev["mean"]["mse"] < 0.2, name
 
 
