@@ -299,7 +299,12 @@ def test_shipped_presets_load_and_carry_their_settings_and_evaluation():
         assert ev["test_images"] >= 1 and ev["samples"] >= 1, name
         c = preset["calibration"]  # drape-calibrated: on the training DC, spread by the fabric scatter
         assert abs(c["dc_predicted"] - c["dc_observed"]) < 0.02 and c["slope_dc_per_log"] > 0, name
-        assert preset["posterior"]["bend"]["global_log_std"] == c["global_log_std"] > 0, name
+        g, L = c["global_log_std"], c["drape_log_sd"]
+        assert preset["posterior"]["bend"]["global_log_std"] == g >= 0, name
+        # g tops the simulated scatter up to L sqrt(2) (one training image); zero where the draws already
+        # scatter that much (fabric 19: DC 0.94, near saturation, slope 0.045 per log unit).
+        simulated = (c["dc_sd_simulated"] / c["slope_dc_per_log"]) ** 2
+        assert g ** 2 + simulated == pytest.approx(2 * L ** 2) if g > 0 else simulated >= 2 * L ** 2, name
         assert 0 < ev["mean"]["iou"] <= 1 and 0 <= ev["mean"]["mse"] < 0.2, name
 
 
