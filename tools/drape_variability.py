@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-"""How much one fabric's drape coefficient scatters between drapes: the calibration.drape_dc_sd of fit.json.
+"""How much one fabric's drape coefficient scatters between drapes: the calibration.drape_log_sd of fit.json.
 
     tools/drape_variability.py [--fabrics 11,...,20] [--json OUT]
 
@@ -8,13 +8,12 @@ specimens and re-drapes alike) and its sd (ddof 1); the slope s = dDC/dlog(bendi
 shipped preset (assets/presets, measured by infer.calibrate_preset on its training image); the scatter in log
 bending scale sd / s. Pooled: the median over the fabrics (fit.json calibration.drape_log_sd). Not the root mean
 square: near DC 1 the slope vanishes and sd / s explodes (fabric 19, a knit at DC 0.83 with slope 0.045:
-2.0, against 0.07-0.32 for the wovens), and one such fabric would set the spread of every other. Default fabrics 11-20 (2 samples x 4 captures each), which the paper's protocol (fabrics 1-5)
+2.0, against 0.07-0.32 for the wovens), and one such fabric would set the spread of every other. Default fabrics 11-20 (2 samples, 4-10 captures each), which the paper's protocol (fabrics 1-5)
 never sees: the protocol's figures do not depend on their own test images through this number.
 Run with ./drapelab's environment: `PYTHONPATH=addon:build/python tools/drape_variability.py`.
 """
 import argparse
 import csv
-import json
 import os
 import sys
 
@@ -73,8 +72,9 @@ def main():
     fabrics = tuple(int(f) for f in args.fabrics.split(","))
     per = drape_coefficients(fabrics)
     slope = slopes(fabrics)
-    result = {"fabrics": {str(f): {"silhouettes": len(v), "mean": float(np.mean(v)), "sd": float(np.std(v, ddof=1)),
-                                   "slope_dc_per_log": slope[f], "log_sd": float(np.std(v, ddof=1)) / slope[f]}
+    sd = {f: float(np.std(v, ddof=1)) for f, v in per.items()}
+    result = {"fabrics": {str(f): {"silhouettes": len(v), "mean": float(np.mean(v)), "sd": sd[f],
+                                   "slope_dc_per_log": slope[f], "log_sd": sd[f] / slope[f]}
                           for f, v in sorted(per.items())},
               "pooled_sd": pooled_sd(per)}
     result["pooled_log_sd"] = float(np.median([r["log_sd"] for r in result["fabrics"].values()]))

@@ -58,15 +58,11 @@ def fit_and_evaluate(fabric, train_sample, model, time_budget, samples, out_dir,
     t0 = time.monotonic()
     if reuse and os.path.exists(preset_path):
         preset = infer.load_preset(preset_path)
-        fit_s = preset["training"]["seconds"]
         if model == "bdp" and infer.load_config()["calibration"]["enabled"]:  # (again: idempotent, current settings)
             preset = infer.calibrate_preset(preset, [path(train["silhouette"])])
             infer.write_preset(preset_path, preset)
-        if "calibration" in preset:
-            fit_s += preset["calibration"]["seconds"]
+        fit_s = preset["training"]["seconds"] + preset.get("calibration", {}).get("seconds", 0.0)
     else:
-        preset = None
-    if preset is None:
         preset = infer.fit([path(train["silhouette"])], density, model=model, time_budget=time_budget, seed=0,
                            out=preset_path, checkpoint=preset_path + ".ckpt",
                            fabric={"fabric": fabric, "name": train["name"], "material": train["material"],

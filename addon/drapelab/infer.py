@@ -711,26 +711,17 @@ def calibrate_preset(preset, images, seed=0, threads=None, template_dir=None, co
     if not images:
         raise InputError("images: give the training silhouettes")
     t0 = time.monotonic()
-    cal = preset["camera"]
     observations = [_Observation(p, None) for p in images]
     observed = float(np.mean([o.dc for o in observations]))
-    camera = _camera_for(cal.get("kind", "ortho"), {"px_per_m": cal["px_per_m"], "centre_px": cal["centre_px"]},
-                         observations[0].mask.shape)
-    cal_obj = measure.calibration(cal["px_per_m"], tuple(cal["centre_px"]))
-    mesh = sim.cusick_specimen(preset["simulation"]["mesh_level"], template_dir=template_dir)
     lanes = max(1, min(int(threads or min(os.cpu_count() or 1, 2)), k))
-    models = [sim.ClothModel(mesh, heterogeneous=True, density=preset["density_kg_m2"]) for _ in range(lanes)]
+    predictive = _Predictive(preset, observations[0].mask.shape, lanes, config, template_dir)
     bend = preset["posterior"]["bend"]
     base = dict(preset, posterior={"bend": dict(bend, global_log_std=0.0)})
-    draws = preset_bend_samples(base, models[0].num_bending_edges, np.random.default_rng([seed, 7]), k)
-    stretch = np.asarray(preset["stretch_N_m"])
-    placement = preset.get("placement_noise") or {}
-    placement = (float(placement.get("velocity_m_s", 0.0)), int(placement.get("angular_modes", 0)))
+    draws = preset_bend_samples(base, predictive.num_edges, np.random.default_rng([seed, 7]), k)
     evaluated = {}
 
     def mean_dc(c):
-        shapes = _drape_draws(models, stretch, draws * math.exp(c), "dynamic", config["dynamic"],
-                              placement, seed, camera, cal_obj, cancel_event=cancel_event)
+        shapes = predictive.drape(draws * math.exp(c), seed, cancel_event=cancel_event)
         dcs = [sh["dc"] for sh in shapes if "error" not in sh]
         if len(dcs) < 2:
             raise SolverError(f"calibrate: the drapes of {k - len(dcs)} of {k} draws failed at log scale {c:+.3f}")
@@ -768,6 +759,32 @@ def calibrate_preset(preset, images, seed=0, threads=None, template_dir=None, co
 
 def _hard_image(camera, x, faces):
     return np.asarray(render.hard_silhouette(camera, x, faces), dtype=np.float64)
+
+
+class _Predictive:
+    """What posterior-predictive drapes of a preset need, shared by evaluate and calibrate_preset (so that the
+    calibration sees the drapes evaluation will): the preset's camera on images of `shape`, one model per lane
+    on its mesh level (or `mesh_level`), its stretching table and placement noise (bdp presets without one:
+    fit.json's), the forward of `forward` (default fit.json evaluate.forward)."""
+
+    def __init__(self, preset, shape, lanes, config, template_dir=None, mesh_level=None, forward=None):
+        cal = preset["camera"]
+        self.camera = _camera_for(cal.get("kind", "ortho"), {"px_per_m": cal["px_per_m"], "centre_px": cal["centre_px"]},
+                                  shape)
+        self.calibration = measure.calibration(cal["px_per_m"], tuple(cal["centre_px"]))
+        self.level = mesh_level or preset["simulation"]["mesh_level"]
+        mesh = sim.cusick_specimen(self.level, template_dir=template_dir)
+        self.models = [sim.ClothModel(mesh, heterogeneous=True, density=preset["density_kg_m2"]) for _ in range(lanes)]
+        self.num_edges = self.models[0].num_bending_edges
+        self.stretch = np.asarray(preset["stretch_N_m"])
+        self.forward = forward or config["evaluate"]["forward"]
+        self.mode_opts = config["dynamic"] if self.forward == "dynamic" else config["static"]
+        placement = preset.get("placement_noise") or (config.get("placement_noise") if preset["model"] == "bdp" else None) or {}
+        self.placement = (float(placement.get("velocity_m_s", 0.0)), int(placement.get("angular_modes", 0)))
+
+    def drape(self, draws, seed, progress=None, cancel_event=None):
+        return _drape_draws(self.models, self.stretch, draws, self.forward, self.mode_opts, self.placement, seed,
+                            self.camera, self.calibration, progress, cancel_event)
 
 
 def _drape_draws(models, stretch, draws, fwd, mode_opts, placement, seed, camera, cal_obj, progress=None,
@@ -834,27 +851,11 @@ def evaluate(preset_or_path, images, meshes=None, samples=None, seed=0, threads=
     n = int(samples) if samples is not None else int(config["evaluate"]["samples"][kind])
     if n < 1:
         raise InputError(f"samples: must be >= 1, got {samples}")
-    cal = preset["camera"]
     observations = [_Observation(p, None) for p in images]
-    shape = observations[0].mask.shape
-    camera = _camera_for(preset["camera"].get("kind", "ortho"),
-                         {"px_per_m": cal["px_per_m"], "centre_px": cal["centre_px"]}, shape)
-    level = mesh_level or preset["simulation"]["mesh_level"]
-    mesh = sim.cusick_specimen(level, template_dir=template_dir)
     lanes = max(1, min(int(threads or min(os.cpu_count() or 1, 2)), n))
-    models = [sim.ClothModel(mesh, heterogeneous=True, density=preset["density_kg_m2"]) for _ in range(lanes)]
-    num_edges = models[0].num_bending_edges
-    stretch = np.asarray(preset["stretch_N_m"])
-    fwd = forward or config["evaluate"]["forward"]
-    dyn = config["dynamic"]
-    mode_opts = dyn if fwd == "dynamic" else config["static"]
-    rng = np.random.default_rng(seed)
-    draws = preset_bend_samples(preset, num_edges, rng, n)
-    placement = preset.get("placement_noise") or (config.get("placement_noise") if kind == "bdp" else None) or {}
-    amplitude, modes = float(placement.get("velocity_m_s", 0.0)), int(placement.get("angular_modes", 0))
-    cal_obj = measure.calibration(cal["px_per_m"], tuple(cal["centre_px"]))
-    shapes = _drape_draws(models, stretch, draws, fwd, mode_opts, (amplitude, modes), seed, camera, cal_obj,
-                          progress, cancel_event)
+    predictive = _Predictive(preset, observations[0].mask.shape, lanes, config, template_dir, mesh_level, forward)
+    draws = preset_bend_samples(preset, predictive.num_edges, np.random.default_rng(seed), n)
+    shapes = predictive.drape(draws, seed, progress, cancel_event)
     failed = [s["error"] for s in shapes if "error" in s]
     shapes = [s for s in shapes if "error" not in s]
     if not shapes:
@@ -877,7 +878,7 @@ def evaluate(preset_or_path, images, meshes=None, samples=None, seed=0, threads=
                                        "interval90": [lo, hi]},
                  "node_count": {"observed": int(obs_nodes), "predicted_mode": node_mode}}
         if meshes:
-            entry["hausdorff_m"] = float(measure.hausdorff_distance((shapes[best]["x"], models[0].faces), meshes[k]))
+            entry["hausdorff_m"] = float(measure.hausdorff_distance((shapes[best]["x"], predictive.models[0].faces), meshes[k]))
         per_image.append(entry)
     mean = {"mse": float(np.mean([e["mse"] for e in per_image])),
             "iou": float(np.mean([e["iou"] for e in per_image])),
@@ -889,5 +890,6 @@ def evaluate(preset_or_path, images, meshes=None, samples=None, seed=0, threads=
     if meshes:
         mean["hausdorff_m"] = float(np.mean([e["hausdorff_m"] for e in per_image]))
     return {"preset": preset_or_path if isinstance(preset_or_path, str) else None, "model": kind, "samples": n,
-            "failed_samples": len(failed), "placement_noise": {"velocity_m_s": amplitude, "angular_modes": modes},
-            "forward": fwd, "mesh_level": level, "images": per_image, "mean": mean}
+            "failed_samples": len(failed),
+            "placement_noise": {"velocity_m_s": predictive.placement[0], "angular_modes": predictive.placement[1]},
+            "forward": predictive.forward, "mesh_level": predictive.level, "images": per_image, "mean": mean}
