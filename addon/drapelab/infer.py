@@ -170,6 +170,7 @@ class _Observation:
         c = sil.calibration
         self.calibration = {"px_per_m": float(c.px_per_m), "centre_px": [float(c.cx), float(c.cy)]}
         self.dc = float(measure.drape_coefficient(self.mask, c.px_per_m))
+        self.nodes = int(measure.node_count(measure.r_theta(self.mask, c)))
         with open(path, "rb") as f:
             self.sha256 = hashlib.sha256(f.read()).hexdigest()
 
@@ -697,10 +698,12 @@ def calibrate_preset(preset, images, seed=0, threads=None, template_dir=None, co
     if preset["model"] != "bdp":
         raise InputError(f"calibrate: only a bdp posterior is calibrated (this preset is {preset['model']!r})")
     previous = preset.pop("calibration", None)
-    if previous is not None:
+    if previous is not None:  # back to the fit: its table, stretching and mesh
         mu = np.asarray(preset["posterior"]["bend"]["log_mean"]) - float(previous["log_scale_shift"])
         preset["posterior"]["bend"].update({"log_mean": mu.tolist(), "median_N_m": np.exp(mu).tolist(),
                                             "global_log_std": 0.0})
+        preset["stretch_N_m"] = (np.asarray(preset["stretch_N_m"]) / float(previous.get("stretch_scale", 1.0))).tolist()
+        preset["simulation"]["mesh_level"] = int(previous.get("fit_mesh_level", preset["simulation"]["mesh_level"]))
     config = config or load_config()
     opts = config.get("calibration") or {}
     k = int(opts.get("draws", 8))
@@ -708,51 +711,103 @@ def calibrate_preset(preset, images, seed=0, threads=None, template_dir=None, co
     spread = float(opts.get("drape_log_sd", 0.0))
     if k < 2 or not step > 0 or not spread >= 0:
         raise InputError("fit.json calibration: need draws >= 2, log_step > 0, drape_log_sd >= 0")
+    search = opts.get("node_search") or {}
+    lo_s, hi_s = int(search.get("min_log2", 0)), int(search.get("max_log2", 0))
+    tolerance = float(search.get("tolerance", 0.5))
+    if not (lo_s <= 0 <= hi_s) or not tolerance > 0:
+        raise InputError("fit.json calibration.node_search: need min_log2 <= 0 <= max_log2 and tolerance > 0")
+    if not search.get("enabled", False):
+        lo_s = hi_s = 0
     if not images:
         raise InputError("images: give the training silhouettes")
     t0 = time.monotonic()
+    fit_level = int(preset["simulation"]["mesh_level"])
+    level = int(opts.get("mesh_level") or fit_level)
+    if level not in (1, 2, 3, 4, 5):
+        raise InputError(f"fit.json calibration.mesh_level: expected 1..5 (circle1..circle5), got {level}")
+    preset["simulation"]["mesh_level"] = level
     observations = [_Observation(p, None) for p in images]
     observed = float(np.mean([o.dc for o in observations]))
+    observed_nodes = float(np.mean([o.nodes for o in observations]))
     lanes = max(1, min(int(threads or min(os.cpu_count() or 1, 2)), k))
     predictive = _Predictive(preset, observations[0].mask.shape, lanes, config, template_dir)
+    stretch0 = np.asarray(preset["stretch_N_m"], dtype=float)
     bend = preset["posterior"]["bend"]
     base = dict(preset, posterior={"bend": dict(bend, global_log_std=0.0)})
     draws = preset_bend_samples(base, predictive.num_edges, np.random.default_rng([seed, 7]), k)
-    evaluated = {}
+    evaluated = {}  # (log2 stretch scale, log bending shift) -> (mean DC, sd DC, mean node count)
 
-    def mean_dc(c):
-        shapes = predictive.drape(draws * math.exp(c), seed, cancel_event=cancel_event)
-        dcs = [sh["dc"] for sh in shapes if "error" not in sh]
-        if len(dcs) < 2:
-            raise SolverError(f"calibrate: the drapes of {k - len(dcs)} of {k} draws failed at log scale {c:+.3f}")
-        evaluated[c] = (float(np.mean(dcs)), float(np.std(dcs, ddof=1)))
-        return evaluated[c][0]
+    def measure_at(s, c):
+        if (s, c) not in evaluated:
+            predictive.stretch = stretch0 * 2.0 ** s
+            shapes = [sh for sh in predictive.drape(draws * math.exp(c), seed, cancel_event=cancel_event)
+                      if "error" not in sh]
+            if len(shapes) < 2:
+                raise SolverError(f"calibrate: the drapes of {k - len(shapes)} of {k} draws failed at log scale "
+                                  f"{c:+.3f}, stretching x{2.0 ** s:g}")
+            dcs = [sh["dc"] for sh in shapes]
+            evaluated[(s, c)] = (float(np.mean(dcs)), float(np.std(dcs, ddof=1)),
+                                 float(np.mean([sh["nodes"] for sh in shapes])))
+        return evaluated[(s, c)]
 
-    before = mean_dc(0.0)
-    slope = (mean_dc(step) - mean_dc(-step)) / (2 * step)
+    def fit_scale(s, c, slope):
+        """Secant steps on the bending log shift c (from c) until the mean DC meets the observed one."""
+        dc, local = measure_at(s, c)[0], slope
+        for _ in range(int(opts.get("iterations", 2))):
+            c_new = float(np.clip(c + (observed - dc) / local, c - 1.0, c + 1.0))
+            if abs(c_new - c) < 1e-4:
+                break
+            dc_new = measure_at(s, c_new)[0]
+            if abs(dc_new - dc) > 1e-6 and (dc_new - dc) / (c_new - c) > 1e-3:
+                local = (dc_new - dc) / (c_new - c)
+            c, dc = c_new, dc_new
+        best = min((key for key in evaluated if key[0] == s), key=lambda key: abs(evaluated[key][0] - observed))
+        return best[1], local  # the best evaluated shift at this stretching
+
+    before = measure_at(0, 0.0)
+    slope = (measure_at(0, step)[0] - measure_at(0, -step)[0]) / (2 * step)
     if not slope > 1e-3:
         raise SolverError(f"calibrate: the drape coefficient does not grow with the bending scale here "
                           f"(slope {slope:.4g} per log unit): cannot calibrate")
-    c, dc, s_local = 0.0, before, slope
-    for _ in range(int(opts.get("iterations", 2))):
-        c_new = float(np.clip(c + (observed - dc) / s_local, -1.0, 1.0))
-        if abs(c_new - c) < 1e-4:
-            break
-        dc_new = mean_dc(c_new)
-        if abs(dc_new - dc) > 1e-6 and (dc_new - dc) / (c_new - c) > 1e-3:
-            s_local = (dc_new - dc) / (c_new - c)
-        c, dc = c_new, dc_new
-    c = min(evaluated, key=lambda v: abs(evaluated[v][0] - observed))  # the best evaluated scale
-    dc, s_sim = evaluated[c]
+    c, local = fit_scale(0, 0.0, slope)
+    chosen = {0: (c, slope)}
+    # 3. Node count: at a given drape coefficient, stiffer in-plane stretching gives more (and finer) folds (the
+    # hoop shortening of the hanging annulus goes into folds rather than in-plane compression). The stretching
+    # table is scaled by powers of 2 towards the training images' node count, the bending shift re-calibrated
+    # to the drape coefficient at each, until the predictive mean node count meets or crosses the observed.
+    gap0 = evaluated[(0, c)][2] - observed_nodes
+    if abs(gap0) > tolerance:
+        d = 1 if gap0 < 0 else -1
+        s = 0
+        while lo_s <= s + d <= hi_s:
+            try:
+                c_s, local_s = fit_scale(s + d, chosen[s][0], chosen[s][1])
+            except SolverError:  # a stretching this stiff/soft does not drape: stop here
+                break
+            s += d
+            chosen[s] = (c_s, local_s)
+            gap = evaluated[(s, c_s)][2] - observed_nodes
+            if abs(gap) <= tolerance or (gap > 0) != (gap0 > 0):
+                break
+    s = min(chosen, key=lambda v: (abs(evaluated[(v, chosen[v][0])][2] - observed_nodes), abs(v)))
+    c, local = chosen[s]
+    dc, s_sim, nodes = evaluated[(s, c)]
+    if s != 0 and not local > 1e-3:
+        local = slope
     n = len(observations)
-    g = math.sqrt(max(0.0, spread * spread * (1 + 1 / n) - (s_sim / slope) ** 2))
+    slope_used = slope if s == 0 else local
+    g = math.sqrt(max(0.0, spread * spread * (1 + 1 / n) - (s_sim / slope_used) ** 2))
     mu = np.asarray(bend["log_mean"]) + c
     preset["posterior"]["bend"].update({"log_mean": mu.tolist(), "median_N_m": np.exp(mu).tolist(),
                                         "global_log_std": g})
+    preset["stretch_N_m"] = (stretch0 * 2.0 ** s).tolist()
     preset["calibration"] = {
-        "dc_observed": observed, "dc_predicted_before": before, "dc_predicted": dc, "log_scale_shift": c,
-        "slope_dc_per_log": slope, "dc_sd_simulated": s_sim, "drape_log_sd": spread, "global_log_std": g,
-        "draws": k, "evaluated": {f"{v:+.4f}": list(evaluated[v]) for v in sorted(evaluated)},
+        "dc_observed": observed, "dc_predicted_before": before[0], "dc_predicted": dc, "log_scale_shift": c,
+        "slope_dc_per_log": slope_used, "dc_sd_simulated": s_sim, "drape_log_sd": spread, "global_log_std": g,
+        "nodes_observed": observed_nodes, "nodes_predicted_before": before[2], "nodes_predicted": nodes,
+        "stretch_scale": 2.0 ** s, "mesh_level": level, "fit_mesh_level": fit_level,
+        "draws": k, "evaluated": [{"stretch_scale": 2.0 ** key[0], "log_scale_shift": key[1], "dc": v[0],
+                                   "dc_sd": v[1], "nodes": v[2]} for key, v in sorted(evaluated.items())],
         "seconds": time.monotonic() - t0}
     return validate_preset(preset)
 

@@ -16,6 +16,7 @@ def test_fit_then_evaluate_writes_a_calibrated_preset_and_the_evaluation_json(tm
     cfg["mesh_level"] = 1
     cfg["init"]["scale_search"] = [0.5, 1.0, 2.0]
     cfg["calibration"]["draws"] = 4
+    cfg["calibration"]["mesh_level"] = 1
     config = tmp_path / "fit.json"
     config.write_text(json.dumps(cfg))
     preset_path = tmp_path / "cotton_blue.json"

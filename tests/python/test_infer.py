@@ -16,6 +16,7 @@ ASSET_IMAGE = os.path.join(ROOT, "assets", "cusick", "fabric_02", "silhouettes",
 def small_config(**overrides):
     cfg = copy.deepcopy(infer.load_config())
     cfg["mesh_level"] = 1
+    cfg["calibration"]["mesh_level"] = None  # calibrate on the fit's mesh
     cfg.update(overrides)
     return cfg
 
@@ -92,9 +93,9 @@ def test_bdp_draw_gradient_on_the_dynamic_forward_with_placement_noise(widen):
         assert an == pytest.approx(fd, rel=1e-4), name
 
 
-def _synthetic_image(path, bend, level=1):
+def _synthetic_image(path, bend, level=1, stretch=None):
     model = sim.ClothModel(sim.cusick_specimen(level), density=0.192)
-    p = model.parameters(stretch=tables.COTTON_BLUE.stretch, bend=bend)
+    p = model.parameters(stretch=tables.COTTON_BLUE.stretch if stretch is None else stretch, bend=bend)
     x0 = model.simulate(p, mode="dynamic", record=False)
     x = model.simulate(p, mode="static", positions0=x0)
     img = render.hard_silhouette(render.orthographic_camera(), x, model.faces)
@@ -356,6 +357,40 @@ def test_drape_calibration_matches_the_training_drape_coefficient_and_spreads_th
     assert infer.load_preset(str(tmp_path / "cal.json"))["calibration"] == c
     with pytest.raises(infer.InputError, match="only a bdp"):
         infer.calibrate_preset(dict(preset, model="homo"), [path], config=cfg)
+
+
+def test_node_search_scales_the_stretching_towards_the_training_node_count(tmp_path):
+    # Synthetic truth on circle1: Cotton Blue bending with 4x stiffer stretching (DC ~0.6, 7 nodes); the preset
+    # to calibrate has the Cotton Blue stretching, with which any bending that meets that drape coefficient
+    # gives fewer nodes (5-6: measured). The search must move the stretching up and the node count towards 7.
+    path = str(tmp_path / "synthetic.png")
+    _synthetic_image(path, tables.COTTON_BLUE.bend, stretch=tables.COTTON_BLUE.stretch * 4.0)
+    mask = measure.load_silhouette(path).mask
+    observed_nodes = measure.node_count(measure.r_theta(mask, measure.calibration()))
+    preset = _bdp_preset(tables.COTTON_BLUE.bend * 1.5)
+    stretch0 = np.asarray(preset["stretch_N_m"])
+    cfg = small_config()
+    cfg["calibration"]["node_search"] = {"enabled": True, "min_log2": -2, "max_log2": 3, "tolerance": 0.5}
+    out = infer.calibrate_preset(preset, [path], config=cfg, threads=2)
+    c = out["calibration"]
+    assert c["nodes_observed"] == observed_nodes
+    assert c["stretch_scale"] >= 2.0, c
+    assert abs(c["nodes_predicted"] - observed_nodes) < abs(c["nodes_predicted_before"] - observed_nodes), c
+    assert np.allclose(out["stretch_N_m"], stretch0 * c["stretch_scale"])
+    assert abs(c["dc_predicted"] - c["dc_observed"]) < 0.02, c
+    assert c["mesh_level"] == c["fit_mesh_level"] == out["simulation"]["mesh_level"] == 1
+    assert any(e["stretch_scale"] == c["stretch_scale"] and e["dc"] == c["dc_predicted"] for e in c["evaluated"])
+    # Idempotent: the stretching, too, goes back to the fit's before calibrating again.
+    again = infer.calibrate_preset(out, [path], config=cfg, threads=1)
+    assert np.allclose(again["stretch_N_m"], out["stretch_N_m"])
+    assert again["calibration"]["stretch_scale"] == c["stretch_scale"]
+    # Switched off: the stretching stays; a bad search range is an error naming the setting.
+    cfg["calibration"]["node_search"]["enabled"] = False
+    off = infer.calibrate_preset(out, [path], config=cfg, threads=2)
+    assert off["calibration"]["stretch_scale"] == 1.0 and np.allclose(off["stretch_N_m"], stretch0)
+    cfg["calibration"]["node_search"] = {"enabled": True, "min_log2": 1, "max_log2": 3}
+    with pytest.raises(infer.InputError, match="node_search"):
+        infer.calibrate_preset(out, [path], config=cfg)
 
 
 def test_global_log_std_scales_whole_draws_and_bad_values_are_rejected():

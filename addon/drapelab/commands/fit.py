@@ -66,5 +66,7 @@ def run(args):
     if c:
         print(f"drape calibration ({c['seconds']:.1f} s): drape coefficient {c['dc_predicted_before']:.3f} -> "
               f"{c['dc_predicted']:.3f} (observed {c['dc_observed']:.3f}), scale x{math.exp(c['log_scale_shift']):.3f}, "
-              f"global log sd {c['global_log_std']:.3f}")
+              f"global log sd {c['global_log_std']:.3f}; nodes {c['nodes_predicted_before']:.1f} -> "
+              f"{c['nodes_predicted']:.1f} (observed {c['nodes_observed']:.1f}), stretching x{c['stretch_scale']:g}; "
+              f"on circle{c['mesh_level']}")
     return 0
