@@ -11,6 +11,8 @@ model; writes out/protocol/table.json and table.md (beside the paper's numbers).
 presets: the BDP posterior of every fabric as assets/presets/<fabric>.json with its evaluation on that
 fabric's other capture-1 samples: reused from the table run (--out, default out/protocol) where it fitted the fabric, else
 fitted on the fabric's paper training sample (fabrics 1-5) or first sample (capture 1).
+--reuse-fits: presets already in the output folder are not refitted; bdp ones are drape-calibrated again with the
+current fit.json (calibration and placement noise), then evaluated.
 Run with ./drapelab's environment: `./drapelab build && PYTHONPATH=addon:build/python tools/paper_protocol.py ...`.
 """
 import argparse
@@ -58,7 +60,9 @@ def fit_and_evaluate(fabric, train_sample, model, time_budget, samples, out_dir,
     t0 = time.monotonic()
     if reuse and os.path.exists(preset_path):
         preset = infer.load_preset(preset_path)
-        if model == "bdp" and infer.load_config()["calibration"]["enabled"]:  # (again: idempotent, current settings)
+        config = infer.load_config()
+        if model == "bdp" and config["calibration"]["enabled"]:  # (again: idempotent, current settings)
+            preset["placement_noise"] = dict(config["placement_noise"])  # the predictive's, as fits make them now
             preset = infer.calibrate_preset(preset, [path(train["silhouette"])])
             infer.write_preset(preset_path, preset)
         fit_s = preset["training"]["seconds"] + preset.get("calibration", {}).get("seconds", 0.0)
