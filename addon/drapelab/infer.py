@@ -808,6 +808,8 @@ def calibrate_preset(preset, images, seed=0, threads=None, template_dir=None, co
     best = min(gap(v) for v in chosen)
     s = min((v for v in chosen if gap(v) <= best + 0.25), key=abs)
     c, local = chosen[s]
+    if s != 0:  # the search took one secant step per stretching: finish the bending scale at the chosen one
+        c, local = fit_scale(s, c, local, int(opts.get("iterations", 2)))
     dc, s_sim, nodes = evaluated[(s, c)]
     if s != 0 and not local > 1e-3:
         local = slope

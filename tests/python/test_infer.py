@@ -76,8 +76,13 @@ def test_elbo_gradient_matches_central_differences_with_fixed_noise():
 
     job.warm = copy.deepcopy(warm)
     _, grads = job.objective(job.theta, 0)
-    for name, an, fd in _directional_checks(job, loss, grads, ROUGH_EPS):
-        assert an == pytest.approx(fd, rel=1e-4, abs=1e-6), name
+    # The drape is rough (see README, "Gradients of a draw"): a single step size can straddle a kink (seed 3,
+    # placement noise 0.05 m/s over 32 modes: mu's difference at 1e-7 is 7e-4 off, at 1e-6 and 1e-8 within 7e-5).
+    # The median of three step sizes is what a smooth function would give at all three.
+    checks = [_directional_checks(job, loss, grads, eps) for eps in (10 * ROUGH_EPS, ROUGH_EPS, ROUGH_EPS / 10)]
+    for per_eps in zip(*checks):
+        name, an = per_eps[0][0], per_eps[0][1]
+        assert an == pytest.approx(float(np.median([fd for _, _, fd in per_eps])), rel=1e-4, abs=1e-6), name
 
 
 @pytest.mark.parametrize("widen", [0.0, 0.5])
