@@ -696,8 +696,9 @@ def calibrate_preset(preset, images, seed=0, threads=None, template_dir=None, co
        folds (fabric 5 on circle3 at DC 0.8: stretching x0.1 2-3 nodes, x1 5-6, x10 6-8; observed 6-9). One
        silhouette's node count thus pins the stretching the pixel fit leaves free: the stretching table is scaled
        by 2^s, s = +-1, +-2, ... towards the training images' mean node count, the bending shift re-calibrated
-       (secant steps, from the last shift) at each, until the predictive mean node count is within tolerance or
-       crosses it; the s closest to it is kept (ties: the smaller |s|), and step 2 uses its drapes and slope.
+       (secant steps, from the last shift) at each, until the predictive mean node count is within tolerance,
+       crosses it or stops coming closer; the closest s is kept (within a quarter node of it, the smallest |s|),
+       and step 2 uses its drapes and slope.
     The drapes run on calibration.mesh_level (default 3: circle2 folds fewer nodes than the finer meshes), which
     becomes the preset's simulation.mesh_level (the fit's is kept as calibration.fit_mesh_level).
     Returns a new preset with the shifted log_mean, global_log_std, the scaled stretching and a "calibration"
@@ -727,6 +728,7 @@ def calibrate_preset(preset, images, seed=0, threads=None, template_dir=None, co
         raise InputError("fit.json calibration.node_search: need min_log2 <= 0 <= max_log2 and tolerance > 0")
     if not search.get("enabled", False):
         lo_s = hi_s = 0
+    iterations = int(opts.get("iterations", 2))
     if not images:
         raise InputError("images: give the training silhouettes")
     t0 = time.monotonic()
@@ -778,8 +780,7 @@ def calibrate_preset(preset, images, seed=0, threads=None, template_dir=None, co
     if not slope > 1e-3:
         raise SolverError(f"calibrate: the drape coefficient does not grow with the bending scale here "
                           f"(slope {slope:.4g} per log unit): cannot calibrate")
-    c, local = fit_scale(0, 0.0, slope, int(opts.get("iterations", 2)))
-    chosen = {0: (c, slope)}
+    chosen = {0: (fit_scale(0, 0.0, slope, iterations)[0], slope)}  # stretching 2^s -> (shift, slope dDC/dc)
     # 3. Node count: at a given drape coefficient, stiffer in-plane stretching gives more (and finer) folds (the
     # hoop shortening of the hanging annulus goes into folds rather than in-plane compression). The stretching
     # table is scaled by powers of 2 towards the training images' node count, the bending shift re-calibrated
@@ -790,7 +791,7 @@ def calibrate_preset(preset, images, seed=0, threads=None, template_dir=None, co
     def gap(v):
         return abs(evaluated[(v, chosen[v][0])][2] - observed_nodes)
 
-    gap0 = evaluated[(0, c)][2] - observed_nodes
+    gap0 = evaluated[(0, chosen[0][0])][2] - observed_nodes
     if abs(gap0) > tolerance:
         d = 1 if gap0 < 0 else -1
         s = 0
@@ -807,14 +808,11 @@ def calibrate_preset(preset, images, seed=0, threads=None, template_dir=None, co
     # The closest; within a quarter node of it (sampling noise of 8 draws), the smallest change of stretching.
     best = min(gap(v) for v in chosen)
     s = min((v for v in chosen if gap(v) <= best + 0.25), key=abs)
-    c, local = chosen[s]
+    c, slope_used = chosen[s]
     if s != 0:  # the search took one secant step per stretching: finish the bending scale at the chosen one
-        c, local = fit_scale(s, c, local, int(opts.get("iterations", 2)))
+        c, slope_used = fit_scale(s, c, slope_used, iterations)
     dc, s_sim, nodes = evaluated[(s, c)]
-    if s != 0 and not local > 1e-3:
-        local = slope
     n = len(observations)
-    slope_used = slope if s == 0 else local
     g = math.sqrt(max(0.0, spread * spread * (1 + 1 / n) - (s_sim / slope_used) ** 2))
     mu = np.asarray(bend["log_mean"]) + c
     preset["posterior"]["bend"].update({"log_mean": mu.tolist(), "median_N_m": np.exp(mu).tolist(),
@@ -943,14 +941,11 @@ def evaluate(preset_or_path, images, meshes=None, samples=None, seed=0, threads=
     for k, o in enumerate(observations):
         mses = np.array([measure.pixel_mse(s["image"], o.mask) for s in shapes])
         best = int(np.argmin(mses))
-        obs_dc = measure.drape_coefficient(o.mask, o.calibration["px_per_m"])
-        obs_nodes = measure.node_count(measure.r_theta(o.mask, measure.calibration(o.calibration["px_per_m"],
-                                                                                  tuple(o.calibration["centre_px"]))))
         entry = {"image": images[k], "mse": float(mses[best]), "iou": float(measure.iou(shapes[best]["image"], o.mask)),
                  "best_sample": best,
-                 "drape_coefficient": {"observed": float(obs_dc), "predicted_mean": float(dcs.mean()),
+                 "drape_coefficient": {"observed": o.dc, "predicted_mean": float(dcs.mean()),
                                        "interval90": [lo, hi]},
-                 "node_count": {"observed": int(obs_nodes), "predicted_mode": node_mode}}
+                 "node_count": {"observed": o.nodes, "predicted_mode": node_mode}}
         if meshes:
             entry["hausdorff_m"] = float(measure.hausdorff_distance((shapes[best]["x"], predictive.models[0].faces), meshes[k]))
         per_image.append(entry)
