@@ -12,7 +12,8 @@ presets: the BDP posterior of every fabric as assets/presets/<fabric>.json with 
 fabric's other capture-1 samples: reused from the table run (--out, default out/protocol) where it fitted the fabric, else
 fitted on the fabric's paper training sample (fabrics 1-5) or first sample (capture 1).
 --reuse-fits: presets already in the output folder are not refitted; bdp ones are drape-calibrated again with the
-current fit.json (calibration and placement noise), then evaluated.
+current fit.json (calibration and placement noise), then evaluated; table: the rows of table.json already in the
+folder that this run does not redo are kept.
 Run with ./drapelab's environment: `./drapelab build && PYTHONPATH=addon:build/python tools/paper_protocol.py ...`.
 """
 import argparse
@@ -85,6 +86,9 @@ def table(args):
     out = args.out or os.path.join(ROOT, "out", "protocol")
     os.makedirs(out, exist_ok=True)
     results = {}
+    if args.reuse_fits and os.path.exists(os.path.join(out, "table.json")):  # a partial run: keep its other rows
+        results = {m: {int(f): r for f, r in per.items()}
+                   for m, per in json.load(open(os.path.join(out, "table.json"))).items()}
     for model in args.models.split(","):
         for fabric in [int(f) for f in args.fabrics.split(",")]:
             samples = args.samples if model == "bdp" else 1

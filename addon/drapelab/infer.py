@@ -674,6 +674,32 @@ def preset_bend_samples(preset, num_edges, rng, count):
     return np.exp(log_b)
 
 
+def _stretch_search(nodes0, nodes_at, observed, lo, hi, tolerance, patience):
+    """The node search's steps (calibrate_preset step 3): from nodes0 (the predictive mean node count at stretching
+    2^0) step s = +-1, +-2, ... towards `observed` within [lo, hi], nodes_at(s) giving the count at 2^s (None: that
+    stretching does not drape, the search ends). Ends within `tolerance`, on crossing, or after `patience` steps in
+    a row that come less than 0.1 closer than the closest so far. Returns the visited s in order (not 0)."""
+    visited, gap0 = [], nodes0 - observed
+    if abs(gap0) <= tolerance:
+        return visited
+    d = 1 if gap0 < 0 else -1
+    s, closest, stale = 0, abs(gap0), 0
+    while lo <= s + d <= hi:
+        nodes = nodes_at(s + d)
+        if nodes is None:
+            break
+        s += d
+        visited.append(s)
+        signed = nodes - observed
+        if abs(signed) <= tolerance or (signed > 0) != (gap0 > 0):
+            break
+        stale = stale + 1 if abs(signed) > closest - 0.1 else 0
+        closest = min(closest, abs(signed))
+        if stale >= patience:
+            break
+    return visited
+
+
 def calibrate_preset(preset, images, seed=0, threads=None, template_dir=None, config=None, cancel_event=None):
     """The drape calibration of a bdp posterior (the last stage of `fit`; also applies to an existing preset).
 
@@ -697,8 +723,8 @@ def calibrate_preset(preset, images, seed=0, threads=None, template_dir=None, co
        silhouette's node count thus pins the stretching the pixel fit leaves free: the stretching table is scaled
        by 2^s, s = +-1, +-2, ... towards the training images' mean node count, the bending shift re-calibrated
        (secant steps, from the last shift) at each, until the predictive mean node count is within tolerance,
-       crosses it or stops coming closer; the closest s is kept (within a quarter node of it, the smallest |s|),
-       and step 2 uses its drapes and slope.
+       crosses it or has not come 0.1 closer for `patience` steps in a row; the closest s is kept (within a
+       quarter node of it, the smallest |s|), and step 2 uses its drapes and slope.
     The drapes run on calibration.mesh_level (default 3: circle2 folds fewer nodes than the finer meshes), which
     becomes the preset's simulation.mesh_level (the fit's is kept as calibration.fit_mesh_level).
     Returns a new preset with the shifted log_mean, global_log_std, the scaled stretching and a "calibration"
@@ -724,8 +750,10 @@ def calibrate_preset(preset, images, seed=0, threads=None, template_dir=None, co
     search = opts.get("node_search") or {}
     lo_s, hi_s = int(search.get("min_log2", 0)), int(search.get("max_log2", 0))
     tolerance = float(search.get("tolerance", 0.5))
-    if not (lo_s <= 0 <= hi_s) or not tolerance > 0:
-        raise InputError("fit.json calibration.node_search: need min_log2 <= 0 <= max_log2 and tolerance > 0")
+    patience = int(search.get("patience", 2))
+    if not (lo_s <= 0 <= hi_s) or not tolerance > 0 or patience < 1:
+        raise InputError("fit.json calibration.node_search: need min_log2 <= 0 <= max_log2, tolerance > 0 and "
+                         "patience >= 1")
     if not search.get("enabled", False):
         lo_s = hi_s = 0
     iterations = int(opts.get("iterations", 2))
@@ -785,26 +813,23 @@ def calibrate_preset(preset, images, seed=0, threads=None, template_dir=None, co
     # hoop shortening of the hanging annulus goes into folds rather than in-plane compression). The stretching
     # table is scaled by powers of 2 towards the training images' node count, the bending shift re-calibrated
     # to the drape coefficient at each, until the predictive mean node count meets or crosses the observed.
-    # A step that does not bring the node count at least 0.1 closer ends the search (the node count of some
-    # fabrics hardly depends on the stretching: fabric 1 stays at 7.1-7.4 from x1 to x16); each step takes one
+    # `patience` steps in a row that do not bring the node count at least 0.1 closer than the closest so far end
+    # the search (the node count of some fabrics hardly depends on the stretching: fabric 1 stays at 7.1-7.4 from
+    # x1 to x16; others sit on a plateau for one step: fabric 5 5.6 at x1 and x2, then rises); each step takes one
     # secant step on the bending from the last shift.
+    def nodes_at(v):
+        """Stretching 2^v, one secant step on the bending from the neighbour's shift; None: it does not drape."""
+        prev = v - 1 if v > 0 else v + 1
+        try:
+            chosen[v] = fit_scale(v, chosen[prev][0], chosen[prev][1], 1)
+        except SolverError:
+            return None
+        return evaluated[(v, chosen[v][0])][2]
+
     def gap(v):
         return abs(evaluated[(v, chosen[v][0])][2] - observed_nodes)
 
-    gap0 = evaluated[(0, chosen[0][0])][2] - observed_nodes
-    if abs(gap0) > tolerance:
-        d = 1 if gap0 < 0 else -1
-        s = 0
-        while lo_s <= s + d <= hi_s:
-            try:
-                c_s, local_s = fit_scale(s + d, chosen[s][0], chosen[s][1], 1)
-            except SolverError:  # a stretching this stiff/soft does not drape: stop here
-                break
-            s += d
-            chosen[s] = (c_s, local_s)
-            signed = evaluated[(s, c_s)][2] - observed_nodes
-            if abs(signed) <= tolerance or (signed > 0) != (gap0 > 0) or gap(s) > gap(s - d) - 0.1:
-                break
+    _stretch_search(evaluated[(0, chosen[0][0])][2], nodes_at, observed_nodes, lo_s, hi_s, tolerance, patience)
     # The closest; within a quarter node of it (sampling noise of 8 draws), the smallest change of stretching.
     best = min(gap(v) for v in chosen)
     s = min((v for v in chosen if gap(v) <= best + 0.25), key=abs)

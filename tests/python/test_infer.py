@@ -396,6 +396,36 @@ def test_node_search_scales_the_stretching_towards_the_training_node_count(tmp_p
     cfg["calibration"]["node_search"] = {"enabled": True, "min_log2": 1, "max_log2": 3}
     with pytest.raises(infer.InputError, match="node_search"):
         infer.calibrate_preset(out, [path], config=cfg)
+    cfg["calibration"]["node_search"] = {"enabled": True, "min_log2": -1, "max_log2": 3, "patience": 0}
+    with pytest.raises(infer.InputError, match="patience"):
+        infer.calibrate_preset(out, [path], config=cfg)
+
+
+def test_node_search_steps_stop_rules():
+    # The search's stepping on made-up node-count curves (observed 7, tolerance 0.5, range -3..4).
+    def run(curve, patience=2, nodes0=None):
+        calls = []
+
+        def nodes_at(s):
+            calls.append(s)
+            return curve[s]
+        visited = infer._stretch_search(curve[0] if nodes0 is None else nodes0, nodes_at, 7.0, -3, 4, 0.5, patience)
+        assert visited == [c for c in calls if curve[c] is not None]  # each step asked once, in order
+        return visited
+    # Within tolerance at x1: no step.
+    assert run({0: 6.6}) == []
+    # A plateau of one step (fabric 5: 5.6 at x1 and x2) is crossed with patience 2, ends the search with 1.
+    rising = {0: 5.6, 1: 5.6, 2: 6.2, 3: 6.8, 4: 7.9}
+    assert run(rising) == [1, 2, 3]
+    assert run(rising, patience=1) == [1]
+    # Flat (as fabric 1: 7.1-7.4 from x1 to x16; here 5.0-5.1 against 7): two stale steps end it.
+    assert run({0: 5.0, 1: 5.05, 2: 5.1, 3: 5.12, 4: 5.3}) == [1, 2]
+    # Crossing ends it; so does the end of the range.
+    assert run({0: 5.0, 1: 6.0, 2: 8.0, 3: 9.0}) == [1, 2]
+    assert run({0: 5.0, 1: 5.5, 2: 5.9, 3: 6.2, 4: 6.4}) == [1, 2, 3, 4]
+    # Too many nodes: the stretching goes down; a stretching that does not drape (None) ends the search.
+    assert run({0: 9.0, -1: 8.2, -2: 7.3}) == [-1, -2]
+    assert run({0: 9.0, -1: 8.2, -2: None}) == [-1]
 
 
 def test_global_log_std_scales_whole_draws_and_bad_values_are_rejected():
