@@ -136,6 +136,8 @@ def presets(args):
                 os.remove(preset_path + ".ckpt")
         preset["evaluation"] = {"test_images": len(result["images"]), "samples": result["samples"],
                                 "forward": result["forward"], "mean": result["mean"]}
+        for image in preset["provenance"]["images"]:  # shipped: the dataset path as seen from the repository
+            image["path"] = os.path.relpath(os.path.normpath(image["path"]), ROOT)
         infer.write_preset(preset_path, preset)
         print(fabric, preset_path, json.dumps(result["mean"]), flush=True)
 
