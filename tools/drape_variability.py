@@ -47,8 +47,8 @@ def pooled_sd(per_fabric):
 
 
 def slopes(fabrics=CALIBRATION_FABRICS, data=DATA, presets=os.path.join(ROOT, "assets", "presets")):
-    """{fabric: dDC/dlog(bending scale)} at each fabric's shipped bdp preset (its training image: capture 1 of
-    the preset's training sample)."""
+    """{fabric: dDC/dlog(bending scale)} at each fabric's shipped bdp preset, at its fitted stretching (before the
+    node search's scaling: L is defined there), on its training image (capture 1 of its training sample)."""
     from drapelab import infer
     with open(os.path.join(data, "manifest.csv")) as f:
         rows = list(csv.DictReader(f))
@@ -60,7 +60,7 @@ def slopes(fabrics=CALIBRATION_FABRICS, data=DATA, presets=os.path.join(ROOT, "a
         preset = infer.load_preset(os.path.join(presets, found[0]))
         sample = int(preset.get("fabric", {}).get("training_sample") or 1)
         image = [r for r in rows if int(r["fabric"]) == fabric and int(r["sample"]) == sample and r["capture"] == "1"][0]
-        out[fabric] = infer.calibrate_preset(preset, [os.path.join(data, image["silhouette"])])["calibration"]["slope_dc_per_log"]
+        out[fabric] = infer.calibrate_preset(preset, [os.path.join(data, image["silhouette"])])["calibration"]["slope_dc_per_log_fit"]
     return out
 
 

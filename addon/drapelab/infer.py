@@ -717,7 +717,9 @@ def calibrate_preset(preset, images, seed=0, threads=None, template_dir=None, co
        L / sqrt(n), and a new drape varies by L around it: predictive variance L^2 (1 + 1/n). The simulated
        draws already vary (element noise, placement) by s_sim in drape coefficient; the remainder goes into
        a per-draw global log factor of sd g = sqrt(max(0, L^2 (1 + 1/n) - (s_sim / s)^2)), stored as
-       posterior.bend.global_log_std (see preset_bend_samples).
+       posterior.bend.global_log_std (see preset_bend_samples). L is measured at the fit's stretching; where
+       step 3 changes the stretching (and the slope s to s'), the drape-coefficient spread (L s)^2 (1 + 1/n)
+       is kept: g = sqrt(max(0, (L s)^2 (1 + 1/n) - s_sim^2)) / s'.
     3. Node count (calibration.node_search): at a given drape coefficient, stiffer in-plane stretching gives more
        folds (fabric 5 on circle3 at DC 0.8: stretching x0.1 2-3 nodes, x1 5-6, x10 6-8; observed 6-9). One
        silhouette's node count thus pins the stretching the pixel fit leaves free: the stretching table is scaled
@@ -838,14 +840,19 @@ def calibrate_preset(preset, images, seed=0, threads=None, template_dir=None, co
         c, slope_used = fit_scale(s, c, slope_used, iterations)
     dc, s_sim, nodes = evaluated[(s, c)]
     n = len(observations)
-    g = math.sqrt(max(0.0, spread * spread * (1 + 1 / n) - (s_sim / slope_used) ** 2))
+    # The drape scatter L is a log-bending sd at the fit's stretching (where drape_log_sd was measured): in drape
+    # coefficient it is L * slope there; at another stretching the slope differs (fabric 1 at x0.25: 0.15
+    # against 0.24 per log unit), so the predictive keeps that drape-coefficient spread, not L in log units.
+    slope_fit = chosen[0][1]
+    target = (spread * slope_fit) ** 2 * (1 + 1 / n)  # predictive DC variance
+    g = math.sqrt(max(0.0, target - s_sim ** 2)) / slope_used
     mu = np.asarray(bend["log_mean"]) + c
     preset["posterior"]["bend"].update({"log_mean": mu.tolist(), "median_N_m": np.exp(mu).tolist(),
                                         "global_log_std": g})
     preset["stretch_N_m"] = (stretch0 * 2.0 ** s).tolist()
     preset["calibration"] = {
         "dc_observed": observed, "dc_predicted_before": before[0], "dc_predicted": dc, "log_scale_shift": c,
-        "slope_dc_per_log": slope_used, "dc_sd_simulated": s_sim, "drape_log_sd": spread, "global_log_std": g,
+        "slope_dc_per_log": slope_used, "slope_dc_per_log_fit": slope_fit, "dc_sd_simulated": s_sim, "drape_log_sd": spread, "global_log_std": g,
         "nodes_observed": observed_nodes, "nodes_predicted_before": before[2], "nodes_predicted": nodes,
         "stretch_scale": 2.0 ** s, "mesh_level": level, "fit_mesh_level": fit_level,
         "draws": k, "evaluated": [{"stretch_scale": 2.0 ** key[0], "log_scale_shift": key[1], "dc": v[0],

@@ -1,5 +1,6 @@
 """Fitting (drapelab.infer): KL and ELBO derivatives, a synthetic round trip, a short real fit, bad input."""
 import copy
+import hashlib
 import json
 import os
 import threading
@@ -312,9 +313,21 @@ def test_shipped_presets_load_and_carry_their_settings_and_evaluation():
         assert preset["posterior"]["bend"]["global_log_std"] == g >= 0, name
         # g tops the simulated scatter up to L sqrt(2) (one training image); zero where the draws already
         # scatter that much (fabric 19: DC 0.94, near saturation, slope 0.045 per log unit).
-        simulated = (c["dc_sd_simulated"] / c["slope_dc_per_log"]) ** 2
-        assert g ** 2 + simulated == pytest.approx(2 * L ** 2) if g > 0 else simulated >= 2 * L ** 2, name
+        # In drape coefficient: (g s')^2 + sd_sim^2 = 2 (L s)^2, s the slope at the fitted stretching (where L is
+        # defined), s' at the node search's.
+        spread, simulated = 2 * (L * c["slope_dc_per_log_fit"]) ** 2, c["dc_sd_simulated"] ** 2
+        assert (g * c["slope_dc_per_log"]) ** 2 + simulated == pytest.approx(spread) if g > 0 else simulated >= spread, name
         assert 0 < ev["mean"]["iou"] <= 1 and 0 <= ev["mean"]["mse"] < 0.2, name
+        # Node search done, on the calibration's mesh, which the predictive (evaluate, garments) drapes.
+        assert c["stretch_scale"] > 0 and c["mesh_level"] == preset["simulation"]["mesh_level"] == 3, name
+        assert any(e["stretch_scale"] == c["stretch_scale"] for e in c["evaluated"]), name
+        # Provenance names the training image from the repository, and the shared dataset's file is that image.
+        for image in preset["provenance"]["images"]:
+            assert not os.path.isabs(image["path"]) and image["path"].startswith("../shared/data/cusick/"), name
+            data_file = os.path.join(ROOT, image["path"])
+            if os.path.exists(data_file):
+                with open(data_file, "rb") as f:
+                    assert hashlib.sha256(f.read()).hexdigest() == image["sha256"], name
 
 
 def _bdp_preset(bend, level=1, std=0.1):
@@ -342,15 +355,17 @@ def test_drape_calibration_matches_the_training_drape_coefficient_and_spreads_th
     mu0 = np.asarray(preset["posterior"]["bend"]["log_mean"])
     assert np.allclose(out["posterior"]["bend"]["log_mean"], mu0 + c["log_scale_shift"])
     assert np.allclose(out["posterior"]["bend"]["log_std"], preset["posterior"]["bend"]["log_std"])
-    assert c["slope_dc_per_log"] > 0
-    # The spread: global_log_std^2 + (simulated sd / slope)^2 = L^2 (1 + 1/n), one training image.
+    assert c["slope_dc_per_log"] > 0 and c["slope_dc_per_log_fit"] > 0
+    # The spread, in drape coefficient: (global_log_std slope)^2 + simulated sd^2 = (L slope_fit)^2 (1 + 1/n), one
+    # training image (slope_fit at the fitted stretching, where L is defined; slope at the node search's).
     L = cfg["calibration"]["drape_log_sd"]
     g = out["posterior"]["bend"]["global_log_std"]
-    assert g ** 2 + (c["dc_sd_simulated"] / c["slope_dc_per_log"]) ** 2 == pytest.approx(2 * L ** 2, rel=1e-9)
+    assert (g * c["slope_dc_per_log"]) ** 2 + c["dc_sd_simulated"] ** 2 == \
+        pytest.approx(2 * (L * c["slope_dc_per_log_fit"]) ** 2, rel=1e-9)
     # The predictive now scatters by about L * sqrt(2) * slope in drape coefficient (64 draws: within 40 %).
     result = infer.evaluate(out, [path], samples=64, threads=2, config=cfg, seed=3)
     lo, hi = result["images"][0]["drape_coefficient"]["interval90"]
-    expected = 2 * 1.645 * np.sqrt(2) * L * c["slope_dc_per_log"]
+    expected = 2 * 1.645 * np.sqrt(2) * L * c["slope_dc_per_log_fit"]
     assert 0.6 * expected < hi - lo < 1.4 * expected, (lo, hi, expected)
     assert lo < observed < hi
     # Idempotent: calibrating the calibrated preset starts again from the fit.
@@ -385,6 +400,10 @@ def test_node_search_scales_the_stretching_towards_the_training_node_count(tmp_p
     assert abs(c["dc_predicted"] - c["dc_observed"]) < 0.02, c
     assert c["mesh_level"] == c["fit_mesh_level"] == out["simulation"]["mesh_level"] == 1
     assert any(e["stretch_scale"] == c["stretch_scale"] and e["dc"] == c["dc_predicted"] for e in c["evaluated"])
+    # The spread keeps the drape-coefficient scatter L * slope of the fitted stretching (where L is defined).
+    g, L = out["posterior"]["bend"]["global_log_std"], cfg["calibration"]["drape_log_sd"]
+    assert g > 0 and (g * c["slope_dc_per_log"]) ** 2 + c["dc_sd_simulated"] ** 2 == \
+        pytest.approx(2 * (L * c["slope_dc_per_log_fit"]) ** 2, rel=1e-9)
     # Idempotent: the stretching, too, goes back to the fit's before calibrating again.
     again = infer.calibrate_preset(out, [path], config=cfg, threads=1)
     assert np.allclose(again["stretch_N_m"], out["stretch_N_m"])
