@@ -471,3 +471,31 @@ def test_drape_variability_pools_variances_over_fabrics():
     assert tool.pooled_sd(per) == pytest.approx(np.sqrt(0.01))
     with pytest.raises(ValueError):
         tool.pooled_sd({3: [0.7]})
+
+
+def test_noise_floor_takes_the_best_other_drape(tmp_path):
+    import importlib.util
+    import shutil
+    spec = importlib.util.spec_from_file_location("noise_floor", os.path.join(ROOT, "tools", "noise_floor.py"))
+    tool = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(tool)
+    src = os.path.join(ROOT, "assets", "cusick")
+    a, b = "fabric_02/silhouettes/sample_02_capture_1.jpg", "fabric_05/silhouettes/sample_01_capture_1.jpg"
+    mesh = "fabric_02/meshes/sample_02_capture_1.obj"
+    for rel in (a, b, mesh):
+        os.makedirs(os.path.dirname(tmp_path / rel), exist_ok=True)
+        shutil.copy(os.path.join(src, rel), tmp_path / rel)
+    # Samples 1 and 2 are the same drape, sample 3 another: nearest 0, 0, m; pairs 0, m, m.
+    rows = ["fabric,name,material,weave,density_kg_m2,thickness_mm,sample,capture,silhouette,mesh"]
+    rows += [f"7,X,Cotton,Plain,0.2,0.3,{k},1,{img},{mesh}" for k, img in ((1, a), (2, a), (3, b))]
+    rows += [f"7,X,Cotton,Plain,0.2,0.3,4,2,{b},"]  # another capture: not counted
+    (tmp_path / "manifest.csv").write_text("\n".join(rows) + "\n")
+    m = float(np.mean((measure.load_silhouette(str(tmp_path / a)).mask.astype(float)
+                       - measure.load_silhouette(str(tmp_path / b)).mask.astype(float)) ** 2))
+    assert m > 0.01
+    out = tool.floor(7, data=str(tmp_path))
+    assert out["samples"] == 3
+    assert out["mse_nearest"] == pytest.approx(m / 3) and out["mse_median_pair"] == pytest.approx(m)
+    assert out["hausdorff_m_nearest"] == pytest.approx(0.0, abs=1e-12)  # the same mesh for all three
+    with pytest.raises(SystemExit, match="fabric 8"):
+        tool.floor(8, data=str(tmp_path))
