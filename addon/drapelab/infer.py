@@ -852,7 +852,8 @@ def calibrate_preset(preset, images, seed=0, threads=None, template_dir=None, co
     preset["stretch_N_m"] = (stretch0 * 2.0 ** s).tolist()
     preset["calibration"] = {
         "dc_observed": observed, "dc_predicted_before": before[0], "dc_predicted": dc, "log_scale_shift": c,
-        "slope_dc_per_log": slope_used, "slope_dc_per_log_fit": slope_fit, "dc_sd_simulated": s_sim, "drape_log_sd": spread, "global_log_std": g,
+        "slope_dc_per_log": slope_used, "slope_dc_per_log_fit": slope_fit, "dc_sd_simulated": s_sim,
+        "drape_log_sd": spread, "global_log_std": g,
         "nodes_observed": observed_nodes, "nodes_predicted_before": before[2], "nodes_predicted": nodes,
         "stretch_scale": 2.0 ** s, "mesh_level": level, "fit_mesh_level": fit_level,
         "draws": k, "evaluated": [{"stretch_scale": 2.0 ** key[0], "log_scale_shift": key[1], "dc": v[0],
