@@ -719,7 +719,8 @@ def calibrate_preset(preset, images, seed=0, threads=None, template_dir=None, co
        a per-draw global log factor of sd g = sqrt(max(0, L^2 (1 + 1/n) - (s_sim / s)^2)), stored as
        posterior.bend.global_log_std (see preset_bend_samples). L is measured at the fit's stretching; where
        step 3 changes the stretching (and the slope s to s'), the drape-coefficient spread (L s)^2 (1 + 1/n)
-       is kept: g = sqrt(max(0, (L s)^2 (1 + 1/n) - s_sim^2)) / s'.
+       is kept: g = sqrt(max(0, (L s)^2 (1 + 1/n) - s_sim^2)) / s'. Both slopes are central differences
+       (+-log_step) at the calibrated shift.
     3. Node count (calibration.node_search): at a given drape coefficient, stiffer in-plane stretching gives more
        folds (fabric 5 on circle3 at DC 0.8: stretching x0.1 2-3 nodes, x1 5-6, x10 6-8; observed 6-9). One
        silhouette's node count thus pins the stretching the pixel fit leaves free: the stretching table is scaled
@@ -835,15 +836,25 @@ def calibrate_preset(preset, images, seed=0, threads=None, template_dir=None, co
     # The closest; within a quarter node of it (sampling noise of 8 draws), the smallest change of stretching.
     best = min(gap(v) for v in chosen)
     s = min((v for v in chosen if gap(v) <= best + 0.25), key=abs)
-    c, slope_used = chosen[s]
+    c = chosen[s][0]
     if s != 0:  # the search took one secant step per stretching: finish the bending scale at the chosen one
-        c, slope_used = fit_scale(s, c, slope_used, iterations)
+        c = fit_scale(s, c, chosen[s][1], iterations)[0]
     dc, s_sim, nodes = evaluated[(s, c)]
     n = len(observations)
+
+    def central_slope(v, at):
+        """dDC/dlog(bending scale) by central differences of +-log_step (the secant slopes of the root finding
+        come from steps down to 0.007 and fold jumps make them 4x off: fabric 2 at x8, 0.80 against 0.18)."""
+        return (measure_at(v, at + step)[0] - measure_at(v, at - step)[0]) / (2 * step)
+
     # The drape scatter L is a log-bending sd at the fit's stretching (where drape_log_sd was measured): in drape
-    # coefficient it is L * slope there; at another stretching the slope differs (fabric 1 at x0.25: 0.15
-    # against 0.24 per log unit), so the predictive keeps that drape-coefficient spread, not L in log units.
-    slope_fit = chosen[0][1]
+    # coefficient it is L * slope there; at another stretching the slope may differ, so the predictive keeps that
+    # drape-coefficient spread, not L in log units.
+    slope_fit = central_slope(0, chosen[0][0])
+    slope_used = slope_fit if s == 0 else central_slope(s, c)
+    if not (slope_fit > 1e-3 and slope_used > 1e-3):
+        raise SolverError(f"calibrate: the drape coefficient does not grow with the bending scale at the "
+                          f"calibrated scale (slopes {slope_fit:.4g}, {slope_used:.4g} per log unit)")
     target = (spread * slope_fit) ** 2 * (1 + 1 / n)  # predictive DC variance
     g = math.sqrt(max(0.0, target - s_sim ** 2)) / slope_used
     mu = np.asarray(bend["log_mean"]) + c
