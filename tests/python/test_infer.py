@@ -364,6 +364,10 @@ def test_drape_calibration_matches_the_training_drape_coefficient_and_spreads_th
         pytest.approx(2 * (L * c["slope_dc_per_log_fit"]) ** 2, rel=1e-9)
     # The predictive now scatters by about L * sqrt(2) * slope in drape coefficient (64 draws: within 40 %).
     result = infer.evaluate(out, [path], samples=64, threads=2, config=cfg, seed=3)
+    # Best of the first 1, 10 and all 64 draws: falls with the draws, ends at the reported best-of-64.
+    curve = result["images"][0]["mse_best_of"]
+    assert list(curve) == ["1", "10", "64"] and curve["1"] >= curve["10"] >= curve["64"] == result["images"][0]["mse"]
+    assert result["mean"]["mse_best_of"] == curve  # one image
     lo, hi = result["images"][0]["drape_coefficient"]["interval90"]
     expected = 2 * 1.645 * np.sqrt(2) * L * c["slope_dc_per_log_fit"]
     assert 0.6 * expected < hi - lo < 1.4 * expected, (lo, hi, expected)
