@@ -38,7 +38,7 @@ def floor(fabric, data=DATA):
     haus = np.full((n, n), np.inf)
     for i in range(n):
         for j in range(i + 1, n):
-            mse[i, j] = mse[j, i] = float(np.mean((masks[i] - masks[j]) ** 2))
+            mse[i, j] = mse[j, i] = float(measure.pixel_mse(masks[i], masks[j]))
             if meshes[i] and meshes[j]:
                 haus[i, j] = haus[j, i] = measure.hausdorff_distance(meshes[i], meshes[j])
     pairs = np.triu_indices(n, 1)
