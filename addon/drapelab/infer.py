@@ -579,8 +579,9 @@ class FitJob:
 
 
 def fit(images, density, model="bdp", epochs=None, time_budget=None, seed=0, out=None, checkpoint=None,
-        resume=None, progress=None, cancel_event=None, fabric=None, **options):
-    """Fits and (when `out` is given) writes a preset. Returns the preset dict."""
+        resume=None, progress=None, cancel_event=None, fabric=None, calibration_progress=None, **options):
+    """Fits and (when `out` is given) writes a preset. Returns the preset dict. `progress` receives each epoch's
+    history entry, `calibration_progress` each drape-calibration evaluation (see calibrate_preset)."""
     if out:
         measure.check_output_path(out, "preset")
     job = FitJob(images, density, model=model, seed=seed, **options)
@@ -592,7 +593,7 @@ def fit(images, density, model="bdp", epochs=None, time_budget=None, seed=0, out
                                                 "seed": seed, **{k: v for k, v in options.items() if k != "config"}})
     if model == "bdp" and (job.config.get("calibration") or {}).get("enabled", False):
         preset = calibrate_preset(preset, images, seed=seed, threads=job.threads, template_dir=options.get("template_dir"),
-                                  config=job.config, cancel_event=cancel_event)
+                                  config=job.config, cancel_event=cancel_event, progress=calibration_progress)
     if out:
         write_preset(out, preset)
     return preset
@@ -700,7 +701,8 @@ def _stretch_search(nodes0, nodes_at, observed, lo, hi, tolerance, patience):
     return visited
 
 
-def calibrate_preset(preset, images, seed=0, threads=None, template_dir=None, config=None, cancel_event=None):
+def calibrate_preset(preset, images, seed=0, threads=None, template_dir=None, config=None, cancel_event=None,
+                     progress=None):
     """The drape calibration of a bdp posterior (the last stage of `fit`; also applies to an existing preset).
 
     1. Scale: the fitted mean table is shifted by one global log factor c so that the posterior-predictive
@@ -730,6 +732,9 @@ def calibrate_preset(preset, images, seed=0, threads=None, template_dir=None, co
        quarter node of it, the smallest |s|), and step 2 uses its drapes and slope.
     The drapes run on calibration.mesh_level (default 3: circle2 folds fewer nodes than the finer meshes), which
     becomes the preset's simulation.mesh_level (the fit's is kept as calibration.fit_mesh_level).
+    `progress` (optional) is called after every new set of drapes with {"stage": "calibration", "evaluation" (1, 2,
+    ...), "stretch_scale", "bend_scale" (exp of the log shift), "dc", "dc_sd", "nodes", "dc_observed",
+    "nodes_observed", "seconds" (since the calibration began)}: one per entry of the record's "evaluated".
     Returns a new preset with the shifted log_mean, global_log_std, the scaled stretching and a "calibration"
     record. A preset that was calibrated before is first taken back to its fit (shift, stretching scale and mesh
     level undone): calibrating is idempotent."""
@@ -790,6 +795,11 @@ def calibrate_preset(preset, images, seed=0, threads=None, template_dir=None, co
             dcs = [sh["dc"] for sh in shapes]
             evaluated[(s, c)] = (float(np.mean(dcs)), float(np.std(dcs, ddof=1)),
                                  float(np.mean([sh["nodes"] for sh in shapes])))
+            if progress:
+                dc_, sd_, nodes_ = evaluated[(s, c)]
+                progress({"stage": "calibration", "evaluation": len(evaluated), "stretch_scale": 2.0 ** s,
+                          "bend_scale": math.exp(c), "dc": dc_, "dc_sd": sd_, "nodes": nodes_, "dc_observed": observed,
+                          "nodes_observed": observed_nodes, "seconds": time.monotonic() - t0})
         return evaluated[(s, c)]
 
     def fit_scale(s, c, slope, iterations):

@@ -29,6 +29,11 @@ def test_fit_then_evaluate_writes_a_calibrated_preset_and_the_evaluation_json(tm
     assert preset["provenance"]["images"][0]["path"] == IMAGE and len(preset["provenance"]["images"][0]["sha256"]) == 64
     c = preset["calibration"]
     assert abs(c["dc_predicted"] - c["dc_observed"]) <= abs(c["dc_predicted_before"] - c["dc_observed"])
+    # The calibration reports each set of drapes as it goes (minutes on the real meshes): one line per evaluation.
+    lines = [l for l in text.splitlines() if l.startswith("calibration ")]
+    assert len(lines) == len(c["evaluated"]) >= 3, text
+    first = c["evaluated"][0]
+    assert f"drape coefficient {first['dc']:.3f}" in "\n".join(lines) and f"observed {c['dc_observed']:.3f}" in lines[0]
     assert preset["posterior"]["bend"]["global_log_std"] == c["global_log_std"] >= 0
     out = tmp_path / "eval.json"
     assert cli.main(["evaluate", "--preset", str(preset_path), "--images", IMAGE, "--samples", "3", "--seed", "1",

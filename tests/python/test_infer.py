@@ -346,9 +346,16 @@ def test_drape_calibration_matches_the_training_drape_coefficient_and_spreads_th
     observed = measure.drape_coefficient(measure.load_silhouette(path).mask)
     preset = _bdp_preset(tables.COTTON_BLUE.bend * 1.5)
     cfg = small_config()
-    out = infer.calibrate_preset(preset, [path], config=cfg, threads=2)
+    reports = []
+    out = infer.calibrate_preset(preset, [path], config=cfg, threads=2, progress=reports.append)
     c = out["calibration"]
     assert c["dc_observed"] == pytest.approx(observed)
+    # Progress: one report per set of drapes, in order, the same figures as the record's "evaluated".
+    assert [r["evaluation"] for r in reports] == list(range(1, len(c["evaluated"]) + 1))
+    assert np.allclose(sorted((r["stretch_scale"], np.log(r["bend_scale"]), r["dc"], r["nodes"]) for r in reports),
+                       sorted((e["stretch_scale"], e["log_scale_shift"], e["dc"], e["nodes"]) for e in c["evaluated"]))
+    assert all(r["dc_observed"] == c["dc_observed"] for r in reports)
+    assert all(b["seconds"] >= a["seconds"] for a, b in zip(reports, reports[1:]))
     assert abs(c["dc_predicted_before"] - observed) > 0.02  # the uncalibrated fit is visibly off ...
     assert abs(c["dc_predicted"] - observed) < 0.01, c     # ... the calibrated one is not
     assert c["log_scale_shift"] > 0.2                      # towards the stiffer truth (log 2 = 0.69)

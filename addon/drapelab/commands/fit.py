@@ -48,10 +48,15 @@ def run(args):
         print(f"epoch {e['epoch']:4d}  loss {e['loss']:.5f} (data {e['data']:.5f}, kl {e['kl']:.5f})  "
               f"IoU {e['iou']:.4f}  MSE {e['mse']:.4f}  {e['seconds']:.1f} s", flush=True)
 
+    def calibration_progress(c):
+        print(f"calibration {c['evaluation']:2d}: stretching x{c['stretch_scale']:g}, bending x{c['bend_scale']:.3f}: "
+              f"drape coefficient {c['dc']:.3f} +- {c['dc_sd']:.3f} (observed {c['dc_observed']:.3f}), nodes "
+              f"{c['nodes']:.1f} (observed {c['nodes_observed']:.1f})  {c['seconds']:.1f} s", flush=True)
+
     try:
         preset = infer.fit(args.images, args.density, model=args.model, epochs=args.epochs,
                            time_budget=args.time_budget, seed=args.seed, out=args.out, checkpoint=checkpoint,
-                           resume=args.resume, progress=progress, cancel_event=cancel,
+                           resume=args.resume, progress=progress, calibration_progress=calibration_progress, cancel_event=cancel,
                            fabric={"name": args.name} if args.name else None, config=config,
                            camera=args.camera, mesh_level=args.mesh_level, threads=args.threads)
     except infer.Cancelled:
