@@ -431,6 +431,30 @@ def test_node_search_scales_the_stretching_towards_the_training_node_count(tmp_p
         infer.calibrate_preset(out, [path], config=cfg)
 
 
+def test_calibration_skips_drapes_that_would_not_move_the_drape_coefficient(tmp_path):
+    # shift_tolerance: a secant step smaller than it is not taken; a central difference about a centre within
+    # log_step / 4 is reused. With a huge tolerance the calibration drapes exactly c = 0 and +-log_step (the first
+    # slope) and reuses that difference as the slope at the fitted stretching: three sets of drapes in all.
+    path = str(tmp_path / "synthetic.png")
+    _synthetic_image(path, tables.COTTON_BLUE.bend * 3.0)
+    preset = _bdp_preset(tables.COTTON_BLUE.bend * 3.0)  # at the truth: c = 0 is the closest of the three
+    cfg = small_config()
+    cfg["calibration"]["node_search"]["enabled"] = False
+    cfg["calibration"].update(shift_tolerance=10.0, draws=4)
+    c = infer.calibrate_preset(preset, [path], config=cfg, threads=2)["calibration"]
+    step = cfg["calibration"]["log_step"]
+    assert sorted(e["log_scale_shift"] for e in c["evaluated"]) == [-step, 0.0, step] and c["log_scale_shift"] == 0.0
+    dc = {e["log_scale_shift"]: e["dc"] for e in c["evaluated"]}
+    assert c["slope_dc_per_log_fit"] == c["slope_dc_per_log"] == pytest.approx((dc[step] - dc[-step]) / (2 * step))
+    # Without it (0: the earlier behaviour) the secant steps go on towards the training drape coefficient.
+    cfg["calibration"]["shift_tolerance"] = 0.0
+    c0 = infer.calibrate_preset(preset, [path], config=cfg, threads=2)["calibration"]
+    assert len(c0["evaluated"]) > 3 and abs(c0["dc_predicted"] - c0["dc_observed"]) <= abs(c["dc_predicted"] - c["dc_observed"])
+    cfg["calibration"]["shift_tolerance"] = -1.0
+    with pytest.raises(infer.InputError, match="shift_tolerance"):
+        infer.calibrate_preset(preset, [path], config=cfg)
+
+
 def test_node_search_steps_stop_rules():
     # The search's stepping on made-up node-count curves (observed 7, tolerance 0.5, range -3..4).
     def run(curve, patience=2, nodes0=None):
