@@ -147,7 +147,8 @@ def main():
     ap.add_argument("what", choices=["table", "presets"])
     ap.add_argument("--models", default="homo,heter,bdp")
     ap.add_argument("--fabrics", default="1,2,3,4,5")
-    ap.add_argument("--time-budget", type=float, default=300.0)
+    ap.add_argument("--time-budget", type=float, default=60.0,
+                    help="seconds of gradient epochs per fit (the drape calibration follows); the README table's")
     ap.add_argument("--samples", type=int, default=1000)
     ap.add_argument("--reuse-fits", action="store_true",
                     help="table: evaluate the fits already in --out (bdp fits are drape-calibrated again with the current settings); "
