@@ -449,7 +449,8 @@ def test_calibration_skips_drapes_that_would_not_move_the_drape_coefficient(tmp_
     # Without it (0: the earlier behaviour) the secant steps go on towards the training drape coefficient.
     cfg["calibration"]["shift_tolerance"] = 0.0
     c0 = infer.calibrate_preset(preset, [path], config=cfg, threads=2)["calibration"]
-    assert len(c0["evaluated"]) > 3 and abs(c0["dc_predicted"] - c0["dc_observed"]) <= abs(c["dc_predicted"] - c["dc_observed"])
+    assert len(c0["evaluated"]) > 3
+    assert abs(c0["dc_predicted"] - c0["dc_observed"]) <= abs(c["dc_predicted"] - c["dc_observed"])
     cfg["calibration"]["shift_tolerance"] = -1.0
     with pytest.raises(infer.InputError, match="shift_tolerance"):
         infer.calibrate_preset(preset, [path], config=cfg)

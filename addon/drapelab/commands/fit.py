@@ -56,7 +56,8 @@ def run(args):
     try:
         preset = infer.fit(args.images, args.density, model=args.model, epochs=args.epochs,
                            time_budget=args.time_budget, seed=args.seed, out=args.out, checkpoint=checkpoint,
-                           resume=args.resume, progress=progress, calibration_progress=calibration_progress, cancel_event=cancel,
+                           resume=args.resume, progress=progress, calibration_progress=calibration_progress,
+                           cancel_event=cancel,
                            fabric={"name": args.name} if args.name else None, config=config,
                            camera=args.camera, mesh_level=args.mesh_level, threads=args.threads)
     except infer.Cancelled:
