@@ -710,7 +710,8 @@ def calibrate_preset(preset, images, seed=0, threads=None, template_dir=None, co
        element noise and placements at every c) equals the training images' mean drape coefficient. The
        pixel term of the fit leaves it 0.01-0.05 off (measured on fabrics 1-5); the drape coefficient is the
        rotation-free summary a textile lab reads first. Secant steps on c from the slope
-       s = dDC/dc measured by central differences (step calibration.log_step).
+       s = dDC/dc measured by central differences (step calibration.log_step); no step shorter than
+       calibration.shift_tolerance.
     2. Spread: the posterior over the fabric's overall stiffness that one (or n) drape(s) leave. A fabric's
        drapes scatter (new specimens and re-drapes alike): by sd_f in drape coefficient, i.e. by
        L = sd_f / s in log bending scale, about the same for every fabric (fit.json calibration.drape_log_sd,
