@@ -982,7 +982,8 @@ def evaluate(preset_or_path, images, meshes=None, samples=None, seed=0, threads=
     the flat rest state (the paper's protocol: the same draws serve every test image) and reports, per image:
     best-of-N pixel `mse` and `iou` (hard silhouettes), `mse_best_of` (best of the first 1, 10, 100, ... draws
     and of all N), `hausdorff_m` of the best sample's mesh to the given mesh, the drape coefficient (observed,
-    posterior-predictive mean, 90 % interval) and the node count (observed, predictive mode). `mean` averages them and gives coverage fractions.
+    posterior-predictive mean, 90 % interval) and the node count (observed, predictive mode). `mean` averages
+    them and gives coverage fractions.
     """
     preset = load_preset(preset_or_path) if isinstance(preset_or_path, (str, os.PathLike)) else validate_preset(preset_or_path)
     config = config or load_config()
