@@ -49,3 +49,38 @@ def test_bench_smoke(tmp_path, capsys):
     assert report["render"]["forward_ms"] > 0 and len(report["paper_gpu"]["meshes"]) == 3
     assert "circle1" in capsys.readouterr().out
     assert cli.main(["bench", "--meshes", "7", "--json", str(out)]) == 2
+
+
+def test_bench_fit_times_a_whole_fit(tmp_path, capsys):
+    """`bench --meshes none --fit`: one whole fit (epochs + drape calibration) of the bundled image, in a child
+    process, reported against the 300 s target (here on circle1 with a 1-epoch, 2-draw configuration)."""
+    import json
+
+    from drapelab import infer
+
+    config = infer.load_config()
+    config["mesh_level"] = 1
+    config["init"]["scale_search"] = [0.5, 1.0]
+    config["calibration"].update({"mesh_level": 1, "draws": 2, "iterations": 1})
+    config["calibration"]["node_search"]["enabled"] = False
+    cfg = tmp_path / "fit.json"
+    cfg.write_text(json.dumps(config))
+    out = tmp_path / "bench.json"
+    assert cli.main(["bench", "--meshes", "none", "--fit", "--fit-epochs", "1", "--fit-config", str(cfg),
+                     "--json", str(out)]) == 0
+    report = json.loads(out.read_text())
+    assert report["meshes"] == [] and report["render"] is None
+    fit = report["fit"]
+    assert fit["epochs"] == 1 and fit["mesh_level"] == 1 and fit["target_s"] == 300
+    assert fit["density_kg_m2"] == 0.192 and fit["image"].endswith("sample_02_capture_1.jpg")
+    assert 0 < fit["training_s"] < fit["total_s"] and 0 < fit["calibration_s"] < fit["total_s"]
+    assert fit["calibration_sets"] >= 3  # c = 0 and the central difference +-log_step
+    assert 0.5 < fit["dc_observed"] < 0.8 and 0 < fit["dc_predicted"] < 1 and 0 < fit["training_iou"] <= 1
+    assert "fit (bdp" in capsys.readouterr().out
+    # bad input is named before any simulation
+    assert cli.main(["bench", "--meshes", "none", "--json", str(out)]) == 2
+    assert cli.main(["bench", "--meshes", "none", "--fit", "--fit-epochs", "0", "--json", str(out)]) == 2
+    bad = tmp_path / "bad.json"
+    bad.write_text("{")
+    assert cli.main(["bench", "--meshes", "none", "--fit", "--fit-config", str(bad), "--json", str(out)]) == 2
+    assert "cannot read the fit configuration" in capsys.readouterr().err

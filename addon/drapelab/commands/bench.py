@@ -1,4 +1,5 @@
-"""`drapelab bench --json OUT.json [--meshes 1,2,3] [--steps N]`: single-thread speed and memory of the simulator.
+"""`drapelab bench --json OUT.json [--meshes 1,2,3] [--steps N] [--fit]`: speed and memory of the simulator, and
+the time of one whole fit.
 
 For each Cusick mesh circle1..circle5 (the dataset's template meshes, or generated disks of about the same
 vertex counts when ../shared is absent), homogeneous model with the Cotton Blue starting tables, in its own
@@ -21,6 +22,12 @@ subprocess (so that peak memory is per mesh), with OPENBLAS_NUM_THREADS=1 and OM
                                               factorisation and solve)
 Also the soft renderer's forward and backward (ms, 256 x 256, Gaussian profile, sigma 1 px, median of 10)
 on the circle3 drape, and the paper's GPU figures (seconds per step, NVIDIA TITAN Xp) for comparison.
+With --fit (or --meshes none --fit), also one whole BDP fit as a user runs it (`fit` with its defaults: fit.json's
+default_epochs, then the drape calibration, Monte Carlo lanes on up to 2 cores) of the bundled Cotton Blue
+silhouette (assets/cusick, the paper protocol's training image of fabric 2, the slowest of fabrics 1-5 to
+calibrate), in its own subprocess, against the 300 s target:
+  fit: total_s, training_s, epochs, calibration_s, calibration_sets, threads, target_s, and what the fit
+       reached (training IoU, drape coefficient and node count predicted / observed, stretching scale)
 Writes the JSON atomically and prints a table. circle4/5 take minutes (the backward is the slow part).
 """
 import argparse
@@ -32,6 +39,11 @@ import sys
 import time
 
 LEVELS = (1, 2, 3, 4, 5)
+_ROOT = os.environ.get("DRAPELAB_ROOT") or os.path.dirname(os.path.dirname(os.path.dirname(os.path.dirname(
+    os.path.abspath(__file__)))))
+FIT_IMAGE_NAME = "fabric_02/silhouettes/sample_02_capture_1.jpg"  # Cotton Blue, the protocol's training sample
+FIT_IMAGE = os.path.join(_ROOT, "assets", "cusick", FIT_IMAGE_NAME)
+FIT_TARGET_S = 300.0  # issue 4: one fabric fitted in <= 5 minutes on this 2-core machine
 RENDER_LEVEL = 3
 RENDER_REPEATS = 10
 FACTORIZE_REPEATS = 5
@@ -54,10 +66,18 @@ def register(subparsers):
                    help="comma-separated mesh levels among 1..5 (default 1,2,3,4,5)")
     p.add_argument("--steps", type=int, default=100, metavar="N", help="rollout steps (default 100)")
     p.add_argument("--no-static", action="store_true", help="skip the static solve and its adjoint")
+    p.add_argument("--fit", action="store_true",
+                   help="also time one whole BDP fit of the bundled Cotton Blue silhouette (about 3-4 minutes)")
+    p.add_argument("--fit-epochs", type=int, default=None, metavar="N",
+                   help="epochs of that fit (default: fit.json default_epochs)")
+    p.add_argument("--fit-config", default=None, metavar="FIT.json",
+                   help="fit settings for that fit (default addon/drapelab/config/fit.json)")
     p.set_defaults(func=run)
 
 
 def parse_levels(text):
+    if str(text).strip().lower() == "none":
+        return []
     try:
         levels = [int(t) for t in str(text).split(",") if t.strip()]
     except ValueError:
@@ -97,10 +117,20 @@ def run(args):
     levels = parse_levels(args.meshes)
     if args.steps < 1:
         raise ValueError(f"--steps must be at least 1, got {args.steps}")
+    if not levels and not args.fit:
+        raise ValueError("--meshes none: nothing to time (add --fit)")
+    if args.fit_epochs is not None and args.fit_epochs < 1:
+        raise ValueError(f"--fit-epochs must be at least 1, got {args.fit_epochs}")
+    if args.fit_config is not None:
+        from .. import infer
+        infer.load_config(args.fit_config)  # a bad file fails here, before minutes of simulation
+    if args.fit and not os.path.exists(FIT_IMAGE):
+        raise ValueError(f"--fit: the bundled silhouette {FIT_IMAGE} is missing")
     measure.check_output_path(args.json, "JSON")
     env = single_thread_environment()
-    print(f"drapelab bench: meshes {','.join(f'circle{l}' for l in levels)}, {args.steps} steps, 1 thread "
-          f"(one subprocess per mesh)", flush=True)
+    if levels:
+        print(f"drapelab bench: meshes {','.join(f'circle{l}' for l in levels)}, {args.steps} steps, 1 thread "
+              f"(one subprocess per mesh)", flush=True)
     results, failed = [], 0
     render = None
     for level in levels:
@@ -117,8 +147,18 @@ def run(args):
         render = r.pop("render", None) or render
         results.append(r)
         print(f" {time.perf_counter() - t0:.0f} s", flush=True)
-    if render is None:
+    if render is None and levels:
         render = run_child({"task": "render", "level": RENDER_LEVEL}, env)
+    fit = None
+    if args.fit:
+        t0 = time.perf_counter()
+        print(f"  fit (bdp, {FIT_IMAGE_NAME}) ...", end="", flush=True)
+        fit = run_child({"task": "fit", "epochs": args.fit_epochs, "config": args.fit_config}, env)
+        if "error" in fit:
+            failed += 1
+            print(f" error: {fit['error']}", flush=True)
+        else:
+            print(f" {time.perf_counter() - t0:.0f} s", flush=True)
     report = {
         "schema": "drapelab.bench/1",
         "threads": 1,
@@ -131,6 +171,8 @@ def run(args):
         "paper_gpu": {"device": "NVIDIA TITAN Xp", "source": "Gong, Mao, Wang, CVPR 2024, supplement",
                       "meshes": PAPER_GPU},
     }
+    if fit is not None:
+        report["fit"] = fit
     measure.write_json(args.json, report)
     print_table(report)
     print(f"wrote {args.json}")
@@ -164,6 +206,20 @@ def _static_cell(r, key):
 
 
 def print_table(report):
+    if report["meshes"]:
+        print_mesh_table(report)
+    ft = report.get("fit")
+    if ft and "error" in ft:
+        print(f"fit: error: {ft['error']}")
+    elif ft:
+        print(f"fit ({ft['model']}, {ft['image']}, {ft['threads']} threads): {ft['total_s']:.0f} s "
+              f"(target {ft['target_s']:.0f} s) = {ft['epochs']} epochs {ft['training_s']:.0f} s + calibration "
+              f"{ft['calibration_s']:.0f} s ({ft['calibration_sets']} sets of drapes); training IoU "
+              f"{ft['training_iou']:.3f}, drape coefficient {ft['dc_predicted']:.3f} (observed {ft['dc_observed']:.3f}), "
+              f"nodes {ft['nodes_predicted']:.1f} (observed {ft['nodes_observed']:.1f}), stretching x{ft['stretch_scale']:g}")
+
+
+def print_mesh_table(report):
     header = (f"{'mesh':<8} {'verts':>6} {'fwd ms/step':>11} {'(first)':>8} {'(no rec.)':>9} {'bwd ms/step':>11} {'factor ms':>9} "
               f"{'static ms (it)':>15} {'warm ms (it)':>15} {'adjoint ms':>10} {'epoch s':>8} {'peak MB':>8}")
     print(header)
@@ -306,9 +362,41 @@ def child_render(task):
     return _time_render(task["level"], model.rest_positions, model.faces, "flat")
 
 
+def fit_density():
+    """The bundled image's area density (kg/m^2) from assets/cusick/manifest.csv."""
+    import csv
+    with open(os.path.join(_ROOT, "assets", "cusick", "manifest.csv"), newline="") as f:
+        for row in csv.DictReader(f):
+            if row["silhouette"] == FIT_IMAGE_NAME:
+                return float(row["density_kg_m2"])
+    raise ValueError(f"assets/cusick/manifest.csv: no row for {FIT_IMAGE_NAME}")
+
+
+def child_fit(task):
+    """One whole `fit` (bdp, defaults) of the bundled Cotton Blue silhouette, timed from the call to the preset."""
+    from .. import infer
+
+    config = infer.load_config(task.get("config"))
+    density = fit_density()
+    t0 = time.perf_counter()
+    preset = infer.fit([FIT_IMAGE], density, model="bdp", epochs=task.get("epochs"), seed=0, config=config)
+    total = time.perf_counter() - t0
+    t = preset["training"]
+    c = preset.get("calibration") or {}
+    return {"model": "bdp", "image": FIT_IMAGE_NAME, "density_kg_m2": density, "threads": min(os.cpu_count() or 1, 2),
+            "total_s": total, "training_s": t["seconds"], "epochs": t["epochs"],
+            "calibration_s": c.get("seconds", 0.0), "calibration_sets": len(c.get("evaluated", [])),
+            "target_s": FIT_TARGET_S, "training_iou": preset["metrics"]["training_image"]["iou"],
+            "dc_observed": c.get("dc_observed", float("nan")), "dc_predicted": c.get("dc_predicted", float("nan")),
+            "nodes_observed": c.get("nodes_observed", float("nan")),
+            "nodes_predicted": c.get("nodes_predicted", float("nan")), "stretch_scale": c.get("stretch_scale", 1.0),
+            "mesh_level": preset["simulation"]["mesh_level"]}
+
+
 def child_main(argv):
     task = json.loads(argv[argv.index("--child") + 1])
-    result = child_mesh(task) if task["task"] == "mesh" else child_render(task)
+    kinds = {"mesh": child_mesh, "render": child_render, "fit": child_fit}
+    result = kinds[task["task"]](task)
     print(json.dumps(result), flush=True)
     return 0
 
