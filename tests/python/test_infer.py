@@ -411,6 +411,9 @@ def test_node_search_scales_the_stretching_towards_the_training_node_count(tmp_p
     assert abs(c["dc_predicted"] - c["dc_observed"]) < 0.02, c
     assert c["mesh_level"] == c["fit_mesh_level"] == out["simulation"]["mesh_level"] == 1
     assert any(e["stretch_scale"] == c["stretch_scale"] and e["dc"] == c["dc_predicted"] for e in c["evaluated"])
+    assert c["settings"]["node_search"] == {"enabled": True, "min_log2": -2, "max_log2": 3, "tolerance": 0.5,
+                                            "patience": cfg["calibration"]["node_search"].get("patience", 2)}
+    assert c["settings"]["shift_tolerance"] == cfg["calibration"].get("shift_tolerance", 0.0)
     # The spread keeps the drape-coefficient scatter L * slope of the fitted stretching (where L is defined).
     g, L = out["posterior"]["bend"]["global_log_std"], cfg["calibration"]["drape_log_sd"]
     assert g > 0 and (g * c["slope_dc_per_log"]) ** 2 + c["dc_sd_simulated"] ** 2 == \
