@@ -412,7 +412,7 @@ def test_node_search_scales_the_stretching_towards_the_training_node_count(tmp_p
     assert c["mesh_level"] == c["fit_mesh_level"] == out["simulation"]["mesh_level"] == 1
     assert any(e["stretch_scale"] == c["stretch_scale"] and e["dc"] == c["dc_predicted"] for e in c["evaluated"])
     assert c["settings"]["node_search"] == {"enabled": True, "min_log2": -2, "max_log2": 3, "tolerance": 0.5,
-                                            "patience": cfg["calibration"]["node_search"].get("patience", 2)}
+                                            "patience": 2, "refine": False}
     assert c["settings"]["shift_tolerance"] == cfg["calibration"].get("shift_tolerance", 0.0)
     # The spread keeps the drape-coefficient scatter L * slope of the fitted stretching (where L is defined).
     g, L = out["posterior"]["bend"]["global_log_std"], cfg["calibration"]["drape_log_sd"]
@@ -484,6 +484,22 @@ def test_node_search_steps_stop_rules():
     # Too many nodes: the stretching goes down; a stretching that does not drape (None) ends the search.
     assert run({0: 9.0, -1: 8.2, -2: 7.3}) == [-1, -2]
     assert run({0: 9.0, -1: 8.2, -2: None}) == [-1]
+
+
+def test_node_search_refinement_bisects_a_bracketing_octave():
+    # signed: predictive mean nodes - observed per log2 stretching; tolerance 0.4.
+    mid = infer._bracket_midpoint
+    # Fabric 5 (calibrated, 7 observed): x4 6.5, x8 6.5, x16 7.75: the half-octave between x8 and x16.
+    assert mid({0: -1.4, 1: -1.1, 2: -0.5, 3: -0.5, 4: 0.75}, 0.4) == 3.5
+    # No bracket (all below), or a neighbour within tolerance: nothing to refine.
+    assert mid({0: -1.4, 1: -1.1, 2: -0.5}, 0.4) is None
+    assert mid({0: -1.0, 1: 0.3}, 0.4) is None
+    assert mid({0: 0.5}, 0.4) is None
+    # Going down in stretching (too many nodes), and of two brackets the one with the smaller gaps.
+    assert mid({0: 1.2, -1: 0.9, -2: -0.6}, 0.4) == -1.5
+    assert mid({0: -0.5, 1: 1.0, 2: -2.0}, 0.4) == 0.5
+    # Octaves not adjacent (a stretching that did not drape in between) are not bracketed.
+    assert mid({0: -0.8, 2: 0.8}, 0.4) is None
 
 
 def test_global_log_std_scales_whole_draws_and_bad_values_are_rejected():
