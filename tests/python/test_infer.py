@@ -300,6 +300,9 @@ def test_shipped_presets_load_and_carry_their_settings_and_evaluation():
     folder = os.path.join(ROOT, "assets", "presets")
     names = sorted(f for f in os.listdir(folder) if f.endswith("_bdp.json"))
     assert len(names) == 15  # fabrics 1-5 and 11-20 of the shared data
+    cal = infer.load_config()["calibration"]
+    current = {"draws": cal["draws"], "iterations": cal["iterations"], "log_step": cal["log_step"],
+               "shift_tolerance": cal["shift_tolerance"], "node_search": dict(cal["node_search"])}
     for name in names:
         preset = infer.load_preset(os.path.join(folder, name))
         assert preset["model"] == "bdp", name
@@ -321,6 +324,8 @@ def test_shipped_presets_load_and_carry_their_settings_and_evaluation():
         # Node search done, on the calibration's mesh, which the predictive (evaluate, garments) drapes.
         assert c["stretch_scale"] > 0 and c["mesh_level"] == preset["simulation"]["mesh_level"] == 3, name
         assert any(e["stretch_scale"] == c["stretch_scale"] for e in c["evaluated"]), name
+        # Calibrated with the shipped fit.json's settings (a change of them means re-calibrating the presets).
+        assert c["settings"] == current, name
         # Provenance names the training image from the repository, and the shared dataset's file is that image.
         for image in preset["provenance"]["images"]:
             assert not os.path.isabs(image["path"]) and image["path"].startswith("../shared/data/cusick/"), name
