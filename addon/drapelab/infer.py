@@ -750,8 +750,9 @@ def calibrate_preset(preset, images, seed=0, threads=None, template_dir=None, co
     ...), "stretch_scale", "bend_scale" (exp of the log shift), "dc", "dc_sd", "nodes", "dc_observed",
     "nodes_observed", "seconds" (since the calibration began)}: one per entry of the record's "evaluated".
     Returns a new preset with the shifted log_mean, global_log_std, the scaled stretching and a "calibration"
-    record (what was measured, every set of drapes in "evaluated", and the fit.json settings used in "settings"). A preset that was calibrated before is first taken back to its fit (shift, stretching scale and mesh
-    level undone): calibrating is idempotent."""
+    record (what was measured, every set of drapes in "evaluated", and the fit.json settings used in "settings").
+    A preset that was calibrated before is first taken back to its fit (shift, stretching scale and mesh level
+    undone): calibrating is idempotent."""
     preset = validate_preset(json.loads(json.dumps(preset)))
     if preset["model"] != "bdp":
         raise InputError(f"calibrate: only a bdp posterior is calibrated (this preset is {preset['model']!r})")
@@ -777,6 +778,8 @@ def calibrate_preset(preset, images, seed=0, threads=None, template_dir=None, co
     if not (lo_s <= 0 <= hi_s) or not tolerance > 0 or patience < 1:
         raise InputError("fit.json calibration.node_search: need min_log2 <= 0 <= max_log2, tolerance > 0 and "
                          "patience >= 1")
+    search_settings = {"enabled": bool(search.get("enabled", False)), "min_log2": lo_s, "max_log2": hi_s,
+                       "tolerance": tolerance, "patience": patience, "refine": refine}
     if not search.get("enabled", False):
         lo_s = hi_s = 0
     iterations = int(opts.get("iterations", 2))
@@ -912,10 +915,8 @@ def calibrate_preset(preset, images, seed=0, threads=None, template_dir=None, co
         "drape_log_sd": spread, "global_log_std": g,
         "nodes_observed": observed_nodes, "nodes_predicted_before": before[2], "nodes_predicted": nodes,
         "stretch_scale": 2.0 ** s, "mesh_level": level, "fit_mesh_level": fit_level,
-        "draws": k, "settings": {"draws": k, "iterations": iterations, "log_step": step, "shift_tolerance": shift_tolerance,
-                                 "node_search": {"enabled": bool(search.get("enabled", False)), "min_log2": lo_s,
-                                                 "max_log2": hi_s, "tolerance": tolerance, "patience": patience,
-                                                 "refine": refine}},
+        "draws": k, "settings": {"draws": k, "iterations": iterations, "log_step": step,
+                                 "shift_tolerance": shift_tolerance, "node_search": search_settings},
         "evaluated": [{"stretch_scale": 2.0 ** key[0], "log_scale_shift": key[1], "dc": v[0],
                                    "dc_sd": v[1], "nodes": v[2]} for key, v in sorted(evaluated.items())],
         "seconds": time.monotonic() - t0}

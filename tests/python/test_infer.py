@@ -431,6 +431,8 @@ def test_node_search_scales_the_stretching_towards_the_training_node_count(tmp_p
     cfg["calibration"]["node_search"]["enabled"] = False
     off = infer.calibrate_preset(out, [path], config=cfg, threads=2)
     assert off["calibration"]["stretch_scale"] == 1.0 and np.allclose(off["stretch_N_m"], stretch0)
+    assert off["calibration"]["settings"]["node_search"]["enabled"] is False  # recorded as configured
+    assert off["calibration"]["settings"]["node_search"]["max_log2"] == 3
     cfg["calibration"]["node_search"] = {"enabled": True, "min_log2": 1, "max_log2": 3}
     with pytest.raises(infer.InputError, match="node_search"):
         infer.calibrate_preset(out, [path], config=cfg)
