@@ -364,11 +364,10 @@ def child_render(task):
 
 def fit_density():
     """The bundled image's area density (kg/m^2) from assets/cusick/manifest.csv."""
-    import csv
-    with open(os.path.join(_ROOT, "assets", "cusick", "manifest.csv"), newline="") as f:
-        for row in csv.DictReader(f):
-            if row["silhouette"] == FIT_IMAGE_NAME:
-                return float(row["density_kg_m2"])
+    from .. import measure
+    for row in measure.load_manifest(os.path.join(_ROOT, "assets", "cusick", "manifest.csv")):
+        if os.path.normpath(row["silhouette"]) == os.path.normpath(FIT_IMAGE):
+            return float(row["density_kg_m2"])
     raise ValueError(f"assets/cusick/manifest.csv: no row for {FIT_IMAGE_NAME}")
 
 
