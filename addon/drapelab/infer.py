@@ -170,7 +170,9 @@ class _Observation:
         c = sil.calibration
         self.calibration = {"px_per_m": float(c.px_per_m), "centre_px": [float(c.cx), float(c.cy)]}
         self.dc = float(measure.drape_coefficient(self.mask, c.px_per_m))
-        self.nodes = int(measure.node_count(measure.r_theta(self.mask, c)))
+        nodes = measure.analyse_nodes(measure.r_theta(self.mask, c))
+        self.nodes = int(nodes.count)
+        self.amplitude = float(nodes.amplitude_m)
         with open(path, "rb") as f:
             self.sha256 = hashlib.sha256(f.read()).hexdigest()
 
@@ -979,9 +981,9 @@ def _drape_draws(models, stretch, draws, fwd, mode_opts, placement, seed, camera
                 shapes[i] = {"error": str(e)}
                 continue
             img = _hard_image(camera, x, m.faces)
-            r = measure.r_theta(img, cal_obj)
+            nodes = measure.analyse_nodes(measure.r_theta(img, cal_obj))
             shapes[i] = {"x": x, "image": img, "dc": measure.drape_coefficient(img, cal_obj.px_per_m),
-                         "nodes": measure.node_count(r)}
+                         "nodes": nodes.count, "amplitude": nodes.amplitude_m}
             with lock:
                 done[0] += 1
                 if progress:
@@ -1012,8 +1014,10 @@ def evaluate(preset_or_path, images, meshes=None, samples=None, seed=0, threads=
     the flat rest state (the paper's protocol: the same draws serve every test image) and reports, per image:
     best-of-N pixel `mse` and `iou` (hard silhouettes), `mse_best_of` (best of the first 1, 10, 100, ... draws
     and of all N), `hausdorff_m` of the best sample's mesh to the given mesh, the drape coefficient (observed,
-    posterior-predictive mean, 90 % interval) and the node count (observed, predictive mode). `mean` averages
-    them and gives coverage fractions.
+    posterior-predictive mean, 90 % interval), the node count (observed, predictive mode) and the node amplitude
+    (half the mean peak-to-trough depth of the folds; observed, predictive mean, 90 % interval: how deep the model's
+    folds are against the measured ones). `mean` averages them and gives coverage fractions and the signed
+    amplitude bias (predicted mean - observed; < 0: the model's folds are shallower than the measured ones).
     """
     preset = load_preset(preset_or_path) if isinstance(preset_or_path, (str, os.PathLike)) else validate_preset(preset_or_path)
     config = config or load_config()
@@ -1040,6 +1044,8 @@ def evaluate(preset_or_path, images, meshes=None, samples=None, seed=0, threads=
     values, counts = np.unique(nodes, return_counts=True)
     node_mode = int(values[np.argmax(counts)])
     lo, hi = (float(v) for v in np.percentile(dcs, [5, 95]))
+    amps = np.array([s["amplitude"] for s in shapes])
+    amp_lo, amp_hi = (float(v) for v in np.percentile(amps, [5, 95]))
     per_image = []
     for k, o in enumerate(observations):
         mses = np.array([measure.pixel_mse(s["image"], o.mask) for s in shapes])
@@ -1048,7 +1054,9 @@ def evaluate(preset_or_path, images, meshes=None, samples=None, seed=0, threads=
                  "best_sample": best, "mse_best_of": _best_of_curve(mses),
                  "drape_coefficient": {"observed": o.dc, "predicted_mean": float(dcs.mean()),
                                        "interval90": [lo, hi]},
-                 "node_count": {"observed": o.nodes, "predicted_mode": node_mode}}
+                 "node_count": {"observed": o.nodes, "predicted_mode": node_mode},
+                 "node_amplitude_m": {"observed": o.amplitude, "predicted_mean": float(amps.mean()),
+                                      "interval90": [amp_lo, amp_hi]}}
         if meshes:
             entry["hausdorff_m"] = float(measure.hausdorff_distance((shapes[best]["x"], predictive.models[0].faces), meshes[k]))
         per_image.append(entry)
@@ -1058,7 +1066,11 @@ def evaluate(preset_or_path, images, meshes=None, samples=None, seed=0, threads=
                                            for e in per_image])),
             "dc_coverage90": float(np.mean([lo <= e["drape_coefficient"]["observed"] <= hi for e in per_image])),
             "node_within1": float(np.mean([abs(e["node_count"]["predicted_mode"] - e["node_count"]["observed"]) <= 1
-                                           for e in per_image]))}
+                                           for e in per_image])),
+            "amplitude_bias_m": float(np.mean([e["node_amplitude_m"]["predicted_mean"] - e["node_amplitude_m"]["observed"]
+                                               for e in per_image])),
+            "amplitude_coverage90": float(np.mean([amp_lo <= e["node_amplitude_m"]["observed"] <= amp_hi
+                                                   for e in per_image]))}
     mean["mse_best_of"] = {key: float(np.mean([e["mse_best_of"][key] for e in per_image]))
                            for key in per_image[0]["mse_best_of"]}
     if meshes:

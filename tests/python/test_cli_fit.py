@@ -43,8 +43,10 @@ def test_fit_then_evaluate_writes_a_calibrated_preset_and_the_evaluation_json(tm
     assert entry["image"] == IMAGE
     lo, hi = entry["drape_coefficient"]["interval90"]
     assert lo <= entry["drape_coefficient"]["predicted_mean"] <= hi
-    assert set(result["mean"]) >= {"mse", "iou", "dc_abs_error", "dc_coverage90", "node_within1"}
+    assert set(result["mean"]) >= {"mse", "iou", "dc_abs_error", "dc_coverage90", "node_within1", "amplitude_bias_m",
+                                   "amplitude_coverage90"}
     assert np.isfinite(result["mean"]["mse"])
+    assert f"node amplitude bias {1000 * result['mean']['amplitude_bias_m']:+.1f} mm" in capsys.readouterr().out
 
 
 def test_fit_with_bad_density_fails_cleanly_and_writes_nothing(tmp_path, capsys):

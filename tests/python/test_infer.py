@@ -215,6 +215,15 @@ def test_preset_round_trip_and_nan_preset_rejected(tmp_path):
     lo, hi = entry["drape_coefficient"]["interval90"]
     assert lo <= entry["drape_coefficient"]["predicted_mean"] <= hi
     assert set(result["mean"]) >= {"mse", "iou", "dc_abs_error", "dc_coverage90", "node_within1"}
+    # the node amplitude (fold depth) diagnostic: observed as measure reads the image, predicted over the draws
+    amp = entry["node_amplitude_m"]
+    mask = np.asarray(measure.load_silhouette(ASSET_IMAGE, None).mask, dtype=float)
+    assert amp["observed"] == pytest.approx(measure.node_amplitude(measure.r_theta(mask)))
+    assert 0.001 < amp["observed"] < 0.05
+    lo, hi = amp["interval90"]
+    assert 0 < lo <= amp["predicted_mean"] <= hi < 0.05
+    assert result["mean"]["amplitude_bias_m"] == pytest.approx(amp["predicted_mean"] - amp["observed"])
+    assert result["mean"]["amplitude_coverage90"] == float(lo <= amp["observed"] <= hi)
 
 
 def test_loss_gradient_with_drape_coefficient_term_on_the_dynamic_forward():

@@ -3,8 +3,10 @@ posterior-predictive evaluation of a preset on test silhouettes.
 
 Per image (meshes pair with images in order): best-of-N pixel mse and iou, hausdorff_m (best sample, when a
 mesh is given), drape_coefficient {observed, predicted_mean, interval90}, node_count {observed,
-predicted_mode}. "mean" averages mse, iou, hausdorff_m, dc_abs_error and gives dc_coverage90 and
-node_within1. N defaults to 1000 for bdp (1 for the deterministic homo/heter).
+predicted_mode}, node_amplitude_m {observed, predicted_mean, interval90}. "mean" averages mse, iou, hausdorff_m,
+dc_abs_error and gives dc_coverage90, node_within1, amplitude_bias_m (predicted - observed node amplitude: < 0,
+the model's folds are shallower than the measured) and amplitude_coverage90. N defaults to 1000 for bdp (1 for
+the deterministic homo/heter).
 """
 
 
@@ -38,6 +40,7 @@ def run(args):
     m = result["mean"]
     line = f"{result['model']} N={result['samples']}: MSE {m['mse']:.4f}  IoU {m['iou']:.4f}  |dDC| {m['dc_abs_error']:.3f}  " \
            f"DC coverage90 {m['dc_coverage90']:.2f}  nodes within 1 {m['node_within1']:.2f}"
+    line += f"  node amplitude bias {1000 * m['amplitude_bias_m']:+.1f} mm"
     if "hausdorff_m" in m:
         line += f"  Hausdorff {m['hausdorff_m']:.4f} m"
     print(line)
