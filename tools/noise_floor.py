@@ -1,18 +1,26 @@
 #!/usr/bin/python3
 """The protocol's metrics between real drapes: what best-of-N against another drape of the same fabric gives.
 
-    tools/noise_floor.py [--fabrics 1,2,3,4,5] [--json OUT]
+    tools/noise_floor.py [--fabrics 1,2,3,4,5] [--best-of-k] [--json OUT]
 
 For each fabric, the capture-1 samples (12 for fabrics 1-5): for every sample, the pixel MSE (hard silhouettes
 as `evaluate` loads them, all 256 x 256 pixels) and the symmetric Hausdorff distance (vertex-to-surface, m,
 measure.hausdorff_distance, as `evaluate`) to each other sample; reported: the mean over samples of the best
 of the other 11 ("nearest") and the median over pairs. A model's best-of-N figures compare with these: a real
 re-drape of the fabric, picked as the closest of 11, is this far from a test drape.
+
+--best-of-k adds the real drapes' best-of-k curve, to read beside `evaluate`'s `mse_best_of` (a model's best of
+its first k draws): for each of the protocol's test drapes (capture 1 of every sample but the paper's training
+sample), the expected best pixel MSE among k real drapes drawn at random (without replacement, exactly, not by
+sampling) from (a) every capture of the fabric's other samples, neither the test's nor the training sample ("redrapes": what a perfect generative model of
+the fabric would give with k draws) and (b) the captures of the training sample only ("training_sample": a
+perfect model of that one sample, all a single training image can tell).
 Run with ./drapelab's environment: `PYTHONPATH=addon:build/python tools/noise_floor.py`.
 """
 import argparse
 import csv
 import json
+import math
 import os
 import sys
 
@@ -50,19 +58,67 @@ def floor(fabric, data=DATA):
     return out
 
 
+def expected_best_of(values, k):
+    """Expected minimum of k values drawn without replacement from `values` (exact: the i-th smallest of m is the
+    minimum with probability C(m - i, k - 1) / C(m, k), i = 1..m)."""
+    v = np.sort(np.asarray(values, dtype=float))
+    m = len(v)
+    if not 1 <= k <= m:
+        raise ValueError(f"expected_best_of: k must be in 1..{m}, got {k}")
+    p = np.array([math.comb(m - i, k - 1) for i in range(1, m + 1)], dtype=float) / math.comb(m, k)
+    return float(p @ v)
+
+
+def best_of_k_curve(fabric, training_sample, ks=(1, 2, 5, 10, 20, 40), data=DATA):
+    """Best-of-k pixel MSE of real drapes against the protocol's test drapes (see the module docstring)."""
+    with open(os.path.join(data, "manifest.csv")) as f:
+        rows = [r for r in csv.DictReader(f) if int(r["fabric"]) == fabric]
+    masks = {(int(r["sample"]), int(r["capture"])):
+             measure.load_silhouette(os.path.join(data, r["silhouette"])).mask.astype(np.float64) for r in rows}
+    tests = sorted(k for k in masks if k[1] == 1 and k[0] != training_sample)
+    own = sorted(k for k in masks if k[0] == training_sample)
+    if not tests or not own:
+        raise SystemExit(f"noise_floor: fabric {fabric} needs capture-1 test samples and captures of training "
+                         f"sample {training_sample}")
+    redrapes, trained = [], []
+    for t in tests:
+        others = [k for k in masks if k[0] != t[0] and k[0] != training_sample]
+        redrapes.append([measure.pixel_mse(masks[t], masks[k]) for k in others])
+        trained.append([measure.pixel_mse(masks[t], masks[k]) for k in own])
+    pool = min(len(r) for r in redrapes)
+    return {"fabric": fabric, "training_sample": training_sample, "tests": len(tests),
+            "redrapes": {"pool": pool, "best_of": {str(k): float(np.mean([expected_best_of(r, k) for r in redrapes]))
+                                                   for k in ks if k <= pool}},
+            "training_sample_captures": {"pool": len(own), "best_of": {
+                str(k): float(np.mean([expected_best_of(r, k) for r in trained])) for k in range(1, len(own) + 1)}}}
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--fabrics", default="1,2,3,4,5")
+    ap.add_argument("--best-of-k", action="store_true",
+                    help="also the real drapes' best-of-k curves against the protocol's test drapes")
     ap.add_argument("--json", default=None)
     args = ap.parse_args()
-    per = [floor(int(f)) for f in args.fabrics.split(",")]
+    fabrics = [int(f) for f in args.fabrics.split(",")]
+    per = [floor(f) for f in fabrics]
     keys = [k for k in per[0] if k not in ("fabric", "samples")]
     mean = {k: float(np.mean([p[k] for p in per if k in p])) for k in keys}
     for p in per:
         print(p["fabric"], " ".join(f"{k} {p[k]:.4f}" for k in keys if k in p))
     print("mean", " ".join(f"{k} {v:.4f}" for k, v in mean.items()))
+    result = {"fabrics": per, "mean": mean}
+    if args.best_of_k:
+        sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+        from paper_protocol import TRAINING_SAMPLE
+        curves = [best_of_k_curve(f, TRAINING_SAMPLE[f]) for f in fabrics]
+        for c in curves:
+            print(c["fabric"], "redrapes best-of-k", " ".join(f"{k}:{v:.4f}" for k, v in c["redrapes"]["best_of"].items()),
+                  "| training sample's captures", " ".join(f"{k}:{v:.4f}"
+                                                           for k, v in c["training_sample_captures"]["best_of"].items()))
+        result["best_of_k"] = curves
     if args.json:
-        measure.write_json(args.json, {"fabrics": per, "mean": mean})
+        measure.write_json(args.json, result)
 
 
 if __name__ == "__main__":

@@ -570,3 +570,37 @@ def test_noise_floor_takes_the_best_other_drape(tmp_path):
     assert out["hausdorff_m_nearest"] == pytest.approx(0.0, abs=1e-12)  # the same mesh for all three
     with pytest.raises(SystemExit, match="fabric 8"):
         tool.floor(8, data=str(tmp_path))
+
+
+def test_noise_floor_best_of_k_curves_are_exact_expectations(tmp_path):
+    import importlib.util
+    import itertools
+    import shutil
+    spec = importlib.util.spec_from_file_location("noise_floor", os.path.join(ROOT, "tools", "noise_floor.py"))
+    tool = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(tool)
+    values = [0.3, 0.1, 0.4, 0.2, 0.5]
+    for k in range(1, 6):  # against enumerating every k-subset
+        brute = np.mean([min(c) for c in itertools.combinations(values, k)])
+        assert tool.expected_best_of(values, k) == pytest.approx(brute)
+    with pytest.raises(ValueError):
+        tool.expected_best_of(values, 6)
+    src = os.path.join(ROOT, "assets", "cusick")
+    a, b = "fabric_02/silhouettes/sample_02_capture_1.jpg", "fabric_05/silhouettes/sample_01_capture_1.jpg"
+    for rel in (a, b):
+        os.makedirs(os.path.dirname(tmp_path / rel), exist_ok=True)
+        shutil.copy(os.path.join(src, rel), tmp_path / rel)
+    # training sample 1 (captures a, b); test samples 2 (a) and 3 (b), sample 3 also re-draped as a
+    rows = ["fabric,name,material,weave,density_kg_m2,thickness_mm,sample,capture,silhouette,mesh"]
+    rows += [f"7,X,Cotton,Plain,0.2,0.3,{s},{c},{img}," for s, c, img in
+             ((1, 1, a), (1, 2, b), (2, 1, a), (3, 1, b), (3, 2, a))]
+    (tmp_path / "manifest.csv").write_text("\n".join(rows) + "\n")
+    m = float(np.mean((measure.load_silhouette(str(tmp_path / a)).mask.astype(float)
+                       - measure.load_silhouette(str(tmp_path / b)).mask.astype(float)) ** 2))
+    out = tool.best_of_k_curve(7, 1, ks=(1, 2, 5), data=str(tmp_path))
+    assert out["tests"] == 2
+    # test 2 (a) against sample 3's (b, a): 1: m/2, 2: 0; test 3 (b) against sample 2's (a): m; k = 5 > pool: left out
+    assert out["redrapes"]["pool"] == 1
+    assert out["redrapes"]["best_of"] == pytest.approx({"1": (m / 2 + m) / 2})
+    # both tests against the training sample's (a, b): one of each, best of 2 is 0
+    assert out["training_sample_captures"]["best_of"] == pytest.approx({"1": m / 2, "2": 0.0})
