@@ -18,7 +18,6 @@ perfect model of that one sample, all a single training image can tell).
 Run with ./drapelab's environment: `PYTHONPATH=addon:build/python tools/noise_floor.py`.
 """
 import argparse
-import csv
 import json
 import math
 import os
@@ -33,14 +32,21 @@ from drapelab import measure  # noqa: E402
 DATA = os.path.join(ROOT, "..", "shared", "data", "cusick")
 
 
+def fabric_rows(fabric, data=DATA):
+    """The fabric's rows of the dataset's manifest (measure.load_manifest: typed, paths resolved)."""
+    return [r for r in measure.load_manifest(os.path.join(data, "manifest.csv")) if r["fabric"] == fabric]
+
+
+def load_mask(row):
+    return measure.load_silhouette(row["silhouette"]).mask.astype(np.float64)
+
+
 def floor(fabric, data=DATA):
-    with open(os.path.join(data, "manifest.csv")) as f:
-        rows = sorted((r for r in csv.DictReader(f) if int(r["fabric"]) == fabric and r["capture"] == "1"),
-                      key=lambda r: int(r["sample"]))
+    rows = sorted((r for r in fabric_rows(fabric, data) if r["capture"] == 1), key=lambda r: r["sample"])
     if len(rows) < 2:
         raise SystemExit(f"noise_floor: fabric {fabric} has {len(rows)} capture-1 samples; need 2 or more")
-    masks = [measure.load_silhouette(os.path.join(data, r["silhouette"])).mask.astype(np.float64) for r in rows]
-    meshes = [os.path.join(data, r["mesh"]) if r["mesh"] else None for r in rows]
+    masks = [load_mask(r) for r in rows]
+    meshes = [r["mesh"] for r in rows]
     n = len(rows)
     mse = np.full((n, n), np.inf)
     haus = np.full((n, n), np.inf)
@@ -71,10 +77,7 @@ def expected_best_of(values, k):
 
 def best_of_k_curve(fabric, training_sample, ks=(1, 2, 5, 10, 20, 40), data=DATA):
     """Best-of-k pixel MSE of real drapes against the protocol's test drapes (see the module docstring)."""
-    with open(os.path.join(data, "manifest.csv")) as f:
-        rows = [r for r in csv.DictReader(f) if int(r["fabric"]) == fabric]
-    masks = {(int(r["sample"]), int(r["capture"])):
-             measure.load_silhouette(os.path.join(data, r["silhouette"])).mask.astype(np.float64) for r in rows}
+    masks = {(r["sample"], r["capture"]): load_mask(r) for r in fabric_rows(fabric, data)}
     tests = sorted(k for k in masks if k[1] == 1 and k[0] != training_sample)
     own = sorted(k for k in masks if k[0] == training_sample)
     if not tests or not own:
