@@ -14,7 +14,10 @@ its first k draws): for each of the protocol's test drapes (capture 1 of every s
 sample), the expected best pixel MSE among k real drapes drawn at random (without replacement, exactly, not by
 sampling) from (a) every capture of the fabric's other samples, neither the test's nor the training sample ("redrapes": what a perfect generative model of
 the fabric would give with k draws) and (b) the captures of the training sample only ("training_sample": a
-perfect model of that one sample, all a single training image can tell).
+perfect model of that one sample, all a single training image can tell). The Hausdorff distance likewise
+("hausdorff_m_redrapes", capture-1 meshes of the other samples only: the dataset has no meshes of later captures):
+"best_of" the expected smallest among k, "at_best_mse_of" that of the draw with the best pixel MSE among k, as
+`evaluate` picks its best sample.
 Run with ./drapelab's environment: `PYTHONPATH=addon:build/python tools/noise_floor.py`.
 """
 import argparse
@@ -71,8 +74,24 @@ def expected_best_of(values, k):
     m = len(v)
     if not 1 <= k <= m:
         raise ValueError(f"expected_best_of: k must be in 1..{m}, got {k}")
-    p = np.array([math.comb(m - i, k - 1) for i in range(1, m + 1)], dtype=float) / math.comb(m, k)
-    return float(p @ v)
+    return float(_minimum_probabilities(m, k) @ v)
+
+
+def expected_at_best_of(select, report, k):
+    """Expected `report` value of the draw with the smallest `select` value among k drawn without replacement
+    (as expected_best_of, `report` taken in `select`'s order): evaluate's Hausdorff is that of its best-MSE draw."""
+    select, report = np.asarray(select, dtype=float), np.asarray(report, dtype=float)
+    if select.shape != report.shape:
+        raise ValueError(f"expected_at_best_of: {select.shape} select values for {report.shape} report values")
+    m = len(select)
+    if not 1 <= k <= m:
+        raise ValueError(f"expected_at_best_of: k must be in 1..{m}, got {k}")
+    return float(_minimum_probabilities(m, k) @ report[np.argsort(select, kind="stable")])
+
+
+def _minimum_probabilities(m, k):
+    """P(the i-th smallest of m is the minimum of a random k-subset) = C(m - i, k - 1) / C(m, k), i = 1..m."""
+    return np.array([math.comb(m - i, k - 1) for i in range(1, m + 1)], dtype=float) / math.comb(m, k)
 
 
 def best_of_k_curve(fabric, training_sample, ks=(1, 2, 5, 10, 20, 40), data=DATA):
@@ -89,11 +108,30 @@ def best_of_k_curve(fabric, training_sample, ks=(1, 2, 5, 10, 20, 40), data=DATA
         redrapes.append([measure.pixel_mse(masks[t], masks[k]) for k in others])
         trained.append([measure.pixel_mse(masks[t], masks[k]) for k in own])
     pool = min(len(r) for r in redrapes)
-    return {"fabric": fabric, "training_sample": training_sample, "tests": len(tests),
+    out = {"fabric": fabric, "training_sample": training_sample, "tests": len(tests),
             "redrapes": {"pool": pool, "best_of": {str(k): float(np.mean([expected_best_of(r, k) for r in redrapes]))
                                                    for k in ks if k <= pool}},
             "training_sample_captures": {"pool": len(own), "best_of": {
                 str(k): float(np.mean([expected_best_of(r, k) for r in trained])) for k in range(1, len(own) + 1)}}}
+    # Hausdorff: only capture 1 has meshes, so the pool is the other samples' capture-1 drapes.
+    meshes = {r["sample"]: r["mesh"] for r in fabric_rows(fabric, data) if r["capture"] == 1 and r["mesh"]}
+    if all(t[0] in meshes for t in tests):
+        by_mse, best = [], []
+        for t in tests:
+            others = sorted(s for s in meshes if s != t[0] and s != training_sample)
+            if not others:
+                continue
+            mse = [measure.pixel_mse(masks[t], masks[(s, 1)]) for s in others]
+            haus = [measure.hausdorff_distance(meshes[t[0]], meshes[s]) for s in others]
+            by_mse.append((mse, haus))
+        if by_mse:
+            pool = min(len(m) for m, _ in by_mse)
+            out["hausdorff_m_redrapes"] = {
+                "pool": pool,
+                "best_of": {str(k): float(np.mean([expected_best_of(h, k) for _, h in by_mse])) for k in ks if k <= pool},
+                "at_best_mse_of": {str(k): float(np.mean([expected_at_best_of(m, h, k) for m, h in by_mse]))
+                                   for k in ks if k <= pool}}
+    return out
 
 
 def main():
@@ -119,6 +157,10 @@ def main():
             print(c["fabric"], "redrapes best-of-k", " ".join(f"{k}:{v:.4f}" for k, v in c["redrapes"]["best_of"].items()),
                   "| training sample's captures", " ".join(f"{k}:{v:.4f}"
                                                            for k, v in c["training_sample_captures"]["best_of"].items()))
+            if "hausdorff_m_redrapes" in c:
+                h = c["hausdorff_m_redrapes"]
+                print(c["fabric"], "redrapes Hausdorff m best-of-k", " ".join(f"{k}:{v:.4f}" for k, v in h["best_of"].items()),
+                      "| at the best MSE of k", " ".join(f"{k}:{v:.4f}" for k, v in h["at_best_mse_of"].items()))
         result["best_of_k"] = curves
     if args.json:
         measure.write_json(args.json, result)

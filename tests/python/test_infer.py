@@ -604,3 +604,46 @@ def test_noise_floor_best_of_k_curves_are_exact_expectations(tmp_path):
     assert out["redrapes"]["best_of"] == pytest.approx({"1": (m / 2 + m) / 2})
     # both tests against the training sample's (a, b): one of each, best of 2 is 0
     assert out["training_sample_captures"]["best_of"] == pytest.approx({"1": m / 2, "2": 0.0})
+    assert "hausdorff_m_redrapes" not in out  # no meshes in this manifest
+
+
+def test_noise_floor_hausdorff_is_taken_at_the_best_mse_draw(tmp_path):
+    import importlib.util
+    import itertools
+    import shutil
+    spec = importlib.util.spec_from_file_location("noise_floor", os.path.join(ROOT, "tools", "noise_floor.py"))
+    tool = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(tool)
+    select, report = [0.3, 0.1, 0.4, 0.2, 0.5], [1.0, 2.0, 3.0, 4.0, 5.0]
+    for k in range(1, 6):  # against enumerating every k-subset: the report value of the subset's smallest select
+        brute = np.mean([report[min(c, key=lambda i: select[i])] for c in itertools.combinations(range(5), k)])
+        assert tool.expected_at_best_of(select, report, k) == pytest.approx(brute)
+    with pytest.raises(ValueError, match="report values"):
+        tool.expected_at_best_of(select, report[:4], 2)
+    src = os.path.join(ROOT, "assets", "cusick")
+    a, b = "fabric_02/silhouettes/sample_02_capture_1.jpg", "fabric_05/silhouettes/sample_01_capture_1.jpg"
+    mesh = "fabric_02/meshes/sample_02_capture_1.obj"
+    for rel in (a, b, mesh):
+        os.makedirs(os.path.dirname(tmp_path / rel), exist_ok=True)
+        shutil.copy(os.path.join(src, rel), tmp_path / rel)
+    lifted = "fabric_02/meshes/lifted.obj"  # the same drape 1 cm higher: another mesh at a known distance
+    with open(tmp_path / mesh) as f, open(tmp_path / lifted, "w") as g:
+        for line in f:
+            if line.startswith("v "):
+                x, y, z = (float(t) for t in line.split()[1:4])
+                line = f"v {x} {y} {z + 0.01}\n"
+            g.write(line)
+    # training sample 1; tests 2 (a, mesh), 3 (b, lifted), 4 (a, mesh); sample 4's silhouette equals sample 2's
+    rows = ["fabric,name,material,weave,density_kg_m2,thickness_mm,sample,capture,silhouette,mesh"]
+    rows += [f"7,X,Cotton,Plain,0.2,0.3,{s},1,{img},{m}" for s, img, m in
+             ((1, a, mesh), (2, a, mesh), (3, b, lifted), (4, a, mesh))]
+    (tmp_path / "manifest.csv").write_text("\n".join(rows) + "\n")
+    h = measure.hausdorff_distance(str(tmp_path / mesh), str(tmp_path / lifted))
+    assert 0.005 < h <= 0.0100001
+    out = tool.best_of_k_curve(7, 1, ks=(1, 2, 5), data=str(tmp_path))
+    haus = out["hausdorff_m_redrapes"]
+    assert haus["pool"] == 2
+    # test 2 against (3: lifted, 4: same) -> h, 0; test 3 against (2, 4): h, h; test 4 against (2: same, 3: lifted)
+    assert haus["best_of"] == pytest.approx({"1": 2 * h / 3, "2": h / 3})
+    # best of 2 by MSE picks the identical silhouette, which is the identical mesh here
+    assert haus["at_best_mse_of"] == pytest.approx({"1": 2 * h / 3, "2": h / 3})
