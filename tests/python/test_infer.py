@@ -647,3 +647,23 @@ def test_noise_floor_hausdorff_is_taken_at_the_best_mse_draw(tmp_path):
     assert haus["best_of"] == pytest.approx({"1": 2 * h / 3, "2": h / 3})
     # best of 2 by MSE picks the identical silhouette, which is the identical mesh here
     assert haus["at_best_mse_of"] == pytest.approx({"1": 2 * h / 3, "2": h / 3})
+
+
+def test_protocol_table_averages_over_fabrics_with_fold_depth_columns():
+    import importlib.util
+    spec = importlib.util.spec_from_file_location("paper_protocol", os.path.join(ROOT, "tools", "paper_protocol.py"))
+    tool = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(tool)
+    def row(mse, bias, cov, fit_s):
+        mean = {"mse": mse, "hausdorff_m": 0.02, "dc_abs_error": 0.03, "dc_coverage90": 1.0, "node_within1": 0.5}
+        if bias is not None:
+            mean.update(amplitude_bias_m=bias, amplitude_coverage90=cov)
+        return {"mean": mean, "samples": 100, "fit_seconds": fit_s}
+    lines = tool.table_lines({"bdp": {1: row(0.04, -0.002, 0.5, 100), 2: row(0.02, 0.001, 1.0, 200),
+                                      3: row(0.03, None, None, 300)}})
+    header = [c.strip() for c in lines[0].strip("|").split("|")]
+    cells = dict(zip(header, (c.strip() for c in lines[2].strip("|").split("|"))))
+    assert cells["model"] == "bdp" and cells["MSE (ours)"] == "0.0300" and cells["MSE (paper)"] == "0.0384"
+    # the row without the fold-depth fields (an older run) is left out of their means
+    assert cells["fold depth bias mm"] == "-0.5" and cells["fold depth 90% coverage"] == "0.75"
+    assert cells["samples"] == "100" and cells["fit s"] == "200" and len(lines) == 3
