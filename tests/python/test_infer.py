@@ -2,6 +2,7 @@
 import copy
 import hashlib
 import json
+import math
 import os
 import threading
 
@@ -667,3 +668,44 @@ def test_protocol_table_averages_over_fabrics_with_fold_depth_columns():
     # the row without the fold-depth fields (an older run) is left out of their means
     assert cells["fold depth bias mm"] == "-0.5" and cells["fold depth 90% coverage"] == "0.75"
     assert cells["samples"] == "100" and cells["fit s"] == "200" and len(lines) == 3
+
+
+def test_node_search_refinement_through_calibrate_preset(monkeypatch):
+    # calibrate_preset end to end with a stand-in for the drapes (the search's logic, not the simulator, is under
+    # test): the drape coefficient grows with the bending shift c (observed at c = 0.3), the node count with the
+    # stretching 2^s (observed - 2 + 1.3 s). The octaves x2 (-0.7) and x4 (+0.6) bracket the observed count, neither
+    # within tolerance 0.4: the refinement tries x2^1.5 (-0.05) and keeps it.
+    obs = infer._Observation(ASSET_IMAGE, None)
+    preset = _bdp_preset(tables.COTTON_BLUE.bend)
+    stretch0 = np.asarray(preset["stretch_N_m"], dtype=float)
+    base = {}
+    calls = []
+
+    def fake_drape(self, draws, seed, progress=None, cancel_event=None):
+        level = float(np.mean(np.log(draws)))
+        base.setdefault("level", level)  # the first set of drapes is at c = 0
+        c = level - base["level"]
+        s = math.log2(float(np.asarray(self.stretch)[0, 0] / stretch0[0, 0]))
+        calls.append((s, c))
+        k = len(draws)
+        return [{"dc": obs.dc + 0.25 * (c - 0.3) + 0.01 * (i - (k - 1) / 2), "nodes": obs.nodes - 2 + 1.3 * s}
+                for i in range(k)]
+
+    monkeypatch.setattr(infer._Predictive, "drape", fake_drape)
+    cfg = small_config()
+    cfg["calibration"]["node_search"] = {"enabled": True, "min_log2": -2, "max_log2": 3, "tolerance": 0.4,
+                                         "patience": 2, "refine": True}
+    c = infer.calibrate_preset(copy.deepcopy(preset), [ASSET_IMAGE], config=cfg, threads=1)["calibration"]
+    assert c["stretch_scale"] == pytest.approx(2 ** 1.5)
+    assert sorted({round(e["stretch_scale"], 6) for e in c["evaluated"]}) == \
+        [1.0, 2.0, round(2 ** 1.5, 6), 4.0]  # the search stops at the crossing; one half-octave
+    assert c["nodes_predicted"] == pytest.approx(obs.nodes - 0.05)
+    assert abs(c["log_scale_shift"] - 0.3) < 0.02 and abs(c["dc_predicted"] - obs.dc) < 0.005
+    assert c["settings"]["node_search"]["refine"] is True
+    # Without the refinement: x2 and x4 are within a quarter node of each other's gap (0.7, 0.6), so the smaller
+    # change of stretching, x2.
+    cfg["calibration"]["node_search"]["refine"] = False
+    base.clear()
+    out = infer.calibrate_preset(copy.deepcopy(preset), [ASSET_IMAGE], config=cfg, threads=1)
+    assert out["calibration"]["stretch_scale"] == 2.0
+    assert np.allclose(out["stretch_N_m"], stretch0 * 2.0)
