@@ -116,7 +116,7 @@ def best_of_k_curve(fabric, training_sample, ks=(1, 2, 5, 10, 20, 40), data=DATA
     # Hausdorff: only capture 1 has meshes, so the pool is the other samples' capture-1 drapes.
     meshes = {r["sample"]: r["mesh"] for r in fabric_rows(fabric, data) if r["capture"] == 1 and r["mesh"]}
     if all(t[0] in meshes for t in tests):
-        by_mse, best = [], []
+        by_mse = []
         for t in tests:
             others = sorted(s for s in meshes if s != t[0] and s != training_sample)
             if not others:
