@@ -96,34 +96,39 @@ def _minimum_probabilities(m, k):
 
 def best_of_k_curve(fabric, training_sample, ks=(1, 2, 5, 10, 20, 40), data=DATA):
     """Best-of-k pixel MSE of real drapes against the protocol's test drapes (see the module docstring)."""
-    masks = {(r["sample"], r["capture"]): load_mask(r) for r in fabric_rows(fabric, data)}
+    rows = fabric_rows(fabric, data)
+    masks = {(r["sample"], r["capture"]): load_mask(r) for r in rows}
     tests = sorted(k for k in masks if k[1] == 1 and k[0] != training_sample)
     own = sorted(k for k in masks if k[0] == training_sample)
     if not tests or not own:
         raise SystemExit(f"noise_floor: fabric {fabric} needs capture-1 test samples and captures of training "
                          f"sample {training_sample}")
-    redrapes, trained = [], []
+    redrapes, trained = {}, []  # redrapes[t]: {drape: pixel MSE to test drape t}
     for t in tests:
-        others = [k for k in masks if k[0] != t[0] and k[0] != training_sample]
-        redrapes.append([measure.pixel_mse(masks[t], masks[k]) for k in others])
+        redrapes[t] = {k: measure.pixel_mse(masks[t], masks[k]) for k in masks
+                       if k[0] != t[0] and k[0] != training_sample}
         trained.append([measure.pixel_mse(masks[t], masks[k]) for k in own])
-    pool = min(len(r) for r in redrapes)
+    pool = min(len(r) for r in redrapes.values())
     out = {"fabric": fabric, "training_sample": training_sample, "tests": len(tests),
-            "redrapes": {"pool": pool, "best_of": {str(k): float(np.mean([expected_best_of(r, k) for r in redrapes]))
+            "redrapes": {"pool": pool, "best_of": {str(k): float(np.mean([expected_best_of(list(r.values()), k)
+                                                                         for r in redrapes.values()]))
                                                    for k in ks if k <= pool}},
             "training_sample_captures": {"pool": len(own), "best_of": {
                 str(k): float(np.mean([expected_best_of(r, k) for r in trained])) for k in range(1, len(own) + 1)}}}
     # Hausdorff: only capture 1 has meshes, so the pool is the other samples' capture-1 drapes.
-    meshes = {r["sample"]: r["mesh"] for r in fabric_rows(fabric, data) if r["capture"] == 1 and r["mesh"]}
+    meshes = {r["sample"]: r["mesh"] for r in rows if r["capture"] == 1 and r["mesh"]}
     if all(t[0] in meshes for t in tests):
-        by_mse = []
+        by_mse, haus = [], {}  # haus: per pair of samples (symmetric), computed once
         for t in tests:
             others = sorted(s for s in meshes if s != t[0] and s != training_sample)
             if not others:
                 continue
-            mse = [measure.pixel_mse(masks[t], masks[(s, 1)]) for s in others]
-            haus = [measure.hausdorff_distance(meshes[t[0]], meshes[s]) for s in others]
-            by_mse.append((mse, haus))
+            for s in others:
+                pair = (min(s, t[0]), max(s, t[0]))
+                if pair not in haus:
+                    haus[pair] = measure.hausdorff_distance(meshes[pair[0]], meshes[pair[1]])
+            by_mse.append(([redrapes[t][(s, 1)] for s in others],
+                           [haus[(min(s, t[0]), max(s, t[0]))] for s in others]))
         if by_mse:
             pool = min(len(m) for m, _ in by_mse)
             out["hausdorff_m_redrapes"] = {
