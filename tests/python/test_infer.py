@@ -1,9 +1,11 @@
 """Fitting (drapelab.infer): KL and ELBO derivatives, a synthetic round trip, a short real fit, bad input."""
 import copy
 import hashlib
+import importlib.util
 import json
 import math
 import os
+import shutil
 import threading
 
 import numpy as np
@@ -534,11 +536,23 @@ def test_global_log_std_scales_whole_draws_and_bad_values_are_rejected():
             infer.validate_preset(preset)
 
 
-def test_drape_variability_pools_variances_over_fabrics():
-    import importlib.util
-    spec = importlib.util.spec_from_file_location("drape_variability", os.path.join(ROOT, "tools", "drape_variability.py"))
+def _tool(name):
+    """tools/<name>.py loaded as a module (the tools are scripts, not a package)."""
+    spec = importlib.util.spec_from_file_location(name, os.path.join(ROOT, "tools", f"{name}.py"))
     tool = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(tool)
+    return tool
+
+
+def _copy_assets(folder, *rels):
+    """Copies assets/cusick/<rel> to folder/<rel> (a hand-built dataset's files)."""
+    for rel in rels:
+        os.makedirs(os.path.dirname(folder / rel), exist_ok=True)
+        shutil.copy(os.path.join(ROOT, "assets", "cusick", rel), folder / rel)
+
+
+def test_drape_variability_pools_variances_over_fabrics():
+    tool = _tool("drape_variability")
     per = {1: [0.1, 0.3], 2: [0.5, 0.5, 0.5], 3: [0.7]}  # variances 0.02, 0 (fabric 3: one drape, ignored)
     assert tool.pooled_sd(per) == pytest.approx(np.sqrt(0.01))
     with pytest.raises(ValueError):
@@ -546,17 +560,10 @@ def test_drape_variability_pools_variances_over_fabrics():
 
 
 def test_noise_floor_takes_the_best_other_drape(tmp_path):
-    import importlib.util
-    import shutil
-    spec = importlib.util.spec_from_file_location("noise_floor", os.path.join(ROOT, "tools", "noise_floor.py"))
-    tool = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(tool)
-    src = os.path.join(ROOT, "assets", "cusick")
+    tool = _tool("noise_floor")
     a, b = "fabric_02/silhouettes/sample_02_capture_1.jpg", "fabric_05/silhouettes/sample_01_capture_1.jpg"
     mesh = "fabric_02/meshes/sample_02_capture_1.obj"
-    for rel in (a, b, mesh):
-        os.makedirs(os.path.dirname(tmp_path / rel), exist_ok=True)
-        shutil.copy(os.path.join(src, rel), tmp_path / rel)
+    _copy_assets(tmp_path, a, b, mesh)
     # Samples 1 and 2 are the same drape, sample 3 another: nearest 0, 0, m; pairs 0, m, m.
     rows = ["fabric,name,material,weave,density_kg_m2,thickness_mm,sample,capture,silhouette,mesh"]
     rows += [f"7,X,Cotton,Plain,0.2,0.3,{k},1,{img},{mesh}" for k, img in ((1, a), (2, a), (3, b))]
@@ -574,23 +581,16 @@ def test_noise_floor_takes_the_best_other_drape(tmp_path):
 
 
 def test_noise_floor_best_of_k_curves_are_exact_expectations(tmp_path):
-    import importlib.util
     import itertools
-    import shutil
-    spec = importlib.util.spec_from_file_location("noise_floor", os.path.join(ROOT, "tools", "noise_floor.py"))
-    tool = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(tool)
+    tool = _tool("noise_floor")
     values = [0.3, 0.1, 0.4, 0.2, 0.5]
     for k in range(1, 6):  # against enumerating every k-subset
         brute = np.mean([min(c) for c in itertools.combinations(values, k)])
         assert tool.expected_best_of(values, k) == pytest.approx(brute)
     with pytest.raises(ValueError):
         tool.expected_best_of(values, 6)
-    src = os.path.join(ROOT, "assets", "cusick")
     a, b = "fabric_02/silhouettes/sample_02_capture_1.jpg", "fabric_05/silhouettes/sample_01_capture_1.jpg"
-    for rel in (a, b):
-        os.makedirs(os.path.dirname(tmp_path / rel), exist_ok=True)
-        shutil.copy(os.path.join(src, rel), tmp_path / rel)
+    _copy_assets(tmp_path, a, b)
     # training sample 1 (captures a, b); test samples 2 (a) and 3 (b), sample 3 also re-draped as a
     rows = ["fabric,name,material,weave,density_kg_m2,thickness_mm,sample,capture,silhouette,mesh"]
     rows += [f"7,X,Cotton,Plain,0.2,0.3,{s},{c},{img}," for s, c, img in
@@ -609,24 +609,17 @@ def test_noise_floor_best_of_k_curves_are_exact_expectations(tmp_path):
 
 
 def test_noise_floor_hausdorff_is_taken_at_the_best_mse_draw(tmp_path):
-    import importlib.util
     import itertools
-    import shutil
-    spec = importlib.util.spec_from_file_location("noise_floor", os.path.join(ROOT, "tools", "noise_floor.py"))
-    tool = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(tool)
+    tool = _tool("noise_floor")
     select, report = [0.3, 0.1, 0.4, 0.2, 0.5], [1.0, 2.0, 3.0, 4.0, 5.0]
     for k in range(1, 6):  # against enumerating every k-subset: the report value of the subset's smallest select
         brute = np.mean([report[min(c, key=lambda i: select[i])] for c in itertools.combinations(range(5), k)])
         assert tool.expected_at_best_of(select, report, k) == pytest.approx(brute)
     with pytest.raises(ValueError, match="report values"):
         tool.expected_at_best_of(select, report[:4], 2)
-    src = os.path.join(ROOT, "assets", "cusick")
     a, b = "fabric_02/silhouettes/sample_02_capture_1.jpg", "fabric_05/silhouettes/sample_01_capture_1.jpg"
     mesh = "fabric_02/meshes/sample_02_capture_1.obj"
-    for rel in (a, b, mesh):
-        os.makedirs(os.path.dirname(tmp_path / rel), exist_ok=True)
-        shutil.copy(os.path.join(src, rel), tmp_path / rel)
+    _copy_assets(tmp_path, a, b, mesh)
     lifted = "fabric_02/meshes/lifted.obj"  # the same drape 1 cm higher: another mesh at a known distance
     with open(tmp_path / mesh) as f, open(tmp_path / lifted, "w") as g:
         for line in f:
@@ -651,10 +644,7 @@ def test_noise_floor_hausdorff_is_taken_at_the_best_mse_draw(tmp_path):
 
 
 def test_protocol_table_averages_over_fabrics_with_fold_depth_columns():
-    import importlib.util
-    spec = importlib.util.spec_from_file_location("paper_protocol", os.path.join(ROOT, "tools", "paper_protocol.py"))
-    tool = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(tool)
+    tool = _tool("paper_protocol")
     def row(mse, bias, cov, fit_s):
         mean = {"mse": mse, "hausdorff_m": 0.02, "dc_abs_error": 0.03, "dc_coverage90": 1.0, "node_within1": 0.5}
         if bias is not None:
