@@ -21,9 +21,9 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, os.path.join(ROOT, "addon"))
 import numpy as np  # noqa: E402
 
-from drapelab import measure  # noqa: E402
+from drapelab import measure, paths  # noqa: E402
 
-DATA = os.path.join(ROOT, "..", "shared", "data", "cusick")
+DATA = paths.cusick_dataset_dir()  # None when absent: main() says so
 CALIBRATION_FABRICS = tuple(range(11, 21))
 
 
@@ -65,6 +65,7 @@ def slopes(fabrics=CALIBRATION_FABRICS, data=DATA, presets=os.path.join(ROOT, "a
 
 
 def main():
+    paths.require_cusick_dataset()
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--fabrics", default=",".join(map(str, CALIBRATION_FABRICS)))
     ap.add_argument("--json", default=None)

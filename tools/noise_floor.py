@@ -30,9 +30,9 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, os.path.join(ROOT, "addon"))
 import numpy as np  # noqa: E402
 
-from drapelab import measure  # noqa: E402
+from drapelab import measure, paths  # noqa: E402
 
-DATA = os.path.join(ROOT, "..", "shared", "data", "cusick")
+DATA = paths.cusick_dataset_dir()  # None when absent: main() says so
 
 
 def fabric_rows(fabric, data=DATA):
@@ -140,6 +140,7 @@ def best_of_k_curve(fabric, training_sample, ks=(1, 2, 5, 10, 20, 40), data=DATA
 
 
 def main():
+    paths.require_cusick_dataset()
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--fabrics", default="1,2,3,4,5")
     ap.add_argument("--best-of-k", action="store_true",

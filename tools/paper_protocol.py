@@ -26,9 +26,9 @@ import time
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, os.path.join(ROOT, "addon"))
-from drapelab import infer, measure  # noqa: E402
+from drapelab import infer, measure, paths  # noqa: E402
 
-DATA = os.path.join(ROOT, "..", "shared", "data", "cusick")
+DATA = paths.cusick_dataset_dir()  # None when absent: main() says so
 TRAINING_SAMPLE = {1: 5, 2: 2, 3: 1, 4: 4, 5: 2}
 PAPER = {"homo": (0.0572, 0.0340), "heter": (0.0551, 0.0328), "bdp": (0.0384, 0.0217)}
 
@@ -152,6 +152,7 @@ def presets(args):
 
 
 def main():
+    paths.require_cusick_dataset()
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("what", choices=["table", "presets"])
     ap.add_argument("--models", default="homo,heter,bdp")

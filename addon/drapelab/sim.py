@@ -28,7 +28,7 @@ import threading
 
 import numpy as np
 
-from . import tables
+from . import paths, tables
 from ._native import Cancelled, InputError, SolverError, native
 
 __all__ = [
@@ -54,9 +54,8 @@ TABLE_SHAPES = {"stretch": tables.STRETCH_SHAPE, "bend": tables.BEND_SHAPE}
 
 # ---------------------------------------------------------------- meshes
 def default_template_dir():
-    """$DRAPELAB_ROOT/../shared/data/cusick/template_meshes (repository root from this file if unset)."""
-    root = os.environ.get("DRAPELAB_ROOT") or os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..")
-    return os.path.normpath(os.path.join(root, "..", "shared", "data", "cusick", "template_meshes"))
+    """The bundled Cusick template meshes (``paths.template_dir()``: assets/cusick/template_meshes)."""
+    return paths.template_dir()
 
 
 def _level(level):
@@ -66,7 +65,7 @@ def _level(level):
 
 
 def cusick_template_path(level, template_dir=None):
-    """Path of the dataset's circle{level}.obj when present in the template folder, else None."""
+    """Path of circle{level}.obj in the template folder (default: the bundled one) when present, else None."""
     folder = default_template_dir() if template_dir is None else os.fspath(template_dir)
     path = os.path.join(folder, f"circle{_level(level)}.obj")
     return path if os.path.isfile(path) else None
@@ -75,8 +74,8 @@ def cusick_template_path(level, template_dir=None):
 def cusick_specimen(level=3, *, vertices=None, template_dir=None):
     """The flat 30 cm Cusick specimen (z = 0, centred, u = x weft, v = y warp) as a TriangleMesh.
 
-    level 1..5: the dataset's circle{level}.obj from ``template_dir`` (default ``default_template_dir()``)
-    when present, else a generated disk with the same vertex count (297, 1205, 2699, 4766, 7496).
+    level 1..5: the Cusick template circle{level}.obj (297, 1205, 2699, 4766, 7496 vertices) from
+    ``template_dir`` (default: the bundled ``default_template_dir()``); a missing file is an InputError.
     vertices=N (instead of level): a generated disk of about N (>= 7) vertices.
     """
     if vertices is not None:

@@ -2,6 +2,7 @@
 #pragma once
 #include <Eigen/Core>
 #include <cmath>
+#include <cstdlib>
 #include <fstream>
 #include <random>
 #include <string>
@@ -11,9 +12,20 @@
 
 namespace drapelab::testing {
 
-inline std::string shared_data_dir() { return std::string(DRAPELAB_SOURCE_DIR) + "/../shared/data/cusick"; }
-inline std::string template_dir() { return shared_data_dir() + "/template_meshes"; }
-inline bool have_shared_data() { return std::ifstream(shared_data_dir() + "/manifest.csv").good(); }
+// The one locator of the shared Cusick dataset for the C++ tests (the same rule as drapelab.paths):
+// $DRAPELAB_CUSICK_DIR when set (a folder without manifest.csv there means "hidden"), else
+// ../shared/data/cusick beside the repository. "" when absent: tests that need it GTEST_SKIP with
+// kNoDatasetReason.
+inline std::string cusick_dataset_dir() {
+  const char* env = std::getenv("DRAPELAB_CUSICK_DIR");
+  const std::string dir = env ? std::string(env) : std::string(DRAPELAB_SOURCE_DIR) + "/../shared/data/cusick";
+  return !dir.empty() && std::ifstream(dir + "/manifest.csv").good() ? dir : std::string();
+}
+inline constexpr const char* kNoDatasetReason =
+    "needs the full Cusick dataset: not found at $DRAPELAB_CUSICK_DIR or ../shared/data/cusick";
+
+// The Cusick template meshes circle1..5 shipped in the repository (tests fail, not skip, when missing).
+inline std::string template_dir() { return std::string(DRAPELAB_SOURCE_DIR) + "/assets/cusick/template_meshes"; }
 
 // A state near the draped regime: rest positions plus smooth out-of-plane sag and random noise (m).
 inline Eigen::VectorXd perturbed_positions(const Model& model, double noise, unsigned seed) {

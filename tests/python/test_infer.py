@@ -11,7 +11,7 @@ import threading
 import numpy as np
 import pytest
 
-from drapelab import infer, measure, render, sim, tables
+from drapelab import infer, measure, paths, render, sim, tables
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 ASSET_IMAGE = os.path.join(ROOT, "assets", "cusick", "fabric_02", "silhouettes", "sample_02_capture_1.jpg")
@@ -338,11 +338,14 @@ def test_shipped_presets_load_and_carry_their_settings_and_evaluation():
         assert any(e["stretch_scale"] == c["stretch_scale"] for e in c["evaluated"]), name
         # Calibrated with the shipped fit.json's settings (a change of them means re-calibrating the presets).
         assert c["settings"] == current, name
-        # Provenance names the training image from the repository, and the shared dataset's file is that image.
+        # Provenance names the training image from the repository, and the dataset's file (where the dataset
+        # is present) is that image.
+        prefix = "../shared/data/cusick/"
         for image in preset["provenance"]["images"]:
-            assert not os.path.isabs(image["path"]) and image["path"].startswith("../shared/data/cusick/"), name
-            data_file = os.path.join(ROOT, image["path"])
-            if os.path.exists(data_file):
+            assert not os.path.isabs(image["path"]) and image["path"].startswith(prefix), name
+            dataset = paths.cusick_dataset_dir()
+            data_file = os.path.join(dataset, image["path"][len(prefix):]) if dataset else None
+            if dataset:
                 with open(data_file, "rb") as f:
                     assert hashlib.sha256(f.read()).hexdigest() == image["sha256"], name
 

@@ -7,12 +7,13 @@ import numpy as np
 import pytest
 
 from drapelab import measure as M
+from drapelab import paths
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 ASSETS = os.path.join(ROOT, "assets", "cusick")
 JPG = os.path.join(ASSETS, "fabric_02", "silhouettes", "sample_02_capture_1.jpg")
 OBJ = os.path.join(ASSETS, "fabric_02", "meshes", "sample_02_capture_1.obj")
-CUSICK = os.environ.get("DRAPELAB_CUSICK_DIR") or os.path.join(ROOT, "..", "shared", "data", "cusick")
+CUSICK = paths.cusick_dataset_dir()
 README_DC = {1: 0.504, 2: 0.643, 3: 0.157, 4: 0.582, 5: 0.795}
 
 
@@ -232,8 +233,7 @@ def test_compare_mesh_with_its_silhouette():
         M.compare_mesh_image(OBJ, JPG, camera="fisheye")
 
 
-@pytest.mark.skipif(not os.path.exists(os.path.join(CUSICK, "manifest.csv")),
-                    reason="shared Cusick dataset not found (set DRAPELAB_CUSICK_DIR)")
+@pytest.mark.skipif(CUSICK is None, reason=paths.NO_DATASET_REASON)
 def test_real_data_drape_coefficients_match_the_readme_table():
     dcs = {f: [] for f in README_DC}
     for row in M.load_manifest(os.path.join(CUSICK, "manifest.csv")):

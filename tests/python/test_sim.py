@@ -35,10 +35,13 @@ def unit_direction(model, name, index=None):
 
 # ---------------------------------------------------------------- shapes and layout
 def test_specimen_levels_and_generated(tmp_path):
-    assert sim.cusick_specimen(1).num_vertices == 297
-    # No template folder: a generated disk with about the same vertex count.
-    generated = sim.cusick_specimen(1, template_dir=tmp_path)
-    assert generated.num_vertices == pytest.approx(297, rel=0.05)
+    # The bundled templates: the dataset's circle1..5, exactly.
+    for level, count in zip(sim.TEMPLATE_LEVELS, (297, 1205, 2699, 4766, 7496)):
+        assert sim.cusick_template_path(level) is not None, "bundled template missing from assets/"
+        assert sim.cusick_specimen(level).num_vertices == count
+    # A folder without templates: an error naming the file, never a silently generated stand-in.
+    with pytest.raises(ValueError, match="circle1.obj"):
+        sim.cusick_specimen(1, template_dir=tmp_path)
     assert sim.cusick_template_path(1, template_dir=tmp_path) is None
     small = sim.cusick_specimen(vertices=40)
     assert 30 <= small.num_vertices <= 60

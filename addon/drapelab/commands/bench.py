@@ -290,7 +290,7 @@ def child_mesh(task):
     h = sim.DEFAULT_TIME_STEP
     out = {"name": f"circle{level}", "vertices": model.num_vertices, "faces": model.num_faces,
            "bending_edges": model.num_bending_edges, "steps": steps,
-           "mesh_source": "template" if sim.cusick_template_path(level) else "generated"}
+           "mesh_source": "template"}
     rng = np.random.default_rng(0)
     weights = rng.standard_normal((model.num_vertices, 3))
 

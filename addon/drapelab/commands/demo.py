@@ -55,9 +55,8 @@ def run(args):
     for path, what in ((obj_path, "OBJ"), (png_path, "PNG")):
         measure.check_output_path(path, what)
 
-    template = sim.cusick_template_path(args.mesh_level)
     mesh = sim.cusick_specimen(args.mesh_level)
-    source = template if template else "generated (no shared template found)"
+    source = sim.cusick_template_path(args.mesh_level)
     material = tables.COTTON_BLUE
     model = sim.ClothModel(mesh, density=material.density)
     params = model.parameters(material=material)

@@ -88,12 +88,14 @@ TriangleMesh make_cusick_specimen(int target_vertices, const CusickGeometry& g) 
 TriangleMesh load_cusick_template(int level, const std::string& template_dir) {
   const int n = cusick_template_vertices(level);
   const std::string path = template_dir + "/circle" + std::to_string(level) + ".obj";
-  if (!template_dir.empty() && std::ifstream(path).good()) {
-    TriangleMesh m = read_obj(path);
-    orient_faces_ccw(m);
-    return m;
-  }
-  return make_cusick_specimen(n);
+  if (template_dir.empty() || !std::ifstream(path).good())
+    throw InputError("Cusick template circle" + std::to_string(level) + ": cannot read " + path);
+  TriangleMesh m = read_obj(path);
+  if (m.num_vertices() != n)
+    throw InputError("Cusick template " + path + ": expected " + std::to_string(n) + " vertices, got " +
+                     std::to_string(m.num_vertices()));
+  orient_faces_ccw(m);
+  return m;
 }
 
 }  // namespace drapelab

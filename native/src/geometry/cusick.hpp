@@ -15,8 +15,8 @@ struct CusickGeometry {
 // exactly `target_vertices` vertices (at least 7).
 TriangleMesh make_cusick_specimen(int target_vertices, const CusickGeometry& geometry = {});
 
-// Loads ../shared/data/cusick/template_meshes/circle{level}.obj when `template_dir` holds it,
-// else generates a specimen with the same vertex count (297, 1205, 2699, 4766, 7496).
+// Loads `template_dir`/circle{level}.obj (the Cusick template meshes, 297 / 1205 / 2699 / 4766 / 7496
+// vertices). Throws InputError naming the path when the file is missing or has the wrong vertex count.
 TriangleMesh load_cusick_template(int level, const std::string& template_dir);
 
 // Vertex counts of the dataset's circle1..circle5.

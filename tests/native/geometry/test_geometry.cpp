@@ -45,11 +45,19 @@ TEST(Obj, RoundTripAndErrors) {
   EXPECT_THROW(write_obj("/nonexistent-dir/x.obj", m.positions, m.faces), InputError);
 }
 
-TEST(Obj, LoadsTheDatasetTemplates) {
-  if (!drapelab::testing::have_shared_data()) GTEST_SKIP() << "../shared/data/cusick absent";
+TEST(Obj, LoadsTheBundledTemplates) {
   for (int level = 1; level <= 5; ++level) {
     const TriangleMesh m = load_cusick_template(level, drapelab::testing::template_dir());
     EXPECT_EQ(m.num_vertices(), cusick_template_vertices(level));
     validate_mesh(m);
+  }
+}
+
+TEST(CusickSpecimen, MissingTemplateIsAnErrorNamingThePath) {
+  try {
+    load_cusick_template(1, ::testing::TempDir() + "/no_templates_here");
+    FAIL() << "expected InputError";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("no_templates_here/circle1.obj"), std::string::npos) << e.what();
   }
 }

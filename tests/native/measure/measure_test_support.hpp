@@ -11,6 +11,7 @@
 #include <string>
 #include <unistd.h>
 
+#include "../test_support.hpp"
 #include "util/error.hpp"
 #include "util/image.hpp"
 
@@ -55,12 +56,9 @@ class TempDir {
 
 inline std::string asset(const std::string& rel) { return std::string(DRAPELAB_SOURCE_DIR) + "/assets/" + rel; }
 
-// The shared dataset: $DRAPELAB_CUSICK_DIR, else ../shared/data/cusick beside the repository. "" if absent.
-inline std::string cusick_dir() {
-  const char* env = std::getenv("DRAPELAB_CUSICK_DIR");
-  const std::string dir = env && *env ? env : std::string(DRAPELAB_SOURCE_DIR) + "/../shared/data/cusick";
-  return std::filesystem::exists(dir + "/manifest.csv") ? dir : std::string();
-}
+using drapelab::testing::kNoDatasetReason;
+// The shared dataset (test_support.hpp's one locator). "" if absent.
+inline std::string cusick_dir() { return drapelab::testing::cusick_dataset_dir(); }
 
 inline void copy_prefix(const std::string& from, const std::string& to, double fraction) {
   std::ifstream in(from, std::ios::binary);

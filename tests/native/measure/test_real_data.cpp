@@ -15,7 +15,7 @@ using namespace drapelab::measure_testing;
 
 TEST(MeasureRealData, DrapeCoefficientsOfFabricsOneToFiveMatchTheReadmeTable) {
   const std::string dir = cusick_dir();
-  if (dir.empty()) GTEST_SKIP() << "shared Cusick dataset not found (set DRAPELAB_CUSICK_DIR)";
+  if (dir.empty()) GTEST_SKIP() << kNoDatasetReason;
   const std::map<int, double> table = {{1, 0.504}, {2, 0.643}, {3, 0.157}, {4, 0.582}, {5, 0.795}};
   std::map<int, std::vector<double>> dc;
   for (const ManifestEntry& e : read_manifest(dir + "/manifest.csv", true)) {
@@ -34,7 +34,7 @@ TEST(MeasureRealData, DrapeCoefficientsOfFabricsOneToFiveMatchTheReadmeTable) {
 
 TEST(MeasureRealData, EveryDatasetSilhouetteIsMeasurable) {
   const std::string dir = cusick_dir();
-  if (dir.empty()) GTEST_SKIP() << "shared Cusick dataset not found (set DRAPELAB_CUSICK_DIR)";
+  if (dir.empty()) GTEST_SKIP() << kNoDatasetReason;
   int count = 0;
   for (const ManifestEntry& e : read_manifest(dir + "/manifest.csv", true)) {
     const Silhouette s = load_silhouette(e.silhouette);

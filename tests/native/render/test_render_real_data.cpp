@@ -1,6 +1,6 @@
 // The calibrated orthographic camera against real Cusick data: the hard silhouette of each capture-1
 // mesh of fabrics 1-5 should overlap its photographed silhouette (README of the data: IoU 0.98 for
-// fabric 1, 0.94 for fabric 3, 0.97 for fabric 5). Skipped when ../shared/data/cusick is absent.
+// fabric 1, 0.94 for fabric 3, 0.97 for fabric 5). Skipped (saying why) when the dataset is absent.
 #include <gtest/gtest.h>
 
 #include <OpenImageIO/imageio.h>
@@ -13,6 +13,7 @@
 #include <string>
 #include <vector>
 
+#include "../test_support.hpp"
 #include "geometry/obj.hpp"
 #include "render/rasterizer.hpp"
 
@@ -20,7 +21,7 @@ using namespace drapelab;
 
 namespace {
 
-const std::string kDataDir = std::string(DRAPELAB_SOURCE_DIR) + "/../shared/data/cusick";
+const std::string kDataDir = drapelab::testing::cusick_dataset_dir();
 
 // Silhouette s = 1 - mean(R, G, B) / 255 of a JPEG, as an image in [0, 1].
 Image read_silhouette(const std::string& path) {
@@ -70,8 +71,7 @@ std::vector<Pair> capture_one_pairs() {
 }  // namespace
 
 TEST(RenderRealDataTest, OrthographicCameraMatchesCusickSilhouettes) {
-  if (!std::filesystem::exists(kDataDir + "/manifest.csv"))
-    GTEST_SKIP() << "real Cusick data not found at " << kDataDir;
+  if (kDataDir.empty()) GTEST_SKIP() << drapelab::testing::kNoDatasetReason;
   const std::vector<Pair> pairs = capture_one_pairs();
   ASSERT_EQ(pairs.size(), 60u) << "expected 12 capture-1 meshes for each of fabrics 1-5";
   const OrthographicCamera camera;  // 720 px/m, centre (128, 128), 256 x 256: the dataset's calibration
