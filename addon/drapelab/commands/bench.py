@@ -1,8 +1,7 @@
 """`drapelab bench --json OUT.json [--meshes 1,2,3] [--steps N] [--fit]`: speed and memory of the simulator, and
 the time of one whole fit.
 
-For each Cusick mesh circle1..circle5 (the dataset's template meshes, or generated disks of about the same
-vertex counts when ../shared is absent), homogeneous model with the Cotton Blue starting tables, in its own
+For each Cusick mesh circle1..circle5 (the dataset's template meshes, bundled in assets/), homogeneous model with the Cotton Blue starting tables, in its own
 subprocess (so that peak memory is per mesh), with OPENBLAS_NUM_THREADS=1 and OMP_NUM_THREADS=1:
   forward_ms_per_step, backward_ms_per_step   one rollout of --steps implicit Euler steps of 0.05 s from the
                                               flat rest state and its adjoint, in steady state: after one

@@ -1,7 +1,7 @@
 """`drapelab demo [--out DIR] [--mode dynamic|static] [--mesh-level N] [--steps N]`: drape a Cusick specimen.
 
-Drapes the Cusick specimen circle{N} (default circle3, 2699 vertices: the dataset's template mesh when
-../shared/data/cusick/template_meshes holds it, else a generated disk of about as many vertices) with the
+Drapes the Cusick specimen circle{N} (default circle3, 2699 vertices: the dataset's template mesh, bundled
+in assets/cusick/template_meshes) with the
 published Cotton Blue starting tables (density 0.192 kg/m^2), by default 100 implicit Euler steps of 0.05 s
 from the flat rest state (--mode static: Newton to equilibrium instead). Writes DIR/drape.obj (the draped
 mesh, metres) and DIR/silhouette.png (its orthographic top view at 720 px/m, 256 x 256, centre at the image
