@@ -287,5 +287,5 @@ void bind_measure(py::module_& m) {
         return "ManifestEntry(fabric=" + std::to_string(e.fabric) + ", sample=" + std::to_string(e.sample) +
                ", capture=" + std::to_string(e.capture) + ", silhouette='" + e.silhouette + "')";
       });
-  m.def("read_manifest", &read_manifest, py::arg("path"), py::arg("check_files") = false, release());
+  m.def("read_manifest", py::overload_cast<const std::string&, bool>(&read_manifest), py::arg("path"), py::arg("check_files") = false, release());
 }
