@@ -3,6 +3,7 @@
 #include <cmath>
 
 #include "util/error.hpp"
+#include "util/psd_projection.hpp"
 
 namespace drapelab {
 
@@ -125,6 +126,16 @@ void BendTerm::add_step_matrix(const Eigen::VectorXd& x, const Eigen::VectorXd& 
 
 void BendTerm::add_hessian(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double scale,
                            Eigen::VectorXd& values) const {
+  add_element_hessians(x, p, scale, values, false);
+}
+
+void BendTerm::add_projected_hessian(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double scale,
+                                     Eigen::VectorXd& values) const {
+  add_element_hessians(x, p, scale, values, true);
+}
+
+void BendTerm::add_element_hessians(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double scale,
+                                    Eigen::VectorXd& values, bool project) const {
   using G = Jet<double, 12>;
   double xe[12], H[144];
   G xj[12], gj[12];
@@ -138,6 +149,7 @@ void BendTerm::add_hessian(const Eigen::VectorXd& x, const Eigen::VectorXd& p, d
     dihedral_gradient(xj, gj);
     for (int i = 0; i < 12; ++i)
       for (int j = 0; j < 12; ++j) H[i * 12 + j] = E2 * gj[i].a * gj[j].a + E1 * gj[i].v[j];
+    if (project) project_psd<12>(H);
     scatter_matrix(e, H, scale, values);
   }
 }

@@ -190,6 +190,8 @@ class BendTerm : public ElementTerm<BendTerm, 4, 15, 1> {
                        Eigen::VectorXd& values) const override;
   void add_hessian(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double scale,
                    Eigen::VectorXd& values) const override;
+  void add_projected_hessian(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double scale,
+                             Eigen::VectorXd& values) const override;
   void add_hessian_product(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& dir,
                            Eigen::VectorXd& out) const override;
   void add_energy_parameter_gradient(const Eigen::VectorXd& x, const Eigen::VectorXd& p,
@@ -208,6 +210,9 @@ class BendTerm : public ElementTerm<BendTerm, 4, 15, 1> {
                         Eigen::VectorXd& gp) const override;
 
  private:
+  // The exact element Hessians, each projected onto the PSD cone if `project` (add_projected_hessian).
+  void add_element_hessians(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double scale,
+                            Eigen::VectorXd& values, bool project) const;
   void seed_directions(int e, const Eigen::VectorXd& x, const Eigen::VectorXd& lambda, const Eigen::VectorXd& w,
                        double* xe, Jet<double, 2>* xj, Jet<double, 2>* gj, double& gl, double& gw) const;
   void gather_local(int e, const Eigen::VectorXd& x, double* xe) const {

@@ -17,6 +17,7 @@
 #include "physics/sparse_pattern.hpp"
 #include "physics/term.hpp"
 #include "util/jet.hpp"
+#include "util/psd_projection.hpp"
 
 namespace drapelab {
 
@@ -144,23 +145,12 @@ class ElementTerm : public Term {
 
   void add_hessian(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double scale,
                    Eigen::VectorXd& values) const override {
-    using J1 = Jet<double, D>;
-    using J2 = Jet<J1, D>;
-    J2 xe[D], pe[kParams > 0 ? kParams : 1];
-    double H[D * D];
-    for (int e = 0; e < self().num_elements(); ++e) {
-      const auto& v = self().element_vertices(e);
-      for (int i = 0; i < D; ++i) {
-        xe[i] = J2(J1(x[3 * v[i / 3] + i % 3], i));
-        xe[i].v[i] = J1(1.0);
-      }
-      const double* pv = p.data() + self().parameter_offset(e);
-      for (int k = 0; k < kParams; ++k) pe[k] = J2(pv[k]);
-      const J2 E = self().template element_energy<J2>(e, xe, pe);
-      for (int i = 0; i < D; ++i)
-        for (int j = 0; j < D; ++j) H[i * D + j] = E.v[i].v[j];
-      scatter_matrix(e, H, scale, values);
-    }
+    add_element_hessians(x, p, scale, values, false);
+  }
+
+  void add_projected_hessian(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double scale,
+                             Eigen::VectorXd& values) const override {
+    add_element_hessians(x, p, scale, values, true);
   }
 
   void add_hessian_product(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& dir,
@@ -300,6 +290,28 @@ class ElementTerm : public Term {
   void scatter_vector(int e, const double* ge, double scale, Eigen::VectorXd& g) const {
     const auto& v = self().element_vertices(e);
     for (int i = 0; i < D; ++i) g[3 * v[i / 3] + i % 3] += scale * ge[i];
+  }
+  // Exact element Hessians (second-order jets), each projected onto the PSD cone if `project`.
+  void add_element_hessians(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double scale,
+                            Eigen::VectorXd& values, bool project) const {
+    using J1 = Jet<double, D>;
+    using J2 = Jet<J1, D>;
+    J2 xe[D], pe[kParams > 0 ? kParams : 1];
+    double H[D * D];
+    for (int e = 0; e < self().num_elements(); ++e) {
+      const auto& v = self().element_vertices(e);
+      for (int i = 0; i < D; ++i) {
+        xe[i] = J2(J1(x[3 * v[i / 3] + i % 3], i));
+        xe[i].v[i] = J1(1.0);
+      }
+      const double* pv = p.data() + self().parameter_offset(e);
+      for (int k = 0; k < kParams; ++k) pe[k] = J2(pv[k]);
+      const J2 E = self().template element_energy<J2>(e, xe, pe);
+      for (int i = 0; i < D; ++i)
+        for (int j = 0; j < D; ++j) H[i * D + j] = E.v[i].v[j];
+      if (project) project_psd<D>(H);
+      scatter_matrix(e, H, scale, values);
+    }
   }
   void scatter_matrix(int e, const double* K, double scale, Eigen::VectorXd& values) const {
     const int* map = scatter_.data() + static_cast<size_t>(e) * D * D;

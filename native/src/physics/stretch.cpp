@@ -5,6 +5,7 @@
 #include <cmath>
 
 #include "util/error.hpp"
+#include "util/psd_projection.hpp"
 
 namespace drapelab {
 
@@ -392,6 +393,16 @@ void StretchTerm::add_step_matrix(const Eigen::VectorXd& x, const Eigen::VectorX
 
 void StretchTerm::add_hessian(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double scale,
                               Eigen::VectorXd& values) const {
+  add_element_hessians(x, p, scale, values, false);
+}
+
+void StretchTerm::add_projected_hessian(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double scale,
+                                        Eigen::VectorXd& values) const {
+  add_element_hessians(x, p, scale, values, true);
+}
+
+void StretchTerm::add_element_hessians(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double scale,
+                                       Eigen::VectorXd& values, bool project) const {
   const double* nodes = shared_nodes(p);
   Local s;
   double H[81];
@@ -409,6 +420,7 @@ void StretchTerm::add_hessian(const Eigen::VectorXd& x, const Eigen::VectorXd& p
       for (int j = 0; j < i; ++j) H[i * 9 + j] = H[j * 9 + i];
     const double Y[2][2] = {{s.A * dW[0], 0.5 * s.A * dW[2]}, {0.5 * s.A * dW[2], s.A * dW[1]}};
     add_shape_block(s.B, Y, H);
+    if (project) project_psd<9>(H);
     scatter_matrix(e, H, scale, values);
   }
 }

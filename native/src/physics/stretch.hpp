@@ -170,6 +170,8 @@ class StretchTerm : public ElementTerm<StretchTerm, 3, 24, 9> {
                        Eigen::VectorXd& values) const override;
   void add_hessian(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double scale,
                    Eigen::VectorXd& values) const override;
+  void add_projected_hessian(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double scale,
+                             Eigen::VectorXd& values) const override;
   void add_hessian_product(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& dir,
                            Eigen::VectorXd& out) const override;
   void add_energy_parameter_gradient(const Eigen::VectorXd& x, const Eigen::VectorXd& p,
@@ -233,6 +235,9 @@ class StretchTerm : public ElementTerm<StretchTerm, 3, 24, 9> {
   }
 
  private:
+  // The exact element Hessians, each projected onto the PSD cone if `project` (add_projected_hessian).
+  void add_element_hessians(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double scale,
+                            Eigen::VectorXd& values, bool project) const;
   static constexpr double kQuadT[3] = {0.5 - 0.3872983346207417, 0.5, 0.5 + 0.3872983346207417};
   static constexpr double kQuadW[3] = {5.0 / 18.0, 8.0 / 18.0, 5.0 / 18.0};
 

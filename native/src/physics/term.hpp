@@ -36,6 +36,10 @@ class Term {
                                Eigen::VectorXd& values) const = 0;
   virtual void add_hessian(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double scale,
                            Eigen::VectorXd& values) const = 0;
+  // The exact Hessian with each element's block projected onto the PSD cone (util/psd_projection.hpp): the
+  // static solve's Newton matrix where the exact Hessian is indefinite (folds still forming).
+  virtual void add_projected_hessian(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double scale,
+                                     Eigen::VectorXd& values) const = 0;
   virtual void add_hessian_product(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& dir,
                                    Eigen::VectorXd& out) const = 0;
   // gp += dE/dp

@@ -70,6 +70,12 @@ void compare_kernels(bool heterogeneous) {
       EXPECT_LT(rel_err(a, b), kTol) << "hessian";
     }
     {
+      Eigen::VectorXd a = Eigen::VectorXd::Zero(nnz), b = Eigen::VectorXd::Zero(nnz);
+      term.add_projected_hessian(x, p, 1.3, a);
+      ref.Ref::add_projected_hessian(x, p, 1.3, b);
+      EXPECT_LT(rel_err(a, b), 1e-10) << "projected hessian";  // eigen-decompositions of equal matrices
+    }
+    {
       Eigen::VectorXd a = Eigen::VectorXd::Zero(n), b = Eigen::VectorXd::Zero(n);
       term.add_hessian_product(x, p, d, a);
       ref.Ref::add_hessian_product(x, p, d, b);
