@@ -4,7 +4,10 @@
 //   template <class T> void element_gauss_newton(int e, const T* x, const T* p, T* r, T* S) const;
 //        residuals r (kResiduals, independent of p) and a PSD weight S (kResiduals^2, row-major) such that
 //        the step matrix is K_e = J_r^T S J_r with J_r = dr/dx.
-//   int num_elements(); const std::array<int, kVertices>& element_vertices(int e); int parameter_offset(int e).
+//   int num_elements(); const std::array<int, kVertices>& element_vertices(int e); and either
+//   int parameter_offset(int e) (the element's kParams parameters are p[offset .. offset + kParams)) or
+//   std::array<int, kParams> parameter_indices(int e) (parameters gathered from several blocks, as effects
+//   that scale another term's energy or gravity need).
 // Every derivative in Term is then derived with forward-mode jets (util/jet.hpp): exact by construction.
 // These generic versions are slow (9- and 12-wide jets through the whole element); the hot terms (stretch,
 // bend) override them with hand-written kernels and keep these as their `Reference`, which
@@ -12,6 +15,8 @@
 // get correct derivatives from here alone and can add kernels later.
 #pragma once
 #include <array>
+#include <type_traits>
+#include <utility>
 #include <vector>
 
 #include "physics/sparse_pattern.hpp"
@@ -20,6 +25,12 @@
 #include "util/psd_projection.hpp"
 
 namespace drapelab {
+
+template <class T, class = void>
+struct has_parameter_indices : std::false_type {};
+template <class T>
+struct has_parameter_indices<T, std::void_t<decltype(std::declval<const T&>().parameter_indices(0))>>
+    : std::true_type {};
 
 template <class Derived, int kVertices, int kParams, int kResiduals>
 class ElementTerm : public Term {
@@ -54,7 +65,9 @@ class ElementTerm : public Term {
     double xe[D];
     for (int e = 0; e < self().num_elements(); ++e) {
       gather(e, x, xe);
-      E += self().template element_energy<double>(e, xe, p.data() + self().parameter_offset(e));
+      double pe[kParams > 0 ? kParams : 1];
+      gather_parameters(e, p, pe);
+      E += self().template element_energy<double>(e, xe, pe);
     }
     return E;
   }
@@ -64,8 +77,7 @@ class ElementTerm : public Term {
     J xe[D], pe[kParams > 0 ? kParams : 1];
     for (int e = 0; e < self().num_elements(); ++e) {
       seed_x(e, x, xe);
-      const double* pv = p.data() + self().parameter_offset(e);
-      for (int k = 0; k < kParams; ++k) pe[k] = J(pv[k]);
+      for (int k = 0; k < kParams; ++k) pe[k] = J(p[parameter_index(e, k)]);
       const J E = self().template element_energy<J>(e, xe, pe);
       scatter_vector(e, E.v.data(), 1.0, g);
     }
@@ -79,8 +91,7 @@ class ElementTerm : public Term {
       double K[D * D];
       for (int e = 0; e < self().num_elements(); ++e) {
         seed_x(e, x, xe);
-        const double* pv = p.data() + self().parameter_offset(e);
-        for (int k = 0; k < kParams; ++k) pe[k] = J(pv[k]);
+        for (int k = 0; k < kParams; ++k) pe[k] = J(p[parameter_index(e, k)]);
         self().template element_gauss_newton<J>(e, xe, pe, r, S);
         // K = J_r^T S J_r
         double SJ[kResiduals * D];
@@ -110,8 +121,7 @@ class ElementTerm : public Term {
       for (int e = 0; e < self().num_elements(); ++e) {
         seed_x(e, x, xe);
         gather(e, dir, de);
-        const double* pv = p.data() + self().parameter_offset(e);
-        for (int k = 0; k < kParams; ++k) pe[k] = J(pv[k]);
+        for (int k = 0; k < kParams; ++k) pe[k] = J(p[parameter_index(e, k)]);
         self().template element_gauss_newton<J>(e, xe, pe, r, S);
         // K d = J_r^T S (J_r d)
         double Jd[kResiduals], SJd[kResiduals];
@@ -169,8 +179,7 @@ class ElementTerm : public Term {
         xe[i].a = inner;
         xe[i].v[i] = J1(1.0);
       }
-      const double* pv = p.data() + self().parameter_offset(e);
-      for (int k = 0; k < kParams; ++k) pe[k] = J2(pv[k]);
+      for (int k = 0; k < kParams; ++k) pe[k] = J2(p[parameter_index(e, k)]);
       const J2 E = self().template element_energy<J2>(e, xe, pe);
       for (int i = 0; i < D; ++i) Hd[i] = E.v[i].v[0];
       scatter_vector(e, Hd, 1.0, out);
@@ -185,10 +194,9 @@ class ElementTerm : public Term {
       for (int e = 0; e < self().num_elements(); ++e) {
         const auto& v = self().element_vertices(e);
         for (int i = 0; i < D; ++i) xe[i] = J(x[3 * v[i / 3] + i % 3]);
-        const int off = self().parameter_offset(e);
-        for (int k = 0; k < kParams; ++k) pe[k] = J(p[off + k], k);
+        for (int k = 0; k < kParams; ++k) pe[k] = J(p[parameter_index(e, k)], k);
         const J E = self().template element_energy<J>(e, xe, pe);
-        for (int k = 0; k < kParams; ++k) gp[off + k] += E.v[k];
+        for (int k = 0; k < kParams; ++k) gp[parameter_index(e, k)] += E.v[k];
       }
     }
   }
@@ -209,13 +217,12 @@ class ElementTerm : public Term {
           xe[i] = J2(0.0);
           xe[i].a = inner;
         }
-        const int off = self().parameter_offset(e);
         for (int k = 0; k < kParams; ++k) {
-          pe[k] = J2(p[off + k]);
+          pe[k] = J2(p[parameter_index(e, k)]);
           pe[k].v[k] = J1(1.0);
         }
         const J2 E = self().template element_energy<J2>(e, xe, pe);
-        for (int k = 0; k < kParams; ++k) gp[off + k] += scale * E.v[k].v[0];
+        for (int k = 0; k < kParams; ++k) gp[parameter_index(e, k)] += scale * E.v[k].v[0];
       }
     }
   }
@@ -242,8 +249,7 @@ class ElementTerm : public Term {
           xe[i].a = inner;
           xe[i].v[i] = J1(1.0);
         }
-        const int off = self().parameter_offset(e);
-        for (int k = 0; k < kParams; ++k) pe[k] = U(p[off + k]);
+        for (int k = 0; k < kParams; ++k) pe[k] = U(p[parameter_index(e, k)]);
         self().template element_gauss_newton<U>(e, xe, pe, r, S);
         double Jl[M], Jw[M];
         for (int a = 0; a < M; ++a) {
@@ -262,13 +268,13 @@ class ElementTerm : public Term {
         scatter_vector(e, gxe, scale, gx);
         if constexpr (kParams > 0) {
           for (int i = 0; i < D; ++i) xp[i] = JP(x[3 * v[i / 3] + i % 3]);
-          for (int k = 0; k < kParams; ++k) pp[k] = JP(p[off + k], k);
+          for (int k = 0; k < kParams; ++k) pp[k] = JP(p[parameter_index(e, k)], k);
           self().template element_gauss_newton<JP>(e, xp, pp, rp, Sp);
           for (int k = 0; k < kParams; ++k) {
             double s = 0;
             for (int a = 0; a < M; ++a)
               for (int b = 0; b < M; ++b) s += Jl[a] * Sp[a * M + b].v[k] * Jw[b];
-            gp[off + k] += scale * s;
+            gp[parameter_index(e, k)] += scale * s;
           }
         }
       }
@@ -277,6 +283,15 @@ class ElementTerm : public Term {
 
  protected:
   const Derived& self() const { return static_cast<const Derived&>(*this); }
+
+  // Index into p of element e's k-th parameter (see the header comment).
+  int parameter_index(int e, int k) const {
+    if constexpr (has_parameter_indices<Derived>::value) return self().parameter_indices(e)[k];
+    else return self().parameter_offset(e) + k;
+  }
+  void gather_parameters(int e, const Eigen::VectorXd& p, double* pe) const {
+    for (int k = 0; k < kParams; ++k) pe[k] = p[parameter_index(e, k)];
+  }
 
   void gather(int e, const Eigen::VectorXd& x, double* xe) const {
     const auto& v = self().element_vertices(e);
@@ -304,8 +319,7 @@ class ElementTerm : public Term {
         xe[i] = J2(J1(x[3 * v[i / 3] + i % 3], i));
         xe[i].v[i] = J1(1.0);
       }
-      const double* pv = p.data() + self().parameter_offset(e);
-      for (int k = 0; k < kParams; ++k) pe[k] = J2(pv[k]);
+      for (int k = 0; k < kParams; ++k) pe[k] = J2(p[parameter_index(e, k)]);
       const J2 E = self().template element_energy<J2>(e, xe, pe);
       for (int i = 0; i < D; ++i)
         for (int j = 0; j < D; ++j) H[i * D + j] = E.v[i].v[j];

@@ -41,6 +41,15 @@ Model::Model(const TriangleMesh& mesh, const ModelOptions& options) : mesh_(mesh
   const int bend_off = layout_.add("bend", "N m", 15, ne, shared);
   const int density_off = layout_.add("density", "kg/m^2", 1, 1, true);
   const int handle_off = layout_.add("handle_stiffness", "N/m", 1, 1, true);
+  for (const auto& [name, values] : options.effects) {
+    const EffectSpec& spec = find_effect(name);  // unknown names are an error naming the registered ones
+    for (const auto& [param, value] : values) check_effect_value(spec, param, value);
+  }
+  for (const EffectSpec& spec : effect_registry()) {
+    if (!options.effects.count(spec.name)) continue;
+    active_effects_.push_back(spec.name);
+    for (const auto& q : spec.parameters) layout_.add(effect_block_name(spec.name, q.name), q.unit, 1, 1, true);
+  }
 
   const Eigen::VectorXd areas = rest_areas(mesh_);
   area_weights_.setZero(nv);
@@ -59,6 +68,9 @@ Model::Model(const TriangleMesh& mesh, const ModelOptions& options) : mesh_(mesh
   terms_.push_back(std::make_unique<BendTerm>(mesh_, edges_, bend_off, shared));
   terms_.push_back(std::make_unique<GravityTerm>(area_weights_, density_off, options.gravity));
   terms_.push_back(std::make_unique<HandleTerm>(handle_vertices_, anchors, handle_off));
+  const EffectContext context{mesh_, edges_, area_weights_, handle_vertices_, layout_, options_};
+  for (const std::string& name : active_effects_)
+    for (auto& t : find_effect(name).make_terms(context)) terms_.push_back(std::move(t));
 
   std::vector<std::vector<int>> stencils;
   for (const auto& t : terms_) {
@@ -73,6 +85,13 @@ Model::Model(const TriangleMesh& mesh, const ModelOptions& options) : mesh_(mesh
   fill_bend(defaults_, cotton_blue_bend_table());
   defaults_[density_off] = options.density;
   defaults_[handle_off] = options.handle_stiffness;
+  for (const std::string& name : active_effects_) {
+    const auto& given = options.effects.at(name);
+    for (const auto& q : find_effect(name).parameters) {
+      const auto it = given.find(q.name);
+      defaults_[layout_.block(effect_block_name(name, q.name)).offset] = it == given.end() ? q.off : it->second;
+    }
+  }
   validate_parameters(defaults_);
 }
 
@@ -106,6 +125,15 @@ void Model::validate_parameters(const Eigen::VectorXd& p) const {
   }
   static const char* stretch_names[4] = {"c11", "c12", "c22", "c33"};
   for (const auto& b : layout_.blocks()) {
+    const size_t dot = b.name.find('.');
+    if (dot != std::string::npos) {  // an effect's parameter: its registry bounds
+      try {
+        check_effect_value(find_effect(b.name.substr(0, dot)), b.name.substr(dot + 1), p[b.offset]);
+      } catch (const InputError& e) {
+        throw InputError(std::string("parameters: ") + e.what());
+      }
+      continue;
+    }
     for (int k = 0; k < b.size; ++k) {
       const double v = p[b.offset + k];
       const int element = k / b.entries_per_element, entry = k % b.entries_per_element;

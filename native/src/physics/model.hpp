@@ -1,7 +1,8 @@
 // A cloth model: mesh, rest data, lumped masses, the active terms and the flat parameter layout.
 //
 // Parameter blocks (physics/parameters.hpp): "stretch" (6x4 table, N/m), "bend" (3x5 table, N m),
-// "density" (kg/m^2), "handle_stiffness" (N/m). Homogeneous models share one table; heterogeneous models
+// "density" (kg/m^2), "handle_stiffness" (N/m), then one block "<effect>.<parameter>" per parameter of each
+// active effect (physics/effect.hpp), in registry order. Homogeneous models share one table; heterogeneous models
 // carry one table per face (stretch) and per bending edge (bend).
 #pragma once
 #include <memory>
@@ -9,6 +10,7 @@
 #include <vector>
 
 #include "geometry/mesh.hpp"
+#include "physics/effect.hpp"
 #include "physics/parameters.hpp"
 #include "physics/sparse_pattern.hpp"
 #include "physics/term.hpp"
@@ -21,6 +23,8 @@ struct ModelOptions {
   double gravity = 9.8;           // m/s^2, along -z
   double density = 0.192;         // kg/m^2 (Cotton Blue)
   double handle_stiffness = 1e3;  // N/m (paper)
+  // Active optional effects with their starting values (physics/effect.hpp); empty: the base model.
+  EffectValues effects;
 };
 
 using StretchTable = Eigen::Matrix<double, 6, 4, Eigen::RowMajor>;
@@ -43,6 +47,8 @@ class Model {
   const SparsePattern& pattern() const { return pattern_; }
   const std::vector<std::unique_ptr<Term>>& terms() const { return terms_; }
   const std::vector<int>& handle_vertices() const { return handle_vertices_; }
+  // Names of the active effects, in registry order.
+  const std::vector<std::string>& active_effects() const { return active_effects_; }
 
   // Rest positions, flattened (3V), metres.
   Eigen::VectorXd rest_positions() const;
@@ -69,6 +75,7 @@ class Model {
   ParameterLayout layout_;
   Eigen::VectorXd area_weights_, defaults_;
   std::vector<int> handle_vertices_;
+  std::vector<std::string> active_effects_;
   std::vector<std::unique_ptr<Term>> terms_;
   SparsePattern pattern_;
 };

@@ -1,0 +1,3 @@
+// The registered effects, one line each (the registration line of docs/adding-an-effect.md). Order is the
+// order of their parameter blocks in a model's layout and of `drapelab effects`.
+DRAPELAB_EFFECT(tilt)

@@ -1,0 +1,75 @@
+// Optional physical effects as plug-ins: one registry that the model, the bindings, the Python facade,
+// presets, the CLI and the finite-difference suite all read.
+//
+// An effect is one file in native/src/effects/ that defines `EffectSpec make_<name>_effect()` plus one line
+// `DRAPELAB_EFFECT(<name>)` in native/src/effects/effect_list.hpp. Its spec names the effect, explains it in
+// one line, says which signature it predicts on a drape, lists its parameters (name with unit suffix, unit,
+// off value, bounds, prior scale for fitting, a moderate strength) and builds the term(s) it adds.
+//
+// Parameters live in the model's flat vector as one block per parameter, named "<effect>.<parameter>"
+// (e.g. "tilt.angle_rad"), after the base blocks and in registry order. An effect that is not active adds
+// no block and no term: the base model is bit-for-bit unchanged. An active effect at its off values adds
+// exactly zero energy and force (checked for every registered effect by tests/native/physics/test_effects.cpp).
+#pragma once
+#include <functional>
+#include <limits>
+#include <map>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "geometry/mesh.hpp"
+#include "physics/parameters.hpp"
+#include "physics/term.hpp"
+
+namespace drapelab {
+
+struct ModelOptions;
+
+struct EffectParameter {
+  std::string name;  // carries its unit: angle_rad, azimuth_rad, dx_m, strain
+  std::string unit;  // "rad", "m", "1" (a fraction), ...
+  double off = 0;    // the value at which the effect reduces to the base model
+  double lower = -std::numeric_limits<double>::infinity();  // inclusive bounds (infinite: signed, unbounded)
+  double upper = std::numeric_limits<double>::infinity();
+  double prior_scale = 1;  // prior standard deviation when fitted, in the unit
+  double moderate = 0;     // a moderate strength (synth data and tests), in the unit
+  std::string description;
+};
+
+// What an effect's factory may read of the model being built (rest state, topology, the layout with the
+// effect's own blocks already added).
+struct EffectContext {
+  const TriangleMesh& mesh;
+  const std::vector<BendingEdge>& bending_edges;
+  const Eigen::VectorXd& area_weights;  // m^2 per vertex
+  const std::vector<int>& handle_vertices;
+  const ParameterLayout& layout;
+  const ModelOptions& options;
+};
+
+struct EffectSpec {
+  std::string name;
+  std::string explanation;  // one plain line: what physical cause it models
+  std::string signature;    // what it does to a drape's silhouette (for the diagnosis)
+  std::vector<EffectParameter> parameters;  // the first is the primary one
+  std::function<std::vector<std::unique_ptr<Term>>(const EffectContext&)> make_terms;
+};
+
+// Effect name -> parameter name -> value; an effect present here is active (missing parameters take their
+// off value).
+using EffectValues = std::map<std::string, std::map<std::string, double>>;
+
+// Every registered effect, in registration order.
+const std::vector<EffectSpec>& effect_registry();
+// The spec of `name`; InputError listing the registered names when unknown.
+const EffectSpec& find_effect(const std::string& name);
+// "<effect>.<parameter>": the name of the parameter's block in a model's layout.
+std::string effect_block_name(const std::string& effect, const std::string& parameter);
+// Throws InputError naming the effect, the parameter and the bounds when `value` is not finite or out of
+// bounds, or when the parameter is unknown.
+void check_effect_value(const EffectSpec& spec, const std::string& parameter, double value);
+
+}  // namespace drapelab

@@ -1,0 +1,246 @@
+// The effect registry's automatic suite: every registered effect, without listing them, is a no-op at its
+// off value (bit for bit), and switched on at a random moderate strength its term's derivatives and the
+// drape adjoints (dynamic rollout and static solve) with respect to its parameters match central
+// differences on a small mesh.
+#include <gtest/gtest.h>
+
+#include <random>
+
+#include "../test_support.hpp"
+#include "physics/effect.hpp"
+#include "physics/sparse_pattern.hpp"
+#include "solver/cholmod_solver.hpp"
+#include "solver/implicit_euler.hpp"
+#include "solver/static_solve.hpp"
+#include "util/error.hpp"
+
+using namespace drapelab;
+using namespace drapelab::testing;
+
+namespace {
+
+std::vector<std::string> registered_names() {
+  std::vector<std::string> names;
+  for (const auto& e : effect_registry()) names.push_back(e.name);
+  return names;
+}
+
+// The effect at a random strength between 0.5x and 1x its moderate value (signs random where allowed).
+EffectValues moderate_values(const EffectSpec& spec, unsigned seed) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<double> u(0.5, 1.0);
+  std::bernoulli_distribution coin(0.5);
+  EffectValues v;
+  for (const auto& q : spec.parameters) {
+    double value = q.off + u(rng) * (q.moderate - q.off);
+    if (q.lower < q.off && coin(rng)) value = q.off - (value - q.off);
+    v[spec.name][q.name] = std::min(q.upper, std::max(q.lower, value));
+  }
+  return v;
+}
+
+double rel_err(double a, double b) { return std::abs(a - b) / std::max(1e-300, std::max(std::abs(a), std::abs(b))); }
+
+// Indices of the effect's parameters in the model's vector.
+std::vector<int> effect_indices(const Model& model, const EffectSpec& spec) {
+  std::vector<int> idx;
+  for (const auto& q : spec.parameters) idx.push_back(model.layout().block(effect_block_name(spec.name, q.name)).offset);
+  return idx;
+}
+
+}  // namespace
+
+class EffectSuite : public ::testing::TestWithParam<std::string> {};
+
+TEST_P(EffectSuite, OffValueIsTheBaseModelBitForBit) {
+  const EffectSpec& spec = find_effect(GetParam());
+  ModelOptions base_options, off_options;
+  off_options.effects[spec.name] = {};  // active, every parameter at its off value
+  const TriangleMesh mesh = make_cusick_specimen(60);
+  Model base(mesh, base_options), off(mesh, off_options);
+  ASSERT_EQ(off.active_effects(), std::vector<std::string>{spec.name});
+  const Eigen::VectorXd pb = base.default_parameters();
+  const Eigen::VectorXd po = off.default_parameters();
+  ASSERT_EQ(po.head(pb.size()), pb);  // base blocks first, unchanged
+  const std::vector<int> idx = effect_indices(off, spec);
+  for (size_t k = 0; k < idx.size(); ++k) EXPECT_EQ(po[idx[k]], spec.parameters[k].off) << spec.parameters[k].name;
+  const Eigen::VectorXd x = perturbed_positions(base, 2e-3, 3);
+  EXPECT_EQ(base.energy(x, pb), off.energy(x, po));
+  Eigen::VectorXd gb = Eigen::VectorXd::Zero(x.size()), go = gb;
+  base.add_gradient(x, pb, gb);
+  off.add_gradient(x, po, go);
+  EXPECT_EQ(gb, go);
+  RolloutOptions ro;
+  ro.steps = 5;
+  ImplicitEuler sb(base), so(off);
+  EXPECT_EQ(sb.forward(pb, ro), so.forward(po, ro)) << "rollout differs at the off value";
+}
+
+TEST_P(EffectSuite, TermDerivativesMatchCentralDifferencesAtModerateStrength) {
+  const EffectSpec& spec = find_effect(GetParam());
+  ModelOptions o;
+  o.effects = moderate_values(spec, 17);
+  Model model(make_cusick_specimen(60), o);
+  const Eigen::VectorXd p = model.default_parameters();
+  const Eigen::VectorXd x = perturbed_positions(model, 2e-3, 5);
+  const int n = model.num_dofs(), np = static_cast<int>(p.size());
+  const SparsePattern& pat = model.pattern();
+  for (const auto& term : model.terms()) {
+    if (term->name() == "stretch" || term->name() == "bend" || term->name() == "gravity" || term->name() == "handle")
+      continue;  // the base terms have their own suite (test_terms.cpp)
+    SCOPED_TRACE(term->name());
+    for (unsigned s = 0; s < 3; ++s) {
+      const Eigen::VectorXd d = random_vector(n, 200 + s);
+      const double eps = 1e-6;
+      // gradient against energy
+      Eigen::VectorXd g = Eigen::VectorXd::Zero(n);
+      term->add_gradient(x, p, g);
+      const double fd = (term->energy(x + eps * d, p) - term->energy(x - eps * d, p)) / (2 * eps);
+      EXPECT_LT(rel_err(g.dot(d), fd), 1e-6) << "gradient";
+      // Hessian (assembled and product) against the gradient
+      Eigen::VectorXd gp = Eigen::VectorXd::Zero(n), gm = Eigen::VectorXd::Zero(n), Hd = Eigen::VectorXd::Zero(n);
+      term->add_gradient(x + eps * d, p, gp);
+      term->add_gradient(x - eps * d, p, gm);
+      term->add_hessian_product(x, p, d, Hd);
+      Eigen::VectorXd H = Eigen::VectorXd::Zero(pat.nnz());
+      term->add_hessian(x, p, 1.0, H);
+      const Eigen::VectorXd fdH = (gp - gm) / (2 * eps);
+      EXPECT_LE((Hd - fdH).norm(), 1e-6 * std::max(1e-12, fdH.norm()) + 1e-12 * g.norm()) << "Hessian product";
+      EXPECT_LE((symmetric_multiply(pat, H, d) - Hd).norm(), 1e-10 * std::max(1e-12, Hd.norm()) + 1e-14)
+          << "assembled Hessian";
+      // projected Hessian and step matrix are PSD
+      Eigen::VectorXd P = Eigen::VectorXd::Zero(pat.nnz()), K = Eigen::VectorXd::Zero(pat.nnz());
+      term->add_projected_hessian(x, p, 1.0, P);
+      term->add_step_matrix(x, p, 1.0, K);
+      EXPECT_GE(d.dot(symmetric_multiply(pat, P, d)), -1e-12 * std::max(1.0, H.norm())) << "projected Hessian";
+      EXPECT_GE(d.dot(symmetric_multiply(pat, K, d)), -1e-12 * std::max(1.0, H.norm())) << "step matrix";
+    }
+    // parameter derivatives against central differences in every parameter the term reads
+    Eigen::VectorXd dEdp = Eigen::VectorXd::Zero(np), dgdp = Eigen::VectorXd::Zero(np);
+    const Eigen::VectorXd lambda = random_vector(n, 300);
+    term->add_energy_parameter_gradient(x, p, dEdp);
+    term->add_gradient_parameter_product(x, p, lambda, 1.0, dgdp);
+    for (int k = 0; k < np; ++k) {
+      const double h = 1e-6 * std::max(1.0, std::abs(p[k]));
+      Eigen::VectorXd pp = p, pm = p;
+      pp[k] += h;
+      pm[k] -= h;
+      const double fdE = (term->energy(x, pp) - term->energy(x, pm)) / (2 * h);
+      Eigen::VectorXd gpp = Eigen::VectorXd::Zero(n), gpm = Eigen::VectorXd::Zero(n);
+      term->add_gradient(x, pp, gpp);
+      term->add_gradient(x, pm, gpm);
+      const double fdG = lambda.dot(gpp - gpm) / (2 * h);
+      const double scaleE = std::abs(term->energy(x, p)) / std::max(1e-3, std::abs(p[k])) + 1e-14;
+      EXPECT_NEAR(dEdp[k], fdE, 1e-6 * std::max(std::abs(fdE), scaleE)) << "dE/dp[" << k << "]";
+      EXPECT_NEAR(dgdp[k], fdG, 1e-6 * std::max(std::abs(fdG), 1e-12)) << "d(lambda.g)/dp[" << k << "]";
+    }
+  }
+}
+
+TEST_P(EffectSuite, DrapeAdjointsMatchCentralDifferencesInTheEffectParameters) {
+  const EffectSpec& spec = find_effect(GetParam());
+  ModelOptions o;
+  o.effects = moderate_values(spec, 29);
+  Model model(load_cusick_template(1, template_dir()), o);
+  const Eigen::VectorXd p = model.default_parameters();
+  const Eigen::VectorXd w = random_vector(model.num_dofs(), 8);
+  const std::vector<int> idx = effect_indices(model, spec);
+  // Dynamic rollout (20 steps of 0.05 s).
+  ImplicitEuler sim(model);
+  RolloutOptions ro;
+  ro.steps = 20;
+  sim.forward(p, ro);
+  const RolloutGradient g = sim.backward(w);
+  RolloutOptions fo = ro;
+  fo.record = false;
+  for (size_t k = 0; k < idx.size(); ++k) {
+    const double h = 1e-6 * std::max(1.0, std::abs(p[idx[k]]));
+    Eigen::VectorXd pp = p, pm = p;
+    pp[idx[k]] += h;
+    pm[idx[k]] -= h;
+    const double fd = (w.dot(sim.forward(pp, fo)) - w.dot(sim.forward(pm, fo))) / (2 * h);
+    EXPECT_NEAR(g.parameters[idx[k]], fd, 1e-4 * std::abs(fd) + 1e-9) << "rollout, " << spec.parameters[k].name;
+  }
+  // Static equilibrium (implicit-function adjoint), warm-started so both sides stay on one branch.
+  StaticSolver solver(model);
+  StaticOptions tight;
+  tight.force_tolerance = 1e-10;
+  const StaticResult r = solver.solve(p, tight);
+  const Eigen::VectorXd gs = solver.adjoint(w);
+  // Step 1e-4: each solve stops at a residual of 1e-10 vertex weights, so L carries noise of ~1e-10
+  // relative, amplified by 1/h; the truncation error is O(h^2). Both stay below 1e-6 relative here, against
+  // the 1e-4 tolerance (at h = 1e-7 the noise alone reached 2e-4).
+  for (size_t k = 0; k < idx.size(); ++k) {
+    const double h = 1e-4 * std::max(1.0, std::abs(p[idx[k]]));
+    Eigen::VectorXd pp = p, pm = p;
+    pp[idx[k]] += h;
+    pm[idx[k]] -= h;
+    const double lp = w.dot(solver.solve(pp, tight, nullptr, &r.positions).positions);
+    const double lm = w.dot(solver.solve(pm, tight, nullptr, &r.positions).positions);
+    const double fd = (lp - lm) / (2 * h);
+    EXPECT_NEAR(gs[idx[k]], fd, 1e-4 * std::abs(fd) + 1e-9) << "static, " << spec.parameters[k].name;
+  }
+}
+
+INSTANTIATE_TEST_SUITE_P(Registry, EffectSuite, ::testing::ValuesIn(registered_names()),
+                         [](const ::testing::TestParamInfo<std::string>& info) { return info.param; });
+
+TEST(EffectRegistry, SpecsAreComplete) {
+  ASSERT_FALSE(effect_registry().empty());
+  for (const auto& e : effect_registry()) {
+    SCOPED_TRACE(e.name);
+    EXPECT_FALSE(e.explanation.empty());
+    EXPECT_FALSE(e.signature.empty());
+    ASSERT_FALSE(e.parameters.empty());
+    EXPECT_TRUE(e.make_terms);
+    for (const auto& q : e.parameters) {
+      EXPECT_FALSE(q.unit.empty()) << q.name;
+      EXPECT_TRUE(q.lower <= q.off && q.off <= q.upper) << q.name;
+      EXPECT_TRUE(q.lower <= q.moderate && q.moderate <= q.upper && q.moderate != q.off) << q.name;
+      EXPECT_GT(q.prior_scale, 0) << q.name;
+    }
+  }
+}
+
+TEST(EffectRegistry, BadNamesAndValuesAreErrorsNamingTheField) {
+  const TriangleMesh mesh = make_cusick_specimen(40);
+  ModelOptions o;
+  o.effects["no_such_effect"] = {};
+  try {
+    Model m(mesh, o);
+    FAIL();
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("no_such_effect"), std::string::npos);
+    EXPECT_NE(std::string(e.what()).find(effect_registry().front().name), std::string::npos) << e.what();
+  }
+  const EffectSpec& first = effect_registry().front();
+  o.effects.clear();
+  o.effects[first.name]["no_such_parameter"] = 1.0;
+  try {
+    Model m(mesh, o);
+    FAIL();
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("no_such_parameter"), std::string::npos) << e.what();
+  }
+  o.effects.clear();
+  const EffectParameter& q = first.parameters.front();
+  o.effects[first.name][q.name] = std::isfinite(q.upper) ? q.upper + 1.0 : std::nan("");
+  try {
+    Model m(mesh, o);
+    FAIL();
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find(q.name), std::string::npos) << e.what();
+  }
+  // Out of range in a parameter vector: refused at validation, naming the block.
+  o.effects.clear();
+  o.effects[first.name] = {};
+  Model m(mesh, o);
+  Eigen::VectorXd p = m.default_parameters();
+  p[m.layout().block(effect_block_name(first.name, q.name)).offset] = std::nan("");
+  try {
+    m.validate_parameters(p);
+    FAIL();
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find(q.name), std::string::npos) << e.what();
+  }
+}
