@@ -34,6 +34,10 @@ bool parse_face_vertex(const std::string& tok, long nv, long nvt, long& vi, long
 TriangleMesh read_obj(const std::string& path) {
   std::ifstream in(path);
   if (!in) throw InputError(path + ": cannot open OBJ file");
+  return read_obj(in, path);
+}
+
+TriangleMesh read_obj(std::istream& in, const std::string& source) {
   std::vector<Eigen::Vector3d> v;
   std::vector<Eigen::Vector2d> vt;
   std::vector<Eigen::Vector3i> f;
@@ -47,12 +51,12 @@ TriangleMesh read_obj(const std::string& path) {
     if (tag == "v") {
       Eigen::Vector3d p;
       if (!(ls >> p.x() >> p.y() >> p.z()))
-        throw InputError(path + ":" + std::to_string(lineno) + ": malformed vertex line");
+        throw InputError(source + ":" + std::to_string(lineno) + ": malformed vertex line");
       v.push_back(p);
     } else if (tag == "vt") {
       Eigen::Vector2d t;
       if (!(ls >> t.x() >> t.y()))
-        throw InputError(path + ":" + std::to_string(lineno) + ": malformed texture coordinate line");
+        throw InputError(source + ":" + std::to_string(lineno) + ": malformed texture coordinate line");
       vt.push_back(t);
     } else if (tag == "f") {
       std::vector<long> idx;
@@ -60,20 +64,20 @@ TriangleMesh read_obj(const std::string& path) {
       while (ls >> tok) {
         long vi, ti;
         if (!parse_face_vertex(tok, static_cast<long>(v.size()), static_cast<long>(vt.size()), vi, ti))
-          throw InputError(path + ":" + std::to_string(lineno) + ": malformed face entry '" + tok + "'");
+          throw InputError(source + ":" + std::to_string(lineno) + ": malformed face entry '" + tok + "'");
         if (vi < 1 || vi > static_cast<long>(v.size()))
-          throw InputError(path + ":" + std::to_string(lineno) + ": face refers to missing vertex " +
+          throw InputError(source + ":" + std::to_string(lineno) + ": face refers to missing vertex " +
                            std::to_string(vi));
         idx.push_back(vi - 1);
       }
-      if (idx.size() < 3) throw InputError(path + ":" + std::to_string(lineno) + ": face with fewer than 3 vertices");
+      if (idx.size() < 3) throw InputError(source + ":" + std::to_string(lineno) + ": face with fewer than 3 vertices");
       for (size_t k = 1; k + 1 < idx.size(); ++k) {
         f.emplace_back(idx[0], idx[k], idx[k + 1]);
       }
     }
   }
-  if (v.empty()) throw InputError(path + ": OBJ file has no vertices (empty or not an OBJ)");
-  if (f.empty()) throw InputError(path + ": OBJ file has no faces");
+  if (v.empty()) throw InputError(source + ": OBJ file has no vertices (empty or not an OBJ)");
+  if (f.empty()) throw InputError(source + ": OBJ file has no faces");
   TriangleMesh mesh;
   mesh.positions.resize(static_cast<Eigen::Index>(v.size()), 3);
   for (size_t i = 0; i < v.size(); ++i) mesh.positions.row(static_cast<Eigen::Index>(i)) = v[i].transpose();

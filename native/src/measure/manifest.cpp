@@ -43,6 +43,10 @@ bool split_csv(const std::string& line, std::vector<std::string>& out) {
 std::vector<ManifestEntry> read_manifest(const std::string& path, bool check_files) {
   std::ifstream in(path);
   if (!in) throw InputError(path + ": cannot open manifest (missing or unreadable)");
+  return read_manifest(in, path, check_files);
+}
+
+std::vector<ManifestEntry> read_manifest(std::istream& in, const std::string& path, bool check_files) {
   const fs::path root = fs::path(path).parent_path();
   std::string line;
   std::vector<std::string> fields;

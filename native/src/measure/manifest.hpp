@@ -5,6 +5,7 @@
 //   optional: name, material, weave, density_kg_m2 (kg/m^2), thickness_mm (mm), mesh (empty when absent)
 // Relative paths are resolved against the manifest's folder. Fields may be quoted ("a, b"; "" escapes ").
 #pragma once
+#include <istream>
 #include <string>
 #include <vector>
 
@@ -24,5 +25,8 @@ struct ManifestEntry {
 // Reads the manifest. Throws InputError naming the file (and line) for a missing file, a missing
 // required column, a malformed number, or (when check_files) a silhouette or mesh file that does not exist.
 std::vector<ManifestEntry> read_manifest(const std::string& path, bool check_files = false);
+
+// The same from a stream of CSV text; `path` names it in error messages and its folder resolves relative paths.
+std::vector<ManifestEntry> read_manifest(std::istream& in, const std::string& path, bool check_files = false);
 
 }  // namespace drapelab
