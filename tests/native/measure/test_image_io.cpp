@@ -155,3 +155,106 @@ TEST(MeasureImageIo, UnwritablePathIsAClearError) {
   expect_input_error([] { write_image("/nonexistent/folder/out.png", Image::Zero(4, 4)); },
                      {"/nonexistent/folder/out.png", "cannot write"});
 }
+
+// ---- header checks before decoding (issue 16)
+
+namespace {
+
+std::string u32_be(uint32_t v) {
+  return {static_cast<char>(v >> 24), static_cast<char>(v >> 16), static_cast<char>(v >> 8), static_cast<char>(v)};
+}
+std::string u32_le(uint32_t v) {
+  return {static_cast<char>(v), static_cast<char>(v >> 8), static_cast<char>(v >> 16), static_cast<char>(v >> 24)};
+}
+std::string u16_le(uint32_t v) { return {static_cast<char>(v), static_cast<char>(v >> 8)}; }
+
+uint32_t crc32(const std::string& bytes) {  // PNG's chunk CRC (ISO 3309)
+  uint32_t c = 0xffffffffu;
+  for (const char ch : bytes) {
+    c ^= static_cast<unsigned char>(ch);
+    for (int k = 0; k < 8; ++k) c = (c >> 1) ^ (0xedb88320u & (0u - (c & 1u)));
+  }
+  return ~c;
+}
+
+// Well-formed headers declaring a w x h image (RGBA or RGB) with no pixel data after them.
+std::string png_declaring(uint32_t w, uint32_t h) {
+  const std::string ihdr = "IHDR" + u32_be(w) + u32_be(h) + std::string("\x10\x06\0\0\0", 5);  // 16-bit RGBA
+  return std::string("\x89PNG\r\n\x1a\n", 8) + u32_be(13) + ihdr + u32_be(crc32(ihdr));
+}
+std::string tiff_declaring(uint32_t w, uint32_t h) {
+  std::string t = std::string("II*\0", 4) + u32_le(8) + u16_le(3);
+  t += u16_le(256) + u16_le(4) + u32_le(1) + u32_le(w);  // ImageWidth, LONG
+  t += u16_le(257) + u16_le(4) + u32_le(1) + u32_le(h);  // ImageLength, LONG
+  t += u16_le(277) + u16_le(3) + u32_le(1) + u32_le(4);  // SamplesPerPixel, SHORT
+  return t + u32_le(0);
+}
+std::string exr_declaring(uint32_t w, uint32_t h) {
+  std::string e = std::string("\x76\x2f\x31\x01\x02\0\0\0", 8);
+  e += std::string("channels\0chlist\0", 16) + u32_le(19) + std::string("R\0", 2) + u32_le(2) + u32_le(0) +
+       u32_le(1) + u32_le(1) + std::string("\0", 1);
+  e += std::string("compression\0compression\0", 24) + u32_le(1) + std::string("\0", 1);
+  e += std::string("dataWindow\0box2i\0", 17) + u32_le(16) + u32_le(0) + u32_le(0) + u32_le(w - 1) + u32_le(h - 1);
+  return e + std::string("\0", 1);
+}
+std::string jpeg_declaring(uint32_t w, uint32_t h) {
+  std::string j = std::string("\xff\xd8\xff\xc0\0\x11\x08", 7);
+  j += {static_cast<char>(h >> 8), static_cast<char>(h), static_cast<char>(w >> 8), static_cast<char>(w), 3};
+  for (char id = 1; id <= 3; ++id) j += std::string{id, 0x11, 0};
+  return j + std::string("\xff\xd9", 2);
+}
+std::string bmp_declaring(uint32_t w, uint32_t h) {
+  return "BM" + u32_le(54) + u32_le(0) + u32_le(54) + u32_le(40) + u32_le(w) + u32_le(-h) + u16_le(1) + u16_le(32) +
+         std::string(24, '\0');
+}
+
+Image decode(const std::string& bytes, const std::string& source) {
+  return decode_luminance(reinterpret_cast<const unsigned char*>(bytes.data()), bytes.size(), source);
+}
+
+}  // namespace
+
+TEST(MeasureImageIo, HugeDeclaredSizesAreRefusedBeforeDecoding) {
+  // Each file is under 100 bytes and declares 100000 x 100000 pixels (or 65535 x 65535 for JPEG, its
+  // largest): the header check refuses it; decoding it would allocate tens of gigabytes.
+  struct Case { const char* name; std::string bytes; };
+  for (const Case& c : {Case{"huge.png", png_declaring(100000, 100000)}, Case{"huge.tif", tiff_declaring(100000, 100000)},
+                        Case{"huge.exr", exr_declaring(100000, 100000)}, Case{"huge.jpg", jpeg_declaring(65535, 65535)},
+                        Case{"huge.bmp", bmp_declaring(100000, 100000)}}) {
+    expect_input_error([&] { decode(c.bytes, c.name); }, {c.name, "image too large", "pixels"});
+    TempDir dir;
+    std::ofstream(dir.file(c.name), std::ios::binary) << c.bytes;
+    expect_input_error([&] { read_luminance(dir.file(c.name)); }, {c.name, "image too large"});
+  }
+  // The pixel cap applies to the product as well as to each side; a wide strip within both is read on.
+  expect_input_error([] { decode(png_declaring(kMaxImageSide, kMaxImageSide), "square.png"); }, {"too large"});
+  expect_input_error([] { decode(png_declaring(2, kMaxImageSide + 1), "tall.png"); }, {"too large"});
+  expect_input_error([] { decode(png_declaring(0, 10), "empty.png"); }, {"no pixels"});
+  expect_input_error([] { decode(png_declaring(4, 4), "short.png"); }, {"short.png", "truncated"});
+}
+
+TEST(MeasureImageIo, OnlyTheSupportedFormatsReachADecoder) {
+  expect_input_error([] { decode("GIF89a\x01\0\x01\0\0\0\0;", "anim.gif"); }, {"anim.gif", "unrecognised format"});
+  expect_input_error([] { decode("P5\n2 2\n255\n\0\0\0\0", "grey.pgm"); }, {"grey.pgm", "unrecognised format"});
+  expect_input_error([] { decode(std::string(1, '\0'), "zero"); }, {"zero", "unrecognised format"});
+  expect_input_error([] { decode("", "nothing"); }, {"nothing", "empty"});
+  // BMP: the plain layout only (OpenImageIO 2.4's reader crashes on some run-length encoded files).
+  std::string rle = bmp_declaring(8, 8);
+  rle[30] = 1;  // BI_RLE8
+  expect_input_error([&] { decode(rle, "rle.bmp"); }, {"rle.bmp", "only uncompressed"});
+}
+
+TEST(MeasureImageIo, DecodingBytesInMemoryEqualsReadingTheFile) {
+  const std::string path = asset("cusick/fabric_02/silhouettes/sample_02_capture_1.jpg");
+  std::ifstream in(path, std::ios::binary);
+  const std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  ImageFileInfo info;
+  const Image from_memory = decode_luminance(reinterpret_cast<const unsigned char*>(bytes.data()), bytes.size(),
+                                             "memory", &info);
+  EXPECT_EQ(info.format, "jpeg");
+  EXPECT_EQ((from_memory - read_luminance(path)).abs().maxCoeff(), 0.0);
+  // The format comes from the content, not the name.
+  TempDir dir;
+  std::ofstream(dir.file("really_a_jpeg.png"), std::ios::binary) << bytes;
+  EXPECT_EQ((read_luminance(dir.file("really_a_jpeg.png")) - from_memory).abs().maxCoeff(), 0.0);
+}
