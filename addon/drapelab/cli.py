@@ -4,7 +4,7 @@ import importlib
 import sys
 
 # One module per command under drapelab.commands, each with register(subparsers) -> sets func.
-COMMANDS = ["demo", "bench", "measure", "compare", "fit", "evaluate"]
+COMMANDS = ["demo", "bench", "measure", "compare", "fit", "evaluate", "effects"]
 
 
 def main(argv=None):

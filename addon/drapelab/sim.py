@@ -32,7 +32,7 @@ from . import paths, tables
 from ._native import Cancelled, InputError, SolverError, native
 
 __all__ = [
-    "InputError", "SolverError", "Cancelled", "ClothModel", "cusick_specimen", "cusick_template_path",
+    "InputError", "SolverError", "Cancelled", "ClothModel", "effects", "effect_values", "cusick_specimen", "cusick_template_path",
     "default_template_dir", "simulate", "backward", "read_obj", "write_obj", "MODES",
     "DEFAULT_DENSITY", "DEFAULT_HANDLE_STIFFNESS", "DEFAULT_SUPPORT_RADIUS", "DEFAULT_TIME_STEP", "DEFAULT_STEPS",
 ]
@@ -50,6 +50,43 @@ DEFAULT_MAX_SPEED = 50.0                      # m/s: a faster vertex means the r
 TEMPLATE_LEVELS = (1, 2, 3, 4, 5)
 # Table shapes of the blocks with a table per element; other blocks hold one value per element.
 TABLE_SHAPES = {"stretch": tables.STRETCH_SHAPE, "bend": tables.BEND_SHAPE}
+
+
+# ---------------------------------------------------------------- effects
+def effects():
+    """The effect registry: a list of {name, explanation, signature, parameters: [{name, unit, off, lower,
+    upper, prior_scale, moderate, description}]} (the first parameter is the primary one)."""
+    return [dict(e) for e in native.effects()]
+
+
+def effect_values(effects):
+    """Checks an effects argument {name: {param: value}} (or None) against the registry; returns a new dict of
+    floats. Unknown effects or parameters, non-finite or out-of-range values raise InputError naming them."""
+    if effects is None:
+        return {}
+    if not isinstance(effects, dict):
+        raise InputError(f"effects: expected a dict {{name: {{parameter: value}}}}, got {type(effects).__name__}")
+    registry = {e["name"]: e for e in native.effects()}
+    out = {}
+    for name, values in effects.items():
+        if name not in registry:
+            raise InputError(f"effects: unknown effect {name!r} (registered: {', '.join(registry)})")
+        if values is None:
+            values = {}
+        if not isinstance(values, dict):
+            raise InputError(f"effects: {name}: expected a dict {{parameter: value}}, got {type(values).__name__}")
+        params = {q["name"]: q for q in registry[name]["parameters"]}
+        out[name] = {}
+        for param, value in values.items():
+            if param not in params:
+                raise InputError(f"effects: {name} has no parameter {param!r} (parameters: {', '.join(params)})")
+            q = params[param]
+            v = _scalar(value, f"effects: {name}.{param}", None, unit=q["unit"])
+            if not q["lower"] <= v <= q["upper"]:
+                raise InputError(f"effects: {name}.{param} = {v:g} {q['unit']} is out of range "
+                                 f"[{q['lower']:g}, {q['upper']:g}] {q['unit']}")
+            out[name][param] = v
+    return out
 
 
 # ---------------------------------------------------------------- meshes
@@ -196,14 +233,15 @@ class ClothModel:
 
     def __init__(self, mesh_or_path, heterogeneous=False, density=DEFAULT_DENSITY,
                  handle_stiffness=DEFAULT_HANDLE_STIFFNESS, support_radius=DEFAULT_SUPPORT_RADIUS,
-                 gravity=DEFAULT_GRAVITY):
+                 gravity=DEFAULT_GRAVITY, effects=None):
         mesh = _mesh_arg(mesh_or_path)
         density = _scalar(density, "density", 0.0, strictly=True, unit="kg/m^2")
         handle_stiffness = _scalar(handle_stiffness, "handle_stiffness", 0.0, unit="N/m")
         support_radius = _scalar(support_radius, "support_radius", 0.0, strictly=True, unit="m")
         gravity = _scalar(gravity, "gravity", 0.0, unit="m/s^2")
         self._native = native.Model(mesh, heterogeneous=bool(heterogeneous), support_radius=support_radius,
-                                    gravity=gravity, density=density, handle_stiffness=handle_stiffness)
+                                    gravity=gravity, density=density, handle_stiffness=handle_stiffness,
+                                    effects=effect_values(effects))
         self._blocks = {b["name"]: b for b in self._native.layout}
         self._mesh = self._native.mesh
         self._dynamic = None
@@ -233,6 +271,11 @@ class ClothModel:
     @property
     def num_parameters(self):
         return self._native.num_parameters
+
+    @property
+    def active_effects(self):
+        """Names of the model's active effects (registry order); their parameters are blocks "name.param"."""
+        return list(self._native.active_effects)
 
     @property
     def heterogeneous(self):
@@ -292,13 +335,13 @@ class ClothModel:
                 f"edges, {'heterogeneous' if self.heterogeneous else 'homogeneous'})")
 
     # -- parameters
-    def parameters(self, material=None, stretch=None, bend=None, density=None, handle_stiffness=None):
+    def parameters(self, material=None, stretch=None, bend=None, density=None, handle_stiffness=None, effects=None):
         """A flat parameter vector (new array).
 
         Starts from the model's defaults (Cotton Blue tables, the model's density and handle stiffness), then
         a ``tables.MaterialPreset`` (its stretch, bend and density), then the given blocks: stretch (6, 4)
         on every face or (F, 6, 4) per face (heterogeneous models), bend (3, 5) or (E, 3, 5), density
-        (kg/m^2, > 0), handle_stiffness (N/m, >= 0).
+        (kg/m^2, > 0), handle_stiffness (N/m, >= 0), effects {name: {param: value}} of active effects.
         """
         p = np.array(self._native.default_parameters())
         if material is not None:
@@ -314,6 +357,12 @@ class ClothModel:
             self._set_block(p, "density", _scalar(density, "density", 0.0, strictly=True, unit="kg/m^2"))
         if handle_stiffness is not None:
             self._set_block(p, "handle_stiffness", _scalar(handle_stiffness, "handle_stiffness", 0.0, unit="N/m"))
+        for name, values in effect_values(effects).items():
+            if name not in self.active_effects:
+                raise InputError(f"effects: {name!r} is not active in this model (active: "
+                                 f"{', '.join(self.active_effects) or 'none'}); build the model with effects=")
+            for param, value in values.items():
+                p[self._block(f"{name}.{param}")["offset"]] = value
         self._native.validate_parameters(p)
         return p
 

@@ -96,6 +96,36 @@ py::list layout_list(const ParameterLayout& layout) {
 }  // namespace
 
 void bind_physics(py::module_& m) {
+  m.def(
+      "effects",
+      [] {
+        py::list out;
+        for (const EffectSpec& e : effect_registry()) {
+          py::list params;
+          for (const EffectParameter& q : e.parameters) {
+            py::dict d;
+            d["name"] = q.name;
+            d["unit"] = q.unit;
+            d["off"] = q.off;
+            d["lower"] = q.lower;
+            d["upper"] = q.upper;
+            d["prior_scale"] = q.prior_scale;
+            d["moderate"] = q.moderate;
+            d["description"] = q.description;
+            params.append(d);
+          }
+          py::dict d;
+          d["name"] = e.name;
+          d["explanation"] = e.explanation;
+          d["signature"] = e.signature;
+          d["parameters"] = params;
+          out.append(d);
+        }
+        return out;
+      },
+      "The effect registry (physics/effect.hpp): a list of {name, explanation, signature, parameters: [{name, "
+      "unit, off, lower, upper, prior_scale, moderate, description}]}, in registration order.");
+
   py::class_<PyProgress, std::shared_ptr<PyProgress>>(
       m, "Progress",
       "Progress-and-cancel sink for long calls: callback(done, total) is called (GIL held) at every step; "
@@ -108,8 +138,9 @@ void bind_physics(py::module_& m) {
                                             "Cloth model: mesh, rest data, masses, terms (stretch, bend, gravity, "
                                             "handle) and the flat parameter layout; see physics/model.hpp.")
       .def(py::init([](const TriangleMesh& mesh, bool heterogeneous, double support_radius, double gravity,
-                       double density, double handle_stiffness) {
+                       double density, double handle_stiffness, const EffectValues& effects) {
              ModelOptions o;
+             o.effects = effects;
              o.heterogeneous = heterogeneous;
              o.support_radius = support_radius;
              o.gravity = gravity;
@@ -118,7 +149,9 @@ void bind_physics(py::module_& m) {
              return std::make_shared<Model>(mesh, o);
            }),
            py::arg("mesh"), py::arg("heterogeneous") = false, py::arg("support_radius") = 0.09,
-           py::arg("gravity") = 9.8, py::arg("density") = 0.192, py::arg("handle_stiffness") = 1e3)
+           py::arg("gravity") = 9.8, py::arg("density") = 0.192, py::arg("handle_stiffness") = 1e3,
+           py::arg("effects") = EffectValues{})
+      .def_property_readonly("active_effects", &Model::active_effects)
       .def_property_readonly("num_vertices", &Model::num_vertices)
       .def_property_readonly("num_dofs", &Model::num_dofs)
       .def_property_readonly("num_faces", [](const Model& s) { return s.mesh().num_faces(); })
