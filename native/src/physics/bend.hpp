@@ -192,6 +192,11 @@ class BendTerm : public ElementTerm<BendTerm, 4, 15, 1> {
                    Eigen::VectorXd& values) const override;
   void add_projected_hessian(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double scale,
                              Eigen::VectorXd& values) const override;
+  // The Gauss-Newton step matrix: E'(theta) Hess theta is what makes draped folds' exact Hessian indefinite.
+  void add_static_newton_matrix(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double scale,
+                                Eigen::VectorXd& values) const override {
+    add_step_matrix(x, p, scale, values);
+  }
   void add_hessian_product(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& dir,
                            Eigen::VectorXd& out) const override;
   void add_energy_parameter_gradient(const Eigen::VectorXd& x, const Eigen::VectorXd& p,

@@ -40,6 +40,14 @@ class Term {
   // static solve's Newton matrix where the exact Hessian is indefinite (folds still forming).
   virtual void add_projected_hessian(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double scale,
                                      Eigen::VectorXd& values) const = 0;
+  // The static solve's Newton matrix where the model's exact Hessian is indefinite (solver/static_solve.hpp):
+  // the exact Hessian by default. A term whose exact Hessian carries an indefinite geometric part gives its
+  // PSD step matrix instead (bending: E'(theta) Hess theta, the source of the indefiniteness in draped folds),
+  // so the sum keeps the exact stretch Hessian, compression softening included, and stays factorisable.
+  virtual void add_static_newton_matrix(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double scale,
+                                        Eigen::VectorXd& values) const {
+    add_hessian(x, p, scale, values);
+  }
   virtual void add_hessian_product(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& dir,
                                    Eigen::VectorXd& out) const = 0;
   // gp += dE/dp

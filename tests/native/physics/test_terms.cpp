@@ -163,5 +163,19 @@ TEST_P(TermDerivatives, ProjectedHessianIsPositiveSemidefiniteAndExactWhereStabl
     EXPECT_LE((P0 - H0).norm(), 1e-9 * std::max(1e-12, H0.norm())) << term.name() << " at rest";
 }
 
+// The static solve's Newton matrix: the exact Hessian, except bending's Gauss-Newton step matrix (its exact
+// Hessian's E'(theta) Hess theta is indefinite in folds); PSD for bending, symmetric like the others.
+TEST_P(TermDerivatives, StaticNewtonMatrixIsExactHessianOrBendingStepMatrix) {
+  const auto [term_index, het] = GetParam();
+  TermCase c = make_case(het, 29);
+  const Term& term = *c.model->terms()[term_index];
+  const SparsePattern& pat = c.model->pattern();
+  Eigen::VectorXd N = Eigen::VectorXd::Zero(pat.nnz()), R = Eigen::VectorXd::Zero(pat.nnz());
+  term.add_static_newton_matrix(c.x, c.p, 0.5, N);
+  if (term.name() == "bend") term.add_step_matrix(c.x, c.p, 0.5, R);
+  else term.add_hessian(c.x, c.p, 0.5, R);
+  EXPECT_LE((N - R).norm(), 1e-15 * std::max(1e-300, R.norm())) << term.name();
+}
+
 INSTANTIATE_TEST_SUITE_P(AllTerms, TermDerivatives,
                          ::testing::Combine(::testing::Values(0, 1, 2, 3), ::testing::Bool()));
