@@ -1,5 +1,6 @@
 #include "solver/static_solve.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
@@ -10,10 +11,20 @@
 namespace drapelab {
 
 namespace {
-constexpr double kStandardGravity = 9.8;  // m/s^2: residual forces are measured in units of weight
-constexpr double kInitialShift = 400.0;   // 1/s^2: mu M = M / h^2 of a 0.05 s step at the start
-constexpr double kMinShift = 1e-3;        // below this the shift is dropped (pure Newton)
-constexpr double kExactHessianBelow = 1.0; // residual (in vertex weights) below which Newton uses the exact Hessian
+constexpr double kStandardGravity = 9.8;   // m/s^2: residual forces are measured in units of weight
+constexpr double kInitialShift = 400.0;    // 1/s^2: mu M = M / h^2 of a 0.05 s implicit step at the start
+constexpr double kShiftIncrease = 10.0;    // mu *= this when no step is found (or the matrix does not factorise)
+constexpr double kShiftDecrease = 0.25;    // mu *= this after a full step
+constexpr double kMinShift = 1e-3;         // 1/s^2: below this the shift is dropped (phase 2 of the header)
+// Residual (vertex weights) below which phase 2 starts at once: the state already carries most of its weight
+// by internal forces (a warm start near an equilibrium); the flat start has 1.
+constexpr double kNearEquilibriumResidual = 0.5;
+constexpr int kMaxMatrixAttempts = 30;     // matrices tried per iteration before a step is declared impossible
+constexpr double kArmijo = 1e-4;           // sufficient-decrease constant of the line search
+constexpr double kMinStep = 1e-4;          // smallest step length tried
+constexpr double kMaxExtension = 8.0;      // longest step length tried when a full step is accepted
+constexpr int kMaxExactBackoff = 8;        // iterations between exact-Hessian attempts after repeated failures
+constexpr double kEnergyRoundOff = 1e-11;  // relative change of E below which E cannot rank two states
 }  // namespace
 
 StaticSolver::StaticSolver(const Model& model) : model_(model), solver_(model.pattern()) {}
@@ -34,11 +45,65 @@ StaticResult StaticSolver::solve(const Eigen::VectorXd& p, const StaticOptions& 
   Eigen::VectorXd x = x0 ? *x0 : model_.rest_positions();
   if (x.size() != n || !x.allFinite()) throw InputError("static solve: start positions have the wrong size or are not finite");
   const Eigen::VectorXd m = model_.masses(p);
-  double mu = kInitialShift;
+  const bool debug = std::getenv("DRAPELAB_DEBUG_STATIC") != nullptr;
   have_solution_ = false;
-  Eigen::VectorXd g(n), A(pattern.nnz());
+  Eigen::VectorXd g(n), A(pattern.nnz()), dx(n), xn(n), gn(n);
   double E = model_.energy(x, p);
+  double mu = kInitialShift;
+  int next_exact = 0, exact_backoff = 1;  // the next iteration that tries the exact Hessian, and the back-off
   StaticResult result;
+
+  enum class Matrix { kExact, kNewton, kShiftedStep };
+  // Fills A with the matrix of this kind and factorises it; false if it is not positive definite.
+  auto factorise = [&](Matrix kind) {
+    A.setZero();
+    for (const auto& t : model_.terms()) {
+      if (kind == Matrix::kExact) t->add_hessian(x, p, 1.0, A);
+      else if (kind == Matrix::kNewton) t->add_static_newton_matrix(x, p, 1.0, A);
+      else t->add_step_matrix(x, p, 1.0, A);
+    }
+    if (kind == Matrix::kShiftedStep)
+      for (int i = 0; i < model_.num_vertices(); ++i)
+        for (int k = 0; k < 3; ++k) A[pattern.diagonal(3 * i + k)] += mu * m[i];
+    return solver_.factorize(A);
+  };
+  // Armijo backtracking along dx from the full step; an accepted full step is extended (x2 up to
+  // kMaxExtension) while E keeps falling. Where E no longer resolves the decrease (round-off near the
+  // minimum), a decrease of the residual instead. Moves x and returns the step length, 0 if none.
+  auto line_search = [&](double residual_now) {
+    const double slope = g.dot(dx);
+    if (!(slope < 0)) return 0.0;
+    double alpha = 0.0, E_best = E;
+    for (double a = 1.0; a > kMinStep && alpha == 0.0; a *= 0.5) {
+      xn = x + a * dx;
+      const double En = model_.energy(xn, p);
+      if (!std::isfinite(En)) continue;
+      bool ok = En <= E + kArmijo * a * slope;
+      if (!ok && std::abs(En - E) <= kEnergyRoundOff * std::abs(E)) {
+        gn.setZero();
+        model_.add_gradient(xn, p, gn);
+        ok = residual(gn, m) < residual_now;
+      }
+      if (ok) {
+        alpha = a;
+        E_best = En;
+      }
+    }
+    if (alpha == 1.0)
+      for (double a = 2.0; a <= kMaxExtension; a *= 2) {
+        xn = x + a * dx;
+        const double En = model_.energy(xn, p);
+        if (!(std::isfinite(En) && En < E_best)) break;
+        alpha = a;
+        E_best = En;
+      }
+    if (alpha > 0) {
+      x += alpha * dx;
+      E = E_best;
+    }
+    return alpha;
+  };
+
   for (int it = 0; it < options.max_iterations; ++it) {
     g.setZero();
     model_.add_gradient(x, p, g);
@@ -51,54 +116,43 @@ StaticResult StaticSolver::solve(const Eigen::VectorXd& p, const StaticOptions& 
       result.positions = x;
       return result;
     }
-    A.setZero();
-    // Far from equilibrium the PSD step matrix (cheap, robust); close to it the exact Hessian (fast
-    // local convergence, also in compressed folds where the step matrix is a poor model).
-    const bool exact = result.residual < kExactHessianBelow;
-    for (const auto& t : model_.terms()) {
-      if (exact) t->add_hessian(x, p, 1.0, A);
-      else t->add_step_matrix(x, p, 1.0, A);
-    }
-    bool accepted = false;
-    for (int attempt = 0; attempt < 30 && !accepted; ++attempt) {
-      Eigen::VectorXd As = A;
-      for (int i = 0; i < model_.num_vertices(); ++i)
-        for (int k = 0; k < 3; ++k) As[pattern.diagonal(3 * i + k)] += mu * m[i];
-      if (!solver_.factorize(As)) {
-        mu = std::max(10 * mu, kInitialShift);
-        continue;
-      }
-      const Eigen::VectorXd dx = -solver_.solve(g);
-      const double slope = g.dot(dx);
-      double alpha = 1.0;
-      while (alpha > 1e-4) {
-        const Eigen::VectorXd xn = x + alpha * dx;
-        const double En = model_.energy(xn, p);
-        // Armijo on E; where E no longer resolves the decrease (round-off), on the residual instead.
-        bool ok = std::isfinite(En) && En <= E + 1e-4 * alpha * slope;
-        if (!ok && std::isfinite(En) && std::abs(En - E) <= 1e-11 * std::abs(E)) {
-          Eigen::VectorXd gn = Eigen::VectorXd::Zero(n);
-          model_.add_gradient(xn, p, gn);
-          ok = residual(gn, m) < result.residual;
+    if (result.residual < kNearEquilibriumResidual) mu = 0.0;
+    double alpha = 0.0;
+    Matrix used = Matrix::kShiftedStep;
+    for (int attempt = 0; attempt < kMaxMatrixAttempts && alpha == 0.0; ++attempt) {
+      bool factorised = false;
+      if (mu == 0 && it >= next_exact) {
+        used = Matrix::kExact;
+        factorised = factorise(used);
+        if (factorised) {
+          exact_backoff = 1;
+        } else {
+          next_exact = it + exact_backoff;
+          exact_backoff = std::min(2 * exact_backoff, kMaxExactBackoff);
         }
-        if (ok) {
-          x = xn;
-          E = En;
-          accepted = true;
-          break;
-        }
-        alpha *= 0.5;
       }
-      if (!accepted) mu = std::max(10 * mu, kInitialShift);
-      else if (alpha == 1.0) mu = (mu * 0.25 < kMinShift) ? 0.0 : mu * 0.25;
+      if (!factorised && mu == 0) factorised = factorise(used = Matrix::kNewton);
+      if (!factorised) factorised = factorise(used = Matrix::kShiftedStep);
+      if (factorised) {
+        dx = -solver_.solve(g);
+        alpha = line_search(result.residual);
+      }
+      if (alpha == 0.0) {
+        // No descent with this matrix: a shifted step matrix next (shorter, gradient-like steps).
+        mu = std::max(kShiftIncrease * mu, kInitialShift);
+        next_exact = std::max(next_exact, it + 1);
+      }
     }
-    if (!accepted) {
+    if (alpha == 0.0) {
       std::ostringstream s;
       s << "static solve: no descent step at iteration " << it << " (residual " << result.residual
         << " of vertex weight)";
       throw SolverError(s.str());
     }
-    if (std::getenv("DRAPELAB_DEBUG_STATIC")) fprintf(stderr, "it %d res %g E %.10g mu %g\n", it, result.residual, E, mu);
+    if (used == Matrix::kShiftedStep && alpha >= 1.0) mu = (mu * kShiftDecrease < kMinShift) ? 0.0 : mu * kShiftDecrease;
+    if (debug)
+      fprintf(stderr, "it %d res %g E %.12g %s alpha %g mu %g\n", it, result.residual, E,
+              used == Matrix::kExact ? "exact" : (used == Matrix::kNewton ? "newton" : "step"), alpha, mu);
     if (progress) progress->step(it + 1, options.max_iterations);
   }
   g.setZero();
