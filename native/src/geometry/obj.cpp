@@ -7,6 +7,7 @@
 #include <vector>
 
 #include "util/error.hpp"
+#include "util/text.hpp"
 
 namespace drapelab {
 
@@ -64,7 +65,7 @@ TriangleMesh read_obj(std::istream& in, const std::string& source) {
       while (ls >> tok) {
         long vi, ti;
         if (!parse_face_vertex(tok, static_cast<long>(v.size()), static_cast<long>(vt.size()), vi, ti))
-          throw InputError(source + ":" + std::to_string(lineno) + ": malformed face entry '" + tok + "'");
+          throw InputError(source + ":" + std::to_string(lineno) + ": malformed face entry '" + printable(tok) + "'");
         if (vi < 1 || vi > static_cast<long>(v.size()))
           throw InputError(source + ":" + std::to_string(lineno) + ": face refers to missing vertex " +
                            std::to_string(vi));

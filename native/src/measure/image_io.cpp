@@ -14,6 +14,7 @@
 #include <vector>
 
 #include "util/error.hpp"
+#include "util/text.hpp"
 
 namespace drapelab {
 
@@ -21,10 +22,11 @@ namespace fs = std::filesystem;
 
 namespace {
 
+// A decoder's message on one line; it may quote bytes of the file.
 std::string one_line(std::string s) {
   std::replace(s.begin(), s.end(), '\n', ' ');
   while (!s.empty() && (s.back() == ' ' || s.back() == '\r')) s.pop_back();
-  return s;
+  return printable(s, 300);
 }
 
 // A read-only view of an image file's bytes with bounds-checked integer reads.

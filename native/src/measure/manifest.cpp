@@ -6,6 +6,7 @@
 #include <map>
 
 #include "util/error.hpp"
+#include "util/text.hpp"
 
 namespace drapelab {
 
@@ -38,6 +39,12 @@ bool split_csv(const std::string& line, std::vector<std::string>& out) {
   return !quoted;
 }
 
+// The rows' text reaches Python as str: it must be UTF-8 (a manifest is a UTF-8 CSV file).
+void check_utf8(const std::string& line, const std::string& where) {
+  if (!valid_utf8(line))
+    throw InputError(where + ": not UTF-8 text: " + printable(line));
+}
+
 }  // namespace
 
 std::vector<ManifestEntry> read_manifest(const std::string& path, bool check_files) {
@@ -53,12 +60,13 @@ std::vector<ManifestEntry> read_manifest(std::istream& in, const std::string& pa
   if (!std::getline(in, line) || line.find_first_not_of(" \t\r") == std::string::npos)
     throw InputError(path + ": manifest is empty (no header row)");
   if (line.size() >= 3 && line.compare(0, 3, "\xEF\xBB\xBF") == 0) line.erase(0, 3);  // UTF-8 BOM
+  check_utf8(line, path + ":1");
   split_csv(line, fields);
   std::map<std::string, size_t> column;
   for (size_t i = 0; i < fields.size(); ++i) column[fields[i]] = i;
   for (const char* required : {"fabric", "sample", "capture", "silhouette"})
     if (!column.count(required))
-      throw InputError(path + ": manifest has no '" + required + "' column (header: " + line + ")");
+      throw InputError(path + ": manifest has no '" + required + "' column (header: " + printable(line, 200) + ")");
 
   std::vector<ManifestEntry> entries;
   long lineno = 1;
@@ -66,6 +74,7 @@ std::vector<ManifestEntry> read_manifest(std::istream& in, const std::string& pa
     ++lineno;
     if (line.find_first_not_of(" \t\r") == std::string::npos) continue;
     const std::string where = path + ":" + std::to_string(lineno);
+    check_utf8(line, where);
     if (!split_csv(line, fields)) throw InputError(where + ": unterminated quoted field");
     auto get = [&](const char* name) -> std::string {
       const auto it = column.find(name);
@@ -79,7 +88,7 @@ std::vector<ManifestEntry> read_manifest(std::istream& in, const std::string& pa
         if (used == v.size()) return x;
       } catch (const std::exception&) {
       }
-      throw InputError(where + ": column '" + name + "' is not an integer: '" + v + "'");
+      throw InputError(where + ": column '" + name + "' is not an integer: '" + printable(v) + "'");
     };
     auto real = [&](const char* name) {
       const std::string v = get(name);
@@ -90,7 +99,7 @@ std::vector<ManifestEntry> read_manifest(std::istream& in, const std::string& pa
         if (used == v.size()) return x;
       } catch (const std::exception&) {
       }
-      throw InputError(where + ": column '" + name + "' is not a number: '" + v + "'");
+      throw InputError(where + ": column '" + name + "' is not a number: '" + printable(v) + "'");
     };
     auto resolve = [&](const std::string& p) {
       if (p.empty()) return p;
@@ -110,8 +119,15 @@ std::vector<ManifestEntry> read_manifest(std::istream& in, const std::string& pa
     e.mesh = resolve(get("mesh"));
     if (e.silhouette.empty()) throw InputError(where + ": empty 'silhouette' path");
     if (check_files) {
-      if (!fs::exists(e.silhouette)) throw InputError(where + ": silhouette file not found: " + e.silhouette);
-      if (!e.mesh.empty() && !fs::exists(e.mesh)) throw InputError(where + ": mesh file not found: " + e.mesh);
+      // A path the system cannot look up (a name too long, a loop of links, no permission) is not found.
+      auto found = [](const std::string& p) {
+        std::error_code ec;
+        return fs::exists(p, ec);
+      };
+      if (!found(e.silhouette))
+        throw InputError(where + ": silhouette file not found: " + printable(e.silhouette, 300));
+      if (!e.mesh.empty() && !found(e.mesh))
+        throw InputError(where + ": mesh file not found: " + printable(e.mesh, 300));
     }
     entries.push_back(std::move(e));
   }
