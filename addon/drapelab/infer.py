@@ -104,7 +104,7 @@ def kl_divergence(mu, sigma, mu0, sigma0):
 def check_density(density):
     try:
         d = float(density)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise InputError(f"density: expected a number in kg/m^2, got {density!r}") from None
     if not math.isfinite(d) or d <= 0:
         raise InputError(f"density: must be > 0 kg/m^2, got {density!r}")
@@ -606,6 +606,24 @@ def write_preset(path, preset):
     measure.write_json(path, preset)
 
 
+def _float_array(value, source, what):
+    """A JSON table as a float array; InputError naming `what` when it is not a table of numbers."""
+    try:
+        return np.asarray(value, dtype=float)
+    except (TypeError, ValueError, OverflowError):
+        raise InputError(f"{source}: {what} must be a table of numbers") from None
+
+
+def _json_number(value):
+    """A JSON number (not a bool) as a float (inf beyond the float range), else None."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return None
+    try:
+        return float(value)
+    except OverflowError:
+        return math.inf
+
+
 def validate_preset(preset, source="preset"):
     if not isinstance(preset, dict) or preset.get("kind") != "drapelab-material-preset":
         raise InputError(f"{source}: not a drapelab material preset")
@@ -615,30 +633,37 @@ def validate_preset(preset, source="preset"):
     if preset.get("model") not in MODELS:
         raise InputError(f"{source}: unknown model {preset.get('model')!r}")
     check_density(preset.get("density_kg_m2"))
-    bend = preset.get("posterior", {}).get("bend", {})
+    posterior = preset.get("posterior", {})
+    bend = posterior.get("bend", {}) if isinstance(posterior, dict) else None
+    if not isinstance(bend, dict):
+        raise InputError(f"{source}: posterior bend must be an object holding log_mean and log_std tables")
     for key in ("log_mean", "log_std"):
-        arr = np.asarray(bend.get(key, []), dtype=float)
+        arr = _float_array(bend.get(key, []), source, f"posterior bend {key}")
         if arr.shape != BEND_SHAPE:
             raise InputError(f"{source}: posterior bend {key} must be a 3 x 5 table, got shape {arr.shape}")
         if not np.all(np.isfinite(arr)):
             raise InputError(f"{source}: posterior bend {key} contains NaN or infinity")
     if np.any(np.asarray(bend["log_std"]) < 0):
         raise InputError(f"{source}: posterior bend log_std must be >= 0")
-    g = bend.get("global_log_std", 0.0)
-    if isinstance(g, bool) or not isinstance(g, (int, float)) or not math.isfinite(g) or not 0 <= g <= 5:
-        raise InputError(f"{source}: posterior bend global_log_std must be a number in [0, 5], got {g!r}")
-    stretch = np.asarray(preset.get("stretch_N_m", []), dtype=float)
+    g = _json_number(bend.get("global_log_std", 0.0))
+    if g is None or not 0 <= g <= 5:
+        raise InputError(f"{source}: posterior bend global_log_std must be a number in [0, 5], "
+                         f"got {bend.get('global_log_std')!r}")
+    stretch = _float_array(preset.get("stretch_N_m", []), source, "stretch_N_m")
     if stretch.shape != tables.STRETCH_SHAPE or not np.all(np.isfinite(stretch)):
         raise InputError(f"{source}: stretch_N_m must be a finite 6 x 4 table")
     placement = preset.get("placement_noise")
     if placement is not None:
+        if not isinstance(placement, dict):
+            raise InputError(f"{source}: placement_noise must be an object (velocity_m_s, angular_modes)")
         a, k = placement.get("velocity_m_s"), placement.get("angular_modes")
-        if not isinstance(a, (int, float)) or not math.isfinite(a) or a < 0 or a > 1.0:
+        speed = _json_number(a)
+        if speed is None or not 0 <= speed <= 1.0:
             raise InputError(f"{source}: placement_noise velocity_m_s must be a number in [0, 1] m/s, got {a!r}")
-        if not isinstance(k, int) or not 0 <= k <= 64:
+        if isinstance(k, bool) or not isinstance(k, int) or not 0 <= k <= 64:
             raise InputError(f"{source}: placement_noise angular_modes must be an integer in [0, 64], got {k!r}")
     if "per_element_log" in bend:
-        pe = np.asarray(bend["per_element_log"], dtype=float)
+        pe = _float_array(bend["per_element_log"], source, "posterior bend per_element_log")
         if pe.ndim != 2 or pe.shape[1] != 15 or not np.all(np.isfinite(pe)):
             raise InputError(f"{source}: posterior bend per_element_log must be finite (E, 15)")
     return preset
@@ -652,6 +677,8 @@ def load_preset(path):
         raise InputError(f"{path}: cannot read preset: {e.strerror}") from None
     except ValueError as e:
         raise InputError(f"{path}: not valid JSON: {e}") from None
+    except RecursionError:
+        raise InputError(f"{path}: not valid JSON: nested too deeply") from None
     return validate_preset(preset, path)
 
 
