@@ -107,7 +107,8 @@ def calibration(px_per_m=DATASET_PX_PER_M, centre=None):
 
 # ---------------------------------------------------------------- images and silhouettes
 def read_image(path):
-    """Luminance in [0, 1] of an image file (any OpenImageIO format) and a dict describing the file."""
+    """Luminance in [0, 1] of an image file (PNG, JPEG, TIFF, OpenEXR or uncompressed BMP, recognised by content;
+    at most 32768 px a side and 64 Mpx) and a dict describing the file."""
     return native.read_luminance(os.fspath(path))
 
 

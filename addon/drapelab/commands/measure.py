@@ -15,7 +15,8 @@ import sys
 def register(subparsers):
     p = subparsers.add_parser("measure", help="measure drape coefficient, nodes and r(theta) of silhouette images",
                               description=__doc__.split("\n\n", 1)[1])
-    p.add_argument("images", nargs="+", metavar="IMG", help="top-down Cusick images (JPEG, PNG, TIFF, EXR, ...)")
+    p.add_argument("images", nargs="+", metavar="IMG",
+                   help="top-down Cusick images (PNG, JPEG, TIFF, OpenEXR or uncompressed BMP)")
     add_calibration_arguments(p)
     p.add_argument("--threshold", type=float, default=None,
                    help="silhouette threshold on the cloth value s in (0, 1) (default automatic)")
