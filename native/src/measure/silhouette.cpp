@@ -153,9 +153,14 @@ Silhouette extract_silhouette(const Image& luminance, const Calibration& calibra
     else if (frac <= 0.35) out.dark_on_light = false;
     else {
       const double rad = std::max(2.0, 0.5 * support_px);
+      // Clamped to the image in floating point: a huge scale (px/m) puts the disk's bounds beyond int.
+      const int r_begin = static_cast<int>(std::max(0.0, cy - rad));
+      const int r_end = static_cast<int>(std::min(h - 1.0, cy + rad));
+      const int c_begin = static_cast<int>(std::max(0.0, cx - rad));
+      const int c_end = static_cast<int>(std::min(w - 1.0, cx + rad));
       long cbright = 0, ccount = 0;
-      for (int r = std::max(0, static_cast<int>(cy - rad)); r < std::min(h, static_cast<int>(cy + rad) + 1); ++r)
-        for (int c = std::max(0, static_cast<int>(cx - rad)); c < std::min(w, static_cast<int>(cx + rad) + 1); ++c)
+      for (int r = r_begin; r <= r_end; ++r)
+        for (int c = c_begin; c <= c_end; ++c)
           if (std::hypot(c + 0.5 - cx, r + 0.5 - cy) <= rad) {
             ++ccount;
             cbright += luminance(r, c) > tl;

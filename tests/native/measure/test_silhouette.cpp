@@ -161,3 +161,16 @@ TEST(Silhouette, BadFilesNameTheFile) {
   write_image(dir.file("black.png"), Image::Zero(32, 32));
   expect_input_error([&] { load_silhouette(dir.file("black.png")); }, {"black.png", "no contrast"});
 }
+
+TEST(Silhouette, AnyFiniteScaleIsHandledWithoutOverflow) {
+  // A border half dark, half light sends the polarity to the support disk, whose pixel bounds a huge scale
+  // (px/m) puts beyond int: they are clamped to the image (the sanitizer build checks the conversions).
+  Image lum = Image::Ones(64, 64);
+  lum.leftCols(32) = 0.0;
+  for (const double px_per_m : {720.0, 1e12, 1e300}) {
+    Calibration cal;
+    cal.px_per_m = px_per_m;
+    const Silhouette s = extract_silhouette(lum, cal, {}, "half.png");
+    EXPECT_EQ(s.area_px(), 32 * 64) << px_per_m;
+  }
+}
