@@ -9,8 +9,10 @@
 #include <cstdlib>
 #include <cstring>
 #include <fstream>
+#include <iterator>
 #include <system_error>
 #include <filesystem>
+#include <utility>
 #include <vector>
 
 #include "util/error.hpp"
@@ -382,7 +384,8 @@ std::string check_tiff_extent(const Bytes& b) {
 std::string check_png_extent(const Bytes& b) {
   uint64_t p = 8;
   for (int chunk = 1;; ++chunk) {
-    if (!b.has(p, 8)) return "chunk " + std::to_string(chunk) + " starts beyond the end of the file (no IEND chunk)";
+    if (!b.has(p, 8))
+      return "chunk " + std::to_string(chunk) + " starts beyond the end of the file (no IEND chunk)";
     const uint64_t length = b.u(p, 4, false);
     const bool end = b.has(p + 4, 4) && b[p + 4] == 'I' && b[p + 5] == 'E' && b[p + 6] == 'N' && b[p + 7] == 'D';
     if (!b.has(p + 8, length) || !b.has(p + 8 + length, 4))
@@ -408,6 +411,109 @@ std::string check_exr_extent(const Bytes& b) {
              " lies beyond the end of the file (" + std::to_string(b.size()) + " bytes)";
   }
   return "";
+}
+
+// ---- Metadata. Luminance needs none of it, but OpenImageIO 2.4 parses it on open, and its ICC colour
+// profile parser reads out of bounds on a corrupt profile (found by fuzz_image; regressions/image/
+// jpeg_icc_tag_offset_segv.jpg). JPEG and PNG files reach the decoder with only the segments and chunks that
+// define their pixels; a TIFF's ICC profile (tag 34675, stored as is) is checked as the parser reads it.
+
+// Why the ICC profile in bytes [at, at + n) would make a profile parser read outside it; empty when it
+// would not. Mirrors the bounds OpenImageIO's later releases check (header, tag table, each tag's data, the
+// text, desc and mluc tag types) and also requires the declared size to match.
+std::string check_icc_profile(const Bytes& b, uint64_t at, uint64_t n) {
+  auto inside = [n](uint64_t off, uint64_t len) { return off <= n && len <= n - off; };
+  if (n < 132) return "shorter than an ICC header";
+  if (b.u(at, 4, false) != n) return "its declared size (" + std::to_string(b.u(at, 4, false)) + ") is not its size";
+  const uint64_t tags = b.u(at + 128, 4, false);
+  if (!inside(132, 12 * tags)) return "its tag table runs past its end";
+  for (uint64_t i = 0; i < tags; ++i) {
+    const uint64_t entry = at + 132 + 12 * i, off = b.u(entry + 4, 4, false), size = b.u(entry + 8, 4, false);
+    const std::string why = "tag " + std::to_string(i + 1) + " of " + std::to_string(tags);
+    if (!inside(off, std::max<uint64_t>(4, size))) return why + " lies outside the profile";
+    const std::string type{static_cast<char>(b[at + off]), static_cast<char>(b[at + off + 1]),
+                           static_cast<char>(b[at + off + 2]), static_cast<char>(b[at + off + 3])};
+    if ((type == "text" && size < 8) || (type == "desc" && size < 12)) return why + " is too short for its type";
+    if (type != "mluc") continue;
+    if (!inside(off, 16)) return why + " (mluc) is too short";
+    const uint64_t records = b.u(at + off + 8, 4, false);
+    if (!inside(off + 16, 12 * records)) return why + " (mluc) has records outside the profile";
+    for (uint64_t r = 0; r < records; ++r) {
+      const uint64_t rec = at + off + 16 + 12 * r;
+      if (!inside(off + b.u(rec + 8, 4, false), b.u(rec + 4, 4, false)))
+        return why + " (mluc) has a string outside the profile";
+    }
+  }
+  return "";
+}
+
+std::string check_tiff_icc_profile(const Bytes& b) {
+  const TiffDirectory dir = tiff_first_directory(b);
+  if (!dir.error.empty()) return dir.error;
+  for (const uint64_t e : dir.entries) {
+    if (dir.tag(b, e) != 34675) continue;
+    const uint64_t count = b.u(e + 4, dir.big ? 8 : 4, dir.little), field = e + (dir.big ? 12 : 8);
+    const uint64_t at = count <= (dir.big ? 8u : 4u) ? field : b.u(field, dir.big ? 8 : 4, dir.little);
+    if (!b.has(at, count)) return "its ICC colour profile lies beyond the end of the file";
+    const std::string why = check_icc_profile(b, at, count);
+    if (!why.empty()) return "corrupt ICC colour profile: " + why;
+  }
+  return "";
+}
+
+// The byte ranges of a JPEG's segments that do not define its pixels: application data (APP1..APP13 and
+// APP15: Exif, XMP, ICC profiles, IPTC) and comments. APP0 (JFIF) and APP14 (Adobe: colour transform) stay.
+std::vector<std::pair<uint64_t, uint64_t>> jpeg_metadata(const Bytes& b) {
+  std::vector<std::pair<uint64_t, uint64_t>> out;
+  uint64_t p = 2;
+  for (;;) {
+    p = b.find(p, 0xff);
+    while (b.has(p + 1, 1) && b[p + 1] == 0xff) ++p;
+    if (!b.has(p, 4)) return out;
+    const unsigned char marker = b[p + 1];
+    if (marker == 0x01 || marker == 0xd8 || (marker >= 0xd0 && marker <= 0xd7)) {
+      p += 2;
+      continue;
+    }
+    if (marker == 0xd9 || marker == 0xda) return out;  // the entropy-coded data follows SOS: copied as is
+    const uint64_t end = p + 2 + b.u(p + 2, 2, false);
+    if ((marker >= 0xe1 && marker <= 0xed) || marker == 0xef || marker == 0xfe)
+      out.emplace_back(p, std::min<uint64_t>(end, b.size()));
+    p = end;
+  }
+}
+
+// The byte ranges of a PNG's chunks other than those that define its pixels (checked complete by
+// check_png_extent): text, Exif, ICC profile and any chunk unknown to the list below.
+std::vector<std::pair<uint64_t, uint64_t>> png_metadata(const Bytes& b) {
+  static const char* kept[] = {"IHDR", "PLTE", "tRNS", "IDAT", "IEND", "gAMA",
+                               "cHRM", "sRGB", "sBIT", "bKGD", "pHYs"};
+  std::vector<std::pair<uint64_t, uint64_t>> out;
+  for (uint64_t p = 8; b.has(p, 8);) {
+    const uint64_t end = p + 12 + b.u(p, 4, false);
+    const std::string type{static_cast<char>(b[p + 4]), static_cast<char>(b[p + 5]), static_cast<char>(b[p + 6]),
+                           static_cast<char>(b[p + 7])};
+    if (std::none_of(std::begin(kept), std::end(kept), [&](const char* k) { return type == k; }))
+      out.emplace_back(p, std::min<uint64_t>(end, b.size()));
+    if (type == "IEND") break;
+    p = end;
+  }
+  return out;
+}
+
+// The file's bytes without the ranges `drop` (sorted, disjoint); empty when nothing is dropped.
+std::vector<unsigned char> without(const Bytes& b, const unsigned char* data,
+                                   const std::vector<std::pair<uint64_t, uint64_t>>& drop) {
+  std::vector<unsigned char> out;
+  if (drop.empty()) return out;
+  out.reserve(b.size());
+  uint64_t from = 0;
+  for (const auto& [begin, end] : drop) {
+    out.insert(out.end(), data + from, data + begin);
+    from = end;
+  }
+  out.insert(out.end(), data + from, data + b.size());
+  return out;
 }
 
 }  // namespace
@@ -446,6 +552,18 @@ Image decode_luminance(const unsigned char* data, size_t size, const std::string
                             : format == "png" ? check_png_extent(bytes)
                                               : check_exr_extent(bytes);
     if (!why.empty()) throw InputError(source + ": truncated or corrupt " + format + " file: " + why);
+  }
+  if (format == "tiff") {
+    const std::string why = check_tiff_icc_profile(bytes);
+    if (!why.empty()) throw InputError(source + ": " + why);
+  }
+  const std::vector<unsigned char> pixels_only =
+      format == "jpeg" ? without(bytes, data, jpeg_metadata(bytes))
+      : format == "png" ? without(bytes, data, png_metadata(bytes))
+                        : std::vector<unsigned char>();
+  if (!pixels_only.empty()) {
+    data = pixels_only.data();
+    size = pixels_only.size();
   }
 
   // The reader of the recognised format only, reading from memory (the bytes checked above).

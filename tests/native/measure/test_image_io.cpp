@@ -3,6 +3,7 @@
 
 #include <OpenImageIO/imageio.h>
 
+#include <array>
 #include <cmath>
 #include <fstream>
 #include <vector>
@@ -218,8 +219,10 @@ TEST(MeasureImageIo, HugeDeclaredSizesAreRefusedBeforeDecoding) {
   // Each file is under 100 bytes and declares 100000 x 100000 pixels (or 65535 x 65535 for JPEG, its
   // largest): the header check refuses it; decoding it would allocate tens of gigabytes.
   struct Case { const char* name; std::string bytes; };
-  for (const Case& c : {Case{"huge.png", png_declaring(100000, 100000)}, Case{"huge.tif", tiff_declaring(100000, 100000)},
-                        Case{"huge.exr", exr_declaring(100000, 100000)}, Case{"huge.jpg", jpeg_declaring(65535, 65535)},
+  for (const Case& c : {Case{"huge.png", png_declaring(100000, 100000)},
+                        Case{"huge.tif", tiff_declaring(100000, 100000)},
+                        Case{"huge.exr", exr_declaring(100000, 100000)},
+                        Case{"huge.jpg", jpeg_declaring(65535, 65535)},
                         Case{"huge.bmp", bmp_declaring(100000, 100000)}}) {
     expect_input_error([&] { decode(c.bytes, c.name); }, {c.name, "image too large", "pixels"});
     TempDir dir;
@@ -257,4 +260,63 @@ TEST(MeasureImageIo, DecodingBytesInMemoryEqualsReadingTheFile) {
   TempDir dir;
   std::ofstream(dir.file("really_a_jpeg.png"), std::ios::binary) << bytes;
   EXPECT_EQ((read_luminance(dir.file("really_a_jpeg.png")) - from_memory).abs().maxCoeff(), 0.0);
+}
+
+// ---- metadata (issue 16): OpenImageIO 2.4 parses ICC profiles on open and reads out of bounds on corrupt ones
+
+namespace {
+
+std::string file_bytes(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  return {(std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>()};
+}
+
+// A minimal ICC profile: header (size, 'acsp'), then `tags` entries of (signature, offset, size).
+std::string icc_profile(const std::vector<std::array<uint32_t, 2>>& tags, uint32_t extra = 0) {
+  const uint32_t size = 132 + 12 * static_cast<uint32_t>(tags.size()) + extra;
+  std::string p = u32_be(size) + std::string(32, '\0') + "acsp" + std::string(88, '\0') + u32_be(tags.size());
+  for (const auto& t : tags) p += "text" + u32_be(t[0]) + u32_be(t[1]);
+  return p + std::string(extra, 't');
+}
+
+// A 2 x 2 grey 8-bit uncompressed TIFF carrying `icc` as its ICC profile (tag 34675).
+std::string tiff_with_icc(const std::string& icc) {
+  auto entry = [](uint16_t tag, uint16_t type, uint32_t count, uint32_t value) {
+    return u16_le(tag) + u16_le(type) + u32_le(count) + u32_le(value);
+  };
+  const uint32_t entries = 10, pixels_at = 8 + 2 + 12 * entries + 4, icc_at = pixels_at + 4;
+  std::string t = std::string("II*\0", 4) + u32_le(8) + u16_le(entries);
+  t += entry(256, 3, 1, 2) + entry(257, 3, 1, 2) + entry(258, 3, 1, 8) + entry(259, 3, 1, 1) + entry(262, 3, 1, 1) +
+       entry(273, 4, 1, pixels_at) + entry(277, 3, 1, 1) + entry(278, 3, 1, 2) + entry(279, 4, 1, 4) +
+       entry(34675, 7, static_cast<uint32_t>(icc.size()), icc_at);
+  return t + u32_le(0) + std::string("\x00\x40\x80\xff", 4) + icc;
+}
+
+}  // namespace
+
+TEST(MeasureImageIo, CorruptIccProfilesNeverReachTheDecoder) {
+  // JPEG: the bundled photo carries an ICC profile (and Exif, XMP); with a tag offset pointing 4 GB away it
+  // reads the same as the original (application segments are left out before decoding).
+  const std::string jpeg = file_bytes(asset("cusick/fabric_02/silhouettes/sample_02_capture_1.jpg"));
+  const size_t icc = jpeg.find("ICC_PROFILE");
+  ASSERT_NE(icc, std::string::npos);
+  std::string corrupt = jpeg;
+  corrupt.replace(icc + 14 + 132 + 4, 4, std::string("\xff\xff\xf0\x00", 4));  // first tag's offset
+  EXPECT_EQ((decode(corrupt, "icc.jpg") - decode(jpeg, "original.jpg")).abs().maxCoeff(), 0.0);
+
+  // PNG: an iCCP chunk (here garbage, with a wrong CRC) is left out too.
+  TempDir dir;
+  write_image(dir.file("g.png"), gradient(8, 8));
+  const std::string png = file_bytes(dir.file("g.png"));
+  const std::string iccp = u32_be(5) + std::string("iCCPjunk\0\x01\x02\x03\x04", 13);  // type, data, CRC
+  const std::string with_iccp = png.substr(0, 33) + iccp + png.substr(33);  // after the signature and IHDR
+  EXPECT_EQ((decode(with_iccp, "iccp.png") - decode(png, "g.png")).abs().maxCoeff(), 0.0);
+
+  // TIFF: the profile is checked as a profile parser reads it.
+  EXPECT_NEAR(decode(tiff_with_icc(icc_profile({})), "ok.tif")(1, 1), 1.0, 1e-6);
+  EXPECT_NEAR(decode(tiff_with_icc(icc_profile({{144, 8}}, 8)), "text.tif")(0, 1), 64 / 255.0, 1e-6);
+  expect_input_error([] { decode(tiff_with_icc(icc_profile({{0xfffff93cu, 2060}})), "far.tif"); },
+                     {"far.tif", "corrupt ICC colour profile", "outside"});
+  expect_input_error([] { decode(tiff_with_icc(icc_profile({}).substr(0, 100)), "short.tif"); },
+                     {"short.tif", "corrupt ICC colour profile"});
 }
