@@ -93,36 +93,38 @@ py::list layout_list(const ParameterLayout& layout) {
   return out;
 }
 
+// The effect registry as Python objects (physics/effect.hpp).
+py::list effect_list() {
+  py::list out;
+  for (const EffectSpec& e : effect_registry()) {
+    py::list params;
+    for (const EffectParameter& q : e.parameters) {
+      py::dict d;
+      d["name"] = q.name;
+      d["unit"] = q.unit;
+      d["off"] = q.off;
+      d["lower"] = q.lower;
+      d["upper"] = q.upper;
+      d["prior_scale"] = q.prior_scale;
+      d["moderate"] = q.moderate;
+      d["description"] = q.description;
+      params.append(d);
+    }
+    py::dict d;
+    d["name"] = e.name;
+    d["explanation"] = e.explanation;
+    d["signature"] = e.signature;
+    d["parameters"] = params;
+    out.append(d);
+  }
+  return out;
+}
+
 }  // namespace
 
 void bind_physics(py::module_& m) {
   m.def(
-      "effects",
-      [] {
-        py::list out;
-        for (const EffectSpec& e : effect_registry()) {
-          py::list params;
-          for (const EffectParameter& q : e.parameters) {
-            py::dict d;
-            d["name"] = q.name;
-            d["unit"] = q.unit;
-            d["off"] = q.off;
-            d["lower"] = q.lower;
-            d["upper"] = q.upper;
-            d["prior_scale"] = q.prior_scale;
-            d["moderate"] = q.moderate;
-            d["description"] = q.description;
-            params.append(d);
-          }
-          py::dict d;
-          d["name"] = e.name;
-          d["explanation"] = e.explanation;
-          d["signature"] = e.signature;
-          d["parameters"] = params;
-          out.append(d);
-        }
-        return out;
-      },
+      "effects", effect_list,
       "The effect registry (physics/effect.hpp): a list of {name, explanation, signature, parameters: [{name, "
       "unit, off, lower, upper, prior_scale, moderate, description}]}, in registration order.");
 

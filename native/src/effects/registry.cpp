@@ -40,7 +40,7 @@ void check_effect_value(const EffectSpec& spec, const std::string& parameter, do
     if (q.name != parameter) continue;
     if (!std::isfinite(value) || value < q.lower || value > q.upper) {
       std::ostringstream s;
-      s << "effect '" << spec.name << "' parameter '" << parameter << "' = " << value << " " << q.unit
+      s << "effect parameter '" << effect_block_name(spec.name, parameter) << "' = " << value << " " << q.unit
         << " is " << (std::isfinite(value) ? "out of range" : "not finite") << " (allowed [" << q.lower << ", "
         << q.upper << "] " << q.unit << ")";
       throw InputError(s.str());
