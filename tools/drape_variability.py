@@ -65,11 +65,11 @@ def slopes(fabrics=CALIBRATION_FABRICS, data=DATA, presets=os.path.join(ROOT, "a
 
 
 def main():
-    paths.require_cusick_dataset()
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--fabrics", default=",".join(map(str, CALIBRATION_FABRICS)))
     ap.add_argument("--json", default=None)
     args = ap.parse_args()
+    paths.require_cusick_dataset()  # after parsing: --help works without the dataset
     fabrics = tuple(int(f) for f in args.fabrics.split(","))
     per = drape_coefficients(fabrics)
     slope = slopes(fabrics)

@@ -140,13 +140,13 @@ def best_of_k_curve(fabric, training_sample, ks=(1, 2, 5, 10, 20, 40), data=DATA
 
 
 def main():
-    paths.require_cusick_dataset()
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--fabrics", default="1,2,3,4,5")
     ap.add_argument("--best-of-k", action="store_true",
                     help="also the real drapes' best-of-k curves against the protocol's test drapes")
     ap.add_argument("--json", default=None)
     args = ap.parse_args()
+    paths.require_cusick_dataset()  # after parsing: --help works without the dataset
     fabrics = [int(f) for f in args.fabrics.split(",")]
     per = [floor(f) for f in fabrics]
     keys = [k for k in per[0] if k not in ("fabric", "samples")]

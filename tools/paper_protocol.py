@@ -152,7 +152,6 @@ def presets(args):
 
 
 def main():
-    paths.require_cusick_dataset()
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("what", choices=["table", "presets"])
     ap.add_argument("--models", default="homo,heter,bdp")
@@ -165,6 +164,7 @@ def main():
                          "presets: likewise for the shipped presets of fabrics the table run did not fit")
     ap.add_argument("--out", default=None, help="table: output folder; presets: the table run's folder to reuse fits from (default out/protocol)")
     args = ap.parse_args()
+    paths.require_cusick_dataset()  # after parsing: --help works without the dataset
     (table if args.what == "table" else presets)(args)
 
 
