@@ -25,6 +25,22 @@ def small_config(**overrides):
     return cfg
 
 
+def assert_same_to_roundoff(a, b, rel=1e-12, where="result"):
+    """a and b have the same structure and keys, equal strings/bools, and numbers equal to `rel` relative."""
+    if isinstance(a, dict):
+        assert isinstance(b, dict) and sorted(a) == sorted(b), where
+        for k in a:
+            assert_same_to_roundoff(a[k], b[k], rel, f"{where}.{k}")
+    elif isinstance(a, (list, tuple)):
+        assert isinstance(b, (list, tuple)) and len(a) == len(b), where
+        for i, (x, y) in enumerate(zip(a, b)):
+            assert_same_to_roundoff(x, y, rel, f"{where}[{i}]")
+    elif isinstance(a, (float, np.floating)) and not isinstance(a, bool):
+        assert b == pytest.approx(a, rel=rel, abs=0, nan_ok=True), where
+    else:
+        assert a == b, where
+
+
 def test_kl_closed_form_matches_monte_carlo():
     rng = np.random.default_rng(0)
     mu, sigma = rng.normal(size=15), np.exp(rng.normal(scale=0.3, size=15))
@@ -274,7 +290,8 @@ def test_bdp_predictive_spreads_over_placements_and_bad_placement_rejected(tmp_p
     lo, hi = result["images"][0]["drape_coefficient"]["interval90"]
     assert hi > lo and result["placement_noise"] == preset["placement_noise"]
     again = infer.evaluate(preset, [ASSET_IMAGE], samples=4, threads=1, config=small_config(), seed=1)
-    assert again["images"][0] == result["images"][0]  # seeded: same draws whatever the thread count
+    # Seeded: the same draws whatever the thread count (to round-off: see test_same_seed_same_result_any_thread_count).
+    assert_same_to_roundoff(again["images"][0], result["images"][0])
     bad = copy.deepcopy(preset)
     bad["placement_noise"]["velocity_m_s"] = -0.1
     with pytest.raises(infer.InputError, match="placement_noise"):
@@ -287,7 +304,10 @@ def test_gradient_clipping_scales_only_the_data_term_and_follows_the_median():
     terms, full = job.objective(job.theta, 0)
     assert terms["clip"] == 1.0 and terms["grad_norm"] > 0
     half, clipped = job.objective(job.theta, 0, clip=0.5 * terms["grad_norm"])
-    assert half["clip"] == pytest.approx(0.5) and half["loss"] == terms["loss"]
+    # The loss is not clipped. Two evaluations agree to round-off, not bit for bit: the native buffers of the two
+    # calls may sit at different alignments, which changes a vectorised reduction's rounding (seen in a clean-clone
+    # run: 250.0891589666112 vs ...1176).
+    assert half["clip"] == pytest.approx(0.5) and half["loss"] == pytest.approx(terms["loss"], rel=1e-12)
     # full = data + prior, clipped = data / 2 + prior: the data part has the reported norm, the prior part is
     # the KL's own gradient (unchanged).
     data = {k: 2 * (full[k] - clipped[k]) for k in full}
