@@ -32,7 +32,7 @@ from . import paths, tables
 from ._native import Cancelled, InputError, SolverError, native
 
 __all__ = [
-    "InputError", "SolverError", "Cancelled", "ClothModel", "effects", "effect_values", "cusick_specimen", "cusick_template_path",
+    "InputError", "SolverError", "Cancelled", "ClothModel", "effects", "effect_values", "parse_effects_arg", "cusick_specimen", "cusick_template_path",
     "default_template_dir", "simulate", "backward", "read_obj", "write_obj", "MODES",
     "DEFAULT_DENSITY", "DEFAULT_HANDLE_STIFFNESS", "DEFAULT_SUPPORT_RADIUS", "DEFAULT_TIME_STEP", "DEFAULT_STEPS",
 ]
@@ -73,6 +73,73 @@ def effect_values(effects):
         if not isinstance(values, dict):
             raise InputError(f"effects: {name}: expected a dict {{parameter: value}}, got {type(values).__name__}")
         out[str(name)] = {str(param): _scalar(value, f"effects: {name}.{param}") for param, value in values.items()}
+    return out
+
+
+EFFECT_BARE_VALUES = ("moderate", "off", None)
+
+
+def parse_effects_arg(text, bare="moderate", registry=None):
+    """The command-line effects syntax as {name: {param: value}} (the ``effects=`` argument of ClothModel).
+
+    text: comma-separated items, each ``NAME`` (switch the effect on), ``NAME=VALUE`` (set its primary
+    parameter, the first of its block, in that parameter's unit) or ``NAME.PARAM=VALUE`` (set any one);
+    spaces around items, names and values are ignored; None or "" gives {} (no effect).
+    bare: what a named effect's primary parameter is when the text does not set it: "moderate" (the registry's
+    moderate strength: ``synth``) or "off" (its off value: ``fit``, which fits it from there); the effect's
+    other parameters not set take their off values, so every named effect comes back with its whole block.
+    bare=None returns only what the text sets (a bare NAME gives {}), for callers that must tell a value
+    given from one filled in (``fit`` fixes the given values and fits the rest).
+    registry: the effect list (default ``effects()``). Errors (InputError naming the item): an unknown effect
+    or parameter (listing the known ones), a value that is not a finite number, a parameter set twice. Ranges
+    are checked where values meet the model, by the native registry (``ClothModel(effects=...)``).
+    """
+    if bare not in EFFECT_BARE_VALUES:
+        raise InputError(f"bare: expected one of {EFFECT_BARE_VALUES}, got {bare!r}")
+    if text is None:
+        return {}
+    if not isinstance(text, str):
+        raise InputError(f"effects: expected text NAME[=VALUE][,NAME.PARAM=VALUE...], got {type(text).__name__}")
+    blocks = {e["name"]: e["parameters"] for e in (effects() if registry is None else registry)}
+    given = {}
+    for item in (s.strip() for s in text.split(",")):
+        if not item:
+            if text.strip():
+                raise InputError(f"effects: empty item in {text!r} (items are separated by single commas)")
+            continue
+        key, has_value, value = (s.strip() for s in item.partition("="))
+        name, has_param, param = (s.strip() for s in key.partition("."))
+        if name not in blocks:
+            raise InputError(f"effects: unknown effect {name!r} in {item!r} (registered: "
+                             f"{', '.join(blocks) or 'none'})")
+        names = [q["name"] for q in blocks[name]]
+        if has_param and param not in names:
+            raise InputError(f"effects: effect {name!r} has no parameter {param!r} in {item!r} "
+                             f"(parameters: {', '.join(names)})")
+        if has_param and not has_value:
+            raise InputError(f"effects: {item!r} names a parameter without a value (write {name}.{param}=VALUE)")
+        values = given.setdefault(name, {})
+        if not has_value:
+            continue
+        param = param if has_param else names[0]
+        if param in values:
+            raise InputError(f"effects: {name}.{param} is set twice in {text!r}")
+        try:
+            number = float(value)
+        except ValueError:
+            raise InputError(f"effects: {name}.{param}: expected a number, got {value!r}") from None
+        if not np.isfinite(number):
+            raise InputError(f"effects: {name}.{param}: must be finite, got {value!r}")
+        values[param] = number
+    if bare is None:
+        return given
+    out = {}
+    for name, values in given.items():
+        primary = blocks[name][0]
+        filled = {q["name"]: float(q["off"]) for q in blocks[name]}
+        filled[primary["name"]] = float(primary[bare])
+        filled.update(values)
+        out[name] = filled
     return out
 
 
