@@ -273,6 +273,8 @@ def synth(out, density, effects=None, material=None, count=DEFAULT_COUNT, seed=0
         except SolverError as e:
             raise SolverError(f"synth: drape {sample} of {count} failed ({e}); the {i} drapes before it are kept "
                               f"in {out}") from None
+        except Cancelled:
+            raise Cancelled(f"synth: cancelled after {i} of {count} drapes (kept in {out})") from None
         mask = np.asarray(render.hard_silhouette(camera, x, model.faces), dtype=np.float64)
         silhouette, mesh_path = _relative_paths(sample)
         sim.write_obj(os.path.join(out, mesh_path), x, model.faces)

@@ -61,7 +61,7 @@ def run(args):
                             material_draw=args.material_draw, force=args.force, progress=progress,
                             cancel_event=cancel)
     except synth.Cancelled as e:
-        print(f"{e}; manifest.csv and truth.json list them", file=sys.stderr)
+        print(f"{e}: manifest.csv and truth.json list them", file=sys.stderr)
         return 130
     finally:
         signal.signal(signal.SIGINT, previous)
