@@ -110,11 +110,12 @@ def test_truth_json_records_effects_material_and_protocol(control, tilted):
         assert truth["placement_noise"]["velocity_m_s"] > 0
 
 
-def test_a_bare_effect_name_is_its_moderate_strength(tmp_path):
-    truth = run(tmp_path / "bare", effects="tilt", count=1)
-    tilt = next(e for e in sim.effects() if e["name"] == "tilt")
-    assert truth["effects"] == {"tilt": {q["name"]: (q["moderate"] if i == 0 else q["off"])
-                                         for i, q in enumerate(tilt["parameters"])}}
+@pytest.mark.parametrize("effect", sim.effects(), ids=lambda e: e["name"])
+def test_every_registered_effect_synthesises_and_a_bare_name_is_its_moderate_strength(tmp_path, effect):
+    truth = run(tmp_path / "bare", effects=effect["name"], count=1)
+    assert truth["effects"] == {effect["name"]: {q["name"]: (q["moderate"] if i == 0 else q["off"])
+                                                 for i, q in enumerate(effect["parameters"])}}
+    assert measure.measure_image(str(tmp_path / "bare" / truth["drapes"][0]["silhouette"]))["px_per_m"] == 720
 
 
 def test_nothing_but_truth_json_names_the_effect(control, tilted):
