@@ -61,14 +61,14 @@ import time
 
 import numpy as np
 
-from . import measure, render, sim, tables
+from . import fit_effects, measure, render, sim, tables
 from ._native import Cancelled, InputError, SolverError
 
 __all__ = ["MODELS", "load_config", "FitJob", "fit", "load_preset", "write_preset", "sample_bend_tables",
            "kl_divergence", "evaluate", "calibrate_preset", "PRESET_SCHEMA_VERSION"]
 
 MODELS = ("homo", "heter", "bdp")
-PRESET_SCHEMA_VERSION = 1
+PRESET_SCHEMA_VERSION = 2  # 2: active_effects carries the effects' values (1: always empty); 1 is migrated on load
 CONFIG_PATH = os.path.join(os.path.dirname(os.path.abspath(__file__)), "config", "fit.json")
 MAX_PLAUSIBLE_DENSITY = 5.0  # kg/m^2: heavier than any woven or knitted fabric by far
 BEND_SHAPE = tables.BEND_SHAPE
@@ -190,17 +190,20 @@ def _camera_for(kind, calibration, shape):
 class _Worker:
     """One Monte Carlo lane: its own model, solver state (warm start) and renderer."""
 
-    def __init__(self, mesh, heterogeneous, density, stretch, config, camera):
-        self.model = sim.ClothModel(mesh, heterogeneous=heterogeneous, density=density)
+    def __init__(self, mesh, heterogeneous, density, stretch, config, camera, plan=None):
+        self.plan = plan or fit_effects.EffectPlan()
+        self.model = sim.ClothModel(mesh, heterogeneous=heterogeneous, density=density, effects=self.plan.values())
         self.stretch = stretch
         self.config = config
         self.renderer = render.SoftRenderer(camera, sigma=config["render_sigma_px"])
         self.faces = self.model.faces
 
-    def drape(self, bend, warm, key, velocities0=None):
-        """Drape with these tables. Static mode warm-starts from warm[key] (the previous equilibrium of the
-        same Monte Carlo slot, so results do not depend on which lane ran it) and stores the new one."""
-        p = self.model.parameters(stretch=self.stretch, bend=bend)
+    def drape(self, bend, warm, key, velocities0=None, effects=None):
+        """Drape with these tables (and fitted effect values, a vector in the plan's order). Static mode
+        warm-starts from warm[key] (the previous equilibrium of the same Monte Carlo slot, so results do not
+        depend on which lane ran it) and stores the new one."""
+        p = self.model.parameters(stretch=self.stretch, bend=bend,
+                                  effects=self.plan.values(effects) if effects is not None else None)
         cfg = self.config
         if cfg["forward"] == "static":
             if warm.get(key) is None:  # first solve: the paper's rollout from flat, then Newton to rest
@@ -219,21 +222,22 @@ class _Worker:
             x = self.model.simulate(p, mode="dynamic", record=True, velocities0=velocities0, **cfg["dynamic"])
         return x
 
-    def loss_and_gradient(self, bend, obs, sigma_obs, sigma_dc, warm, key, velocities0=None):
-        """Data term and dL/dB (shaped like bend) for one drape against one observation."""
-        x = self.drape(bend, warm, key, velocities0)
+    def loss_and_gradient(self, bend, obs, sigma_obs, sigma_dc, warm, key, velocities0=None, effects=None):
+        """Data term, dL/dB (shaped like bend), positions, image and dL/d(fitted effect parameters) (a vector in
+        the plan's order) for one drape against one observation."""
+        x = self.drape(bend, warm, key, velocities0, effects)
         image = self.renderer.render(x, self.faces)
         data, g_image = data_term(image, obs, sigma_obs, sigma_dc)
         g_x = self.renderer.backward(g_image)
         g = self.model.backward(g_x)
-        return data, g["bend"], x, image
+        return data, g["bend"], x, image, self.plan.gather(g)
 
 
 class FitJob:
     """A fit of one model to one or more silhouettes; run() until done, cancelled or out of time."""
 
     def __init__(self, images, density, model="bdp", seed=0, config=None, camera="ortho", calibration=None,
-                 mesh_level=None, template_dir=None, threads=None, init_bend=None, init_stretch=None):
+                 mesh_level=None, template_dir=None, threads=None, init_bend=None, init_stretch=None, effects=None):
         if model not in MODELS:
             raise InputError(f"model: expected one of {MODELS}, got {model!r}")
         if not images:
@@ -275,8 +279,9 @@ class FitJob:
         self.samples = 1 if model == "homo" else (1 if model == "heter" else int(self.config["samples_per_epoch"]))
         heterogeneous = model != "homo"
         lanes = min(self.threads, max(self.samples, len(self.observations)))
-        self.workers = [_Worker(self.mesh, heterogeneous, self.density, self.stretch, self.config, self.camera)
-                        for _ in range(lanes)]
+        self.plan = fit_effects.EffectPlan(effects)
+        self.workers = [_Worker(self.mesh, heterogeneous, self.density, self.stretch, self.config, self.camera,
+                                self.plan) for _ in range(lanes)]
         self.num_edges = self.workers[0].model.num_bending_edges
         if model == "heter":
             self.theta = {"mu": np.broadcast_to(self.log_bend0, (self.num_edges,) + BEND_SHAPE).copy()}
@@ -285,6 +290,18 @@ class FitJob:
         else:
             self.theta = {"mu": self.log_bend0.copy(),
                           "eta": np.full(BEND_SHAPE, inverse_softplus(float(self.config["init"]["bdp_std"])))}
+        # Fitted effect parameters (fit_effects.EffectPlan): their means (MAP values for homo/heter) start at
+        # the off values, a bdp posterior sd at fit.json effects.init_std x the prior scale; Adam's step size is
+        # effects.learning_rate x the registry's moderate strength (the parameters carry units).
+        self.learning_rates = {k: float(v) for k, v in self.config["learning_rates"][model].items()}
+        if self.plan.size:
+            ecfg = self.config.get("effects") or {}
+            self.theta["effect_mu"] = self.plan.off.copy()
+            self.learning_rates["effect_mu"] = float(ecfg.get("learning_rate", 0.1)) * self.plan.moderate
+            if model == "bdp":
+                self.theta["effect_eta"] = inverse_softplus(float(ecfg.get("init_std", 0.1)) * self.plan.prior_scale)
+                self.learning_rates["effect_eta"] = float(ecfg.get("eta_learning_rate", 0.05))
+        self.effect_start = None  # result of the effects' start search
         self.adam = {k: {"m": np.zeros_like(v), "v": np.zeros_like(v)} for k, v in self.theta.items()}
         self.warm = {}  # Monte Carlo slot -> last equilibrium (static mode warm starts)
         self.previous_theta = None  # before the last Adam step (undone if the next drape fails)
@@ -299,6 +316,24 @@ class FitJob:
     def noise(self, epoch, sample):
         rng = np.random.default_rng([self.seed, epoch, sample])
         return rng.standard_normal((self.num_edges,) + BEND_SHAPE)
+
+    def effect_noise(self, epoch, sample):
+        """Standard-normal noise of this epoch's sample for the fitted effects' bdp posterior (its own stream)."""
+        rng = np.random.default_rng([self.seed, epoch, sample, 2])
+        return rng.standard_normal(self.plan.size)
+
+    def effect_draw(self, theta, epoch, sample):
+        """The fitted effect values of one sample (clipped to their bounds), the mask of those inside the bounds
+        (the gradient flows only there), and the noise (bdp; None otherwise)."""
+        if not self.plan.size:
+            return None, None, None
+        if self.kind == "bdp":
+            eps = self.effect_noise(epoch, sample)
+            value = theta["effect_mu"] + softplus(theta["effect_eta"]) * eps
+        else:
+            eps, value = None, theta["effect_mu"]
+        clipped, inside = self.plan.clip(value)
+        return clipped, inside, eps
 
     def placement_noise(self, epoch, sample):
         """Initial velocities of this epoch's sample (None: no placement noise), from its own seeded stream."""
@@ -317,8 +352,9 @@ class FitJob:
         for s in range(self.samples):
             noise = self.noise(epoch, s) if self.kind == "bdp" else None
             v0 = self.placement_noise(epoch, s)
+            effect = self.effect_draw(theta, epoch, s)
             for o in self.observations:
-                jobs.append((s, noise, o, v0))
+                jobs.append((s, noise, o, v0, effect))
         results = [None] * len(jobs)
 
         def run(lane, indices):
@@ -326,9 +362,10 @@ class FitJob:
             for i in indices:
                 if cancel_event is not None and cancel_event.is_set():
                     raise Cancelled()
-                s, noise, o, v0 = jobs[i]
+                s, noise, o, v0, effect = jobs[i]
                 bend = sample_bend_tables(self.kind, theta, self.num_edges, noise)
-                results[i] = (w.loss_and_gradient(bend, o, self.sigma_obs, self.sigma_dc, self.warm, i, v0), bend, noise)
+                results[i] = (w.loss_and_gradient(bend, o, self.sigma_obs, self.sigma_dc, self.warm, i, v0, effect[0]),
+                              bend, noise, effect)
 
         lanes = len(self.workers)
         assignments = [list(range(l, len(jobs), lanes)) for l in range(lanes)]
@@ -340,9 +377,9 @@ class FitJob:
                     f.result()
         n = len(jobs)
         data = 0.0
-        grads = {k: np.zeros_like(v) for k, v in theta.items()}
+        grads = {k: np.zeros_like(v, dtype=float) for k, v in theta.items()}
         images = []
-        for (d, g_bend, x, image), bend, noise in results:
+        for (d, g_bend, x, image, g_effect), bend, noise, (_, inside, eps) in results:
             data += d / n
             g_log = np.asarray(g_bend) * bend / n  # dL/dlog B
             images.append(image)
@@ -351,6 +388,11 @@ class FitJob:
                 grads["eta"] += (g_log * noise).sum(axis=0) * sigmoid(theta["eta"])
             else:
                 grads["mu"] += g_log
+            if self.plan.size:  # reparameterised: value = mu + softplus(eta) eps, clipped to the bounds
+                g_e = np.where(inside, g_effect, 0.0) / n
+                grads["effect_mu"] += g_e
+                if self.kind == "bdp":
+                    grads["effect_eta"] += g_e * eps * sigmoid(theta["effect_eta"])
         grad_norm = float(np.sqrt(sum(float(np.sum(g * g)) for g in grads.values())))
         factor = 1.0
         if clip is not None and grad_norm > clip:
@@ -374,6 +416,21 @@ class FitJob:
             kl *= w
             grads["mu"] += w * d_mu
             grads["eta"] += w * d_sigma * sigmoid(theta["eta"])
+        if self.plan.size:
+            # Prior N(off, prior_scale^2) per fitted effect parameter (the registry's): KL of the bdp posterior,
+            # or -log p (MAP) for homo/heter, weighted by kl_weight x fit.json effects.prior_weight. The pixel
+            # likelihood is a mean over pixels (tempered, the paper's), so at full weight the prior dominates a
+            # moderate effect: a 0.15 rad tilt was recovered as 0.10 (prior scale 0.15 rad), 0.145 without prior.
+            w = float(self.config["kl_weight"]) * float((self.config.get("effects") or {}).get("prior_weight", 1.0))
+            if self.kind == "bdp":
+                sigma = softplus(theta["effect_eta"])
+                kl_e, d_mu, d_sigma = kl_divergence(theta["effect_mu"], sigma, self.plan.off, self.plan.prior_scale)
+                grads["effect_eta"] += w * d_sigma * sigmoid(theta["effect_eta"])
+            else:
+                dev = (theta["effect_mu"] - self.plan.off) / self.plan.prior_scale
+                kl_e, d_mu = 0.5 * float(np.sum(dev ** 2)), dev / self.plan.prior_scale
+            kl += w * kl_e
+            grads["effect_mu"] += w * d_mu
         return {"loss": data + kl, "data": data, "kl": kl, "images": images, "grad_norm": grad_norm,
                 "clip": factor}, grads
 
@@ -401,7 +458,7 @@ class FitJob:
     # -- optimisation
     def adam_step(self, grads):
         cfg = self.config["adam"]
-        lrs = self.config["learning_rates"][self.kind]
+        lrs = self.learning_rates
         t = self.epoch + 1
         for k, g in grads.items():
             st = self.adam[k]
@@ -410,6 +467,8 @@ class FitJob:
             mhat = st["m"] / (1 - cfg["beta1"] ** t)
             vhat = st["v"] / (1 - cfg["beta2"] ** t)
             self.theta[k] = self.theta[k] - self.lr_scale * lrs[k] * mhat / (np.sqrt(vhat) + cfg["epsilon"])
+        if "effect_mu" in self.theta:  # projected: the means stay inside the parameters' bounds
+            self.theta["effect_mu"] = self.plan.clip(self.theta["effect_mu"])[0]
 
     def metrics(self, images):
         out = []
@@ -449,6 +508,33 @@ class FitJob:
         self.scale = {"factors": list(map(float, factors)), "mse": scores, "chosen": best}
         return self.scale
 
+    def effect_start_search(self, cancel_event=None):
+        """Initialisation of the fitted effects: of the plan's start candidates (the off values, and each
+        fitted effect's primary parameter at +- its moderate strength), the one whose drape (mean material, no
+        placement noise) fits the training images best; theta's effect means move there. At an off value some
+        parameters have no gradient (a tilt's azimuth at zero angle), so the gradient epochs alone could not
+        leave it."""
+        w = self.workers[0]
+        bend = sample_bend_tables(self.kind, self.theta, self.num_edges)
+        candidates = self.plan.start_candidates(self.theta["effect_mu"])
+        scores = []
+        for c in candidates:
+            if cancel_event is not None and cancel_event.is_set():
+                raise Cancelled()
+            p = w.model.parameters(stretch=self.stretch, bend=bend, effects=self.plan.values(c))
+            try:
+                x = w.model.simulate(p, mode="dynamic", record=False, **self.config["dynamic"])
+            except SolverError:
+                scores.append(np.inf)
+                continue
+            img = np.asarray(render.hard_silhouette(self.camera, x, w.faces), dtype=np.float64)
+            scores.append(float(np.mean([data_term(img, o, self.sigma_obs, self.sigma_dc)[0] for o in self.observations])))
+        best = int(np.argmin(scores))
+        self.theta["effect_mu"] = candidates[best].copy()
+        self.effect_start = {"parameters": self.plan.names, "candidates": [c.tolist() for c in candidates],
+                             "loss": scores, "chosen": candidates[best].tolist()}
+        return self.effect_start
+
     def run(self, epochs=None, time_budget=None, progress=None, cancel_event=None, checkpoint=None):
         """Runs epochs until `epochs` in total are done or `time_budget` seconds pass. Returns the history."""
         if epochs is None and time_budget is None:
@@ -461,6 +547,10 @@ class FitJob:
         if self.epoch == 0 and self.scale is None:
             ts = time.monotonic()
             self.scale_search(cancel_event)
+            self.elapsed += time.monotonic() - ts
+        if self.epoch == 0 and self.plan.size and self.effect_start is None:
+            ts = time.monotonic()
+            self.effect_start_search(cancel_event)
             self.elapsed += time.monotonic() - ts
         while True:
             if epochs is not None and self.epoch >= int(epochs):
@@ -492,6 +582,8 @@ class FitJob:
             entry = {"epoch": self.epoch, "loss": terms["loss"], "data": terms["data"], "kl": terms["kl"],
                      "iou": m["iou"], "mse": m["mse"], "grad_norm": terms["grad_norm"], "clip": terms["clip"],
                      "seconds": time.monotonic() - te}
+            if self.plan.size:  # the fitted effects' means after this epoch's step
+                entry["effects"] = dict(zip(self.plan.names, map(float, self.theta["effect_mu"])))
             self.history.append(entry)
             self.elapsed += entry["seconds"]
             if checkpoint:
@@ -509,7 +601,7 @@ class FitJob:
                 "adam": {k: {"m": s["m"].tolist(), "v": s["v"].tolist()} for k, s in self.adam.items()},
                 "history": self.history, "elapsed": self.elapsed, "start_metrics": self.start_metrics,
                 "lr_scale": self.lr_scale, "prior_mu": self.prior_mu.tolist(), "log_bend0": self.log_bend0.tolist(),
-                "scale": self.scale}
+                "scale": self.scale, "effects": self.plan.describe(), "effect_start": self.effect_start}
 
     def save_checkpoint(self, path):
         measure.write_json(path, self.state())
@@ -522,6 +614,12 @@ class FitJob:
             raise InputError(f"{path}: cannot read checkpoint: {e}") from None
         if st.get("schema") != "drapelab-fit-checkpoint" or st.get("model") != self.kind:
             raise InputError(f"{path}: not a checkpoint of a {self.kind} fit")
+        if st.get("effects", {}) != self.plan.describe():
+            raise InputError(f"{path}: the checkpoint's effects {st.get('effects', {})} differ from this fit's "
+                             f"{self.plan.describe()}")
+        if set(st.get("theta", {})) != set(self.theta):
+            raise InputError(f"{path}: checkpoint parameters {sorted(st.get('theta', {}))} differ from this fit's "
+                             f"{sorted(self.theta)}")
         for k in self.theta:
             arr = np.asarray(st["theta"][k], dtype=float)
             if arr.shape != self.theta[k].shape or not np.all(np.isfinite(arr)):
@@ -536,6 +634,7 @@ class FitJob:
         self.prior_mu = np.asarray(st.get("prior_mu", self.prior_mu), dtype=float)
         self.log_bend0 = np.asarray(st.get("log_bend0", self.log_bend0), dtype=float)
         self.scale = st.get("scale")
+        self.effect_start = st.get("effect_start")
 
     # -- results
     def posterior(self):
@@ -549,6 +648,13 @@ class FitJob:
         return {"bend": {"log_mean": mu.mean(axis=0).tolist(), "log_std": mu.std(axis=0).tolist(),
                          "median_N_m": np.exp(mu.mean(axis=0)).tolist(),
                          "per_element_log": mu.reshape(mu.shape[0], -1).tolist()}}
+
+    def effects_block(self):
+        """The preset's active_effects: fixed values, fitted means (and bdp posterior sds, 90 % intervals)."""
+        if not self.plan.size:
+            return self.plan.preset_block()
+        std = softplus(self.theta["effect_eta"]) if self.kind == "bdp" else None
+        return self.plan.preset_block(self.theta["effect_mu"], std)
 
     def preset(self, fabric=None, options=None):
         accepted = [h for h in self.history if "rejected" not in h]
@@ -566,11 +672,12 @@ class FitJob:
             "likelihood": {"sigma_obs": self.sigma_obs, "sigma_dc": self.sigma_dc,
                            "kl_weight": float(self.config["kl_weight"])},
             "placement_noise": {"velocity_m_s": self.placement[0], "angular_modes": self.placement[1]},
-            "active_effects": {},
+            "active_effects": self.effects_block(),
             "camera": {"kind": self.camera_kind, **self.observations[0].calibration},
             "simulation": {"mesh_level": self.mesh_level, "forward": self.config["forward"]},
             "training": {"epochs": self.epoch, "seconds": self.elapsed, "final_loss": last.get("loss"),
                          "rejected_steps": len(self.history) - len(accepted), "scale_search": self.scale,
+                         "effect_start_search": self.effect_start,
                          "start": self.start_metrics, "history": self.history},
             "metrics": {"training_image": {"iou": last.get("iou"), "mse": last.get("mse")}},
             "provenance": {"images": [{"path": o.path, "sha256": o.sha256} for o in self.observations],
@@ -592,7 +699,8 @@ def fit(images, density, model="bdp", epochs=None, time_budget=None, seed=0, out
     job.run(epochs=epochs, time_budget=time_budget, progress=progress, cancel_event=cancel_event,
             checkpoint=checkpoint)
     preset = job.preset(fabric=fabric, options={"model": model, "epochs": epochs, "time_budget": time_budget,
-                                                "seed": seed, **{k: v for k, v in options.items() if k != "config"}})
+                                                "seed": seed, "effects": job.plan.describe(),
+                                                **{k: v for k, v in options.items() if k not in ("config", "effects")}})
     if model == "bdp" and (job.config.get("calibration") or {}).get("enabled", False):
         preset = calibrate_preset(preset, images, seed=seed, threads=job.threads, template_dir=options.get("template_dir"),
                                   config=job.config, cancel_event=cancel_event, progress=calibration_progress)
@@ -602,8 +710,7 @@ def fit(images, density, model="bdp", epochs=None, time_budget=None, seed=0, out
 
 
 def write_preset(path, preset):
-    validate_preset(preset, path)
-    measure.write_json(path, preset)
+    measure.write_json(path, validate_preset(preset, path))
 
 
 def _float_array(value, source, what):
@@ -624,12 +731,29 @@ def _json_number(value):
         return math.inf
 
 
-def validate_preset(preset, source="preset"):
+def migrate_preset(preset, source="preset"):
+    """A preset of an older schema version brought to the current one (a new dict; the current version is
+    returned as is). Newer versions are refused: their fields may mean what this drapelab cannot know.
+    1 -> 2: active_effects (always empty in version 1) holds the effects' values; nothing else changed."""
     if not isinstance(preset, dict) or preset.get("kind") != "drapelab-material-preset":
         raise InputError(f"{source}: not a drapelab material preset")
-    if preset.get("schema_version") != PRESET_SCHEMA_VERSION:
-        raise InputError(f"{source}: schema version {preset.get('schema_version')} is not supported "
-                         f"(this drapelab reads {PRESET_SCHEMA_VERSION})")
+    version = preset.get("schema_version")
+    if isinstance(version, bool) or not isinstance(version, int) or version < 1:
+        raise InputError(f"{source}: schema_version must be a positive integer, got {version!r}")
+    if version > PRESET_SCHEMA_VERSION:
+        raise InputError(f"{source}: written by a newer drapelab (preset schema version {version}; this drapelab "
+                         f"reads versions 1 to {PRESET_SCHEMA_VERSION}): update drapelab to load it")
+    if version == 1:
+        if preset.get("active_effects") not in (None, {}):
+            raise InputError(f"{source}: a version 1 preset cannot carry active_effects (got "
+                             f"{preset.get('active_effects')!r})")
+        preset = dict(preset, schema_version=2, active_effects={})
+    return preset
+
+
+def validate_preset(preset, source="preset"):
+    """Checks a preset (migrating an older schema version first) and returns it (the migrated copy)."""
+    preset = migrate_preset(preset, source)
     if preset.get("model") not in MODELS:
         raise InputError(f"{source}: unknown model {preset.get('model')!r}")
     check_density(preset.get("density_kg_m2"))
@@ -666,6 +790,7 @@ def validate_preset(preset, source="preset"):
         pe = _float_array(bend["per_element_log"], source, "posterior bend per_element_log")
         if pe.ndim != 2 or pe.shape[1] != 15 or not np.all(np.isfinite(pe)):
             raise InputError(f"{source}: posterior bend per_element_log must be finite (E, 15)")
+    fit_effects.validate_active_effects(preset.get("active_effects", {}), source)
     return preset
 
 
@@ -969,7 +1094,9 @@ class _Predictive:
         self.calibration = measure.calibration(cal["px_per_m"], tuple(cal["centre_px"]))
         self.level = mesh_level or preset["simulation"]["mesh_level"]
         mesh = sim.cusick_specimen(self.level, template_dir=template_dir)
-        self.models = [sim.ClothModel(mesh, heterogeneous=True, density=preset["density_kg_m2"]) for _ in range(lanes)]
+        self.effects = preset.get("active_effects") or {}
+        self.models = [sim.ClothModel(mesh, heterogeneous=True, density=preset["density_kg_m2"],
+                                      effects=fit_effects.active_effect_values(self.effects)) for _ in range(lanes)]
         self.num_edges = self.models[0].num_bending_edges
         self.stretch = np.asarray(preset["stretch_N_m"])
         self.forward = forward or config["evaluate"]["forward"]
@@ -978,14 +1105,18 @@ class _Predictive:
         self.placement = (float(placement.get("velocity_m_s", 0.0)), int(placement.get("angular_modes", 0)))
 
     def drape(self, draws, seed, progress=None, cancel_event=None):
+        """Drapes bending draws; the effects of draw i are drawn from the preset's active_effects with
+        default_rng([seed, 11]) (fixed and point-estimate effects: their values)."""
+        effects = fit_effects.sample_effect_values(self.effects, np.random.default_rng([seed, 11]), len(draws))
         return _drape_draws(self.models, self.stretch, draws, self.forward, self.mode_opts, self.placement, seed,
-                            self.camera, self.calibration, progress, cancel_event)
+                            self.camera, self.calibration, progress, cancel_event, effects)
 
 
 def _drape_draws(models, stretch, draws, fwd, mode_opts, placement, seed, camera, cal_obj, progress=None,
-                 cancel_event=None):
+                 cancel_event=None, effects=None):
     """Drapes draws[i] (one lane per model, on threads) from the flat state, draw i with the placement
-    velocities of default_rng([seed, i, 1]). Returns per draw {"x", "image", "dc", "nodes"} or {"error"}."""
+    velocities of default_rng([seed, i, 1]) and the effect values effects[i] (None: the models' own).
+    Returns per draw {"x", "image", "dc", "nodes"} or {"error"}."""
     n = len(draws)
     lanes = len(models)
     amplitude, modes = placement
@@ -999,7 +1130,7 @@ def _drape_draws(models, stretch, draws, fwd, mode_opts, placement, seed, camera
         for i in range(lane, n, lanes):
             if cancel_event is not None and cancel_event.is_set():
                 raise Cancelled()
-            p = m.parameters(stretch=stretch, bend=draws[i])
+            p = m.parameters(stretch=stretch, bend=draws[i], effects=effects[i] if effects else None)
             v0 = placement_velocities(rest, np.random.default_rng([seed, i, 1]), amplitude, modes) if amplitude > 0 else None
             try:
                 x = m.simulate(p, mode=fwd, record=False, velocities0=v0, **mode_opts) if fwd == "dynamic" else \

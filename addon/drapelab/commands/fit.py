@@ -5,6 +5,11 @@ Learns the bending table in log space (stretching stays at its starting table; s
 (learning rates, likelihood sigma, prior, Monte Carlo samples, mesh resolution) come from
 addon/drapelab/config/fit.json or --config. A checkpoint is written after every epoch (--checkpoint, default
 PRESET.json.ckpt) and --resume continues from one. Ctrl-C cancels cleanly: the last checkpoint stays valid.
+
+--effects switches on effects from the registry (./drapelab effects): a bare NAME fits all its parameters
+with the material, from their off values (prior: the registry's prior scale); NAME=VALUE fixes the effect's
+primary parameter (its others stay off) and NAME.PARAM=VALUE fixes one parameter. The preset's
+active_effects records the values (fitted: with the posterior sd and 90 % interval for bdp).
 """
 import os
 import signal
@@ -32,21 +37,25 @@ def register(subparsers):
     p.add_argument("--resume", default=None, metavar="CKPT.json", help="continue a fit from its checkpoint")
     p.add_argument("--threads", type=int, default=None, help="Monte Carlo lanes (default: up to 2 cores)")
     p.add_argument("--name", default=None, help="fabric name recorded in the preset")
+    p.add_argument("--effects", default=None, metavar="NAME[=VALUE][,NAME.PARAM=VALUE...]",
+                   help="effects to switch on: a bare NAME is fitted, a value fixes it (see ./drapelab effects)")
     p.set_defaults(func=run)
 
 
 def run(args):
-    from .. import infer, measure
+    from .. import infer, measure, sim
 
     measure.check_output_path(args.out, "preset")
+    effects = sim.parse_effects_arg(args.effects, bare=None)  # {name: {}}: fitted; values: fixed
     config = infer.load_config(args.config)
     checkpoint = args.checkpoint or args.out + ".ckpt"
     cancel = threading.Event()
     previous = signal.signal(signal.SIGINT, lambda *_: cancel.set())
 
     def progress(e):
+        fitted = "".join(f"  {k} {v:+.4g}" for k, v in (e.get("effects") or {}).items())
         print(f"epoch {e['epoch']:4d}  loss {e['loss']:.5f} (data {e['data']:.5f}, kl {e['kl']:.5f})  "
-              f"IoU {e['iou']:.4f}  MSE {e['mse']:.4f}  {e['seconds']:.1f} s", flush=True)
+              f"IoU {e['iou']:.4f}  MSE {e['mse']:.4f}{fitted}  {e['seconds']:.1f} s", flush=True)
 
     def calibration_progress(c):
         print(f"calibration {c['evaluation']:2d}: stretching x{c['stretch_scale']:g}, bending x{c['bend_scale']:.3f}: "
@@ -59,7 +68,7 @@ def run(args):
                            resume=args.resume, progress=progress, calibration_progress=calibration_progress,
                            cancel_event=cancel,
                            fabric={"name": args.name} if args.name else None, config=config,
-                           camera=args.camera, mesh_level=args.mesh_level, threads=args.threads)
+                           camera=args.camera, mesh_level=args.mesh_level, threads=args.threads, effects=effects)
     except infer.Cancelled:
         print(f"fit cancelled; the last checkpoint is {checkpoint} (resume with --resume)", file=sys.stderr)
         return 130
@@ -68,6 +77,11 @@ def run(args):
     t = preset["training"]
     print(f"wrote {args.out}: {args.model}, {t['epochs']} epochs in {t['seconds']:.1f} s, "
           f"training IoU {preset['metrics']['training_image']['iou']:.4f}")
+    for name, params in preset["active_effects"].items():
+        text = ", ".join(f"{p} {e['value']:.4g} {e['unit']}" + (f" (90 % {e['interval90'][0]:.4g} .. {e['interval90'][1]:.4g})"
+                                                               if "interval90" in e else "") + ("" if e["fitted"] else " fixed")
+                         for p, e in params.items())
+        print(f"effect {name}: {text}")
     c = preset.get("calibration")
     if c:
         print(f"drape calibration ({c['seconds']:.1f} s): drape coefficient {c['dc_predicted_before']:.3f} -> "

@@ -60,7 +60,11 @@ EffectSpec make_tilt_effect() {
   // A 4 degree tilt is below the re-drape noise on circle3 (CONVENTIONS.md); 0.15 rad (8.6 degrees) is the
   // provisional moderate strength until the registry's moderate values are measured against the noise floor.
   s.parameters = {
-      {"angle_rad", "rad", 0.0, 0.0, 0.5, 0.05, 0.15, "angle of gravity from the vertical"},
+      // Signed: a negative angle tilts towards azimuth + pi. The off value is then inside the range, so the fit
+      // and the diagnosis' score test see a continuous effect at zero (CONVENTIONS.md).
+      // Prior scale 0.15 rad: a fit must be able to find a moderate tilt from one image (a 0.05 rad prior held a
+      // 0.15 rad tilt at 0.02 in the recovery round trip, tests/python/test_fit_effects.py).
+      {"angle_rad", "rad", 0.0, -0.5, 0.5, 0.15, 0.15, "angle of gravity from the vertical (signed)"},
       {"azimuth_rad", "rad", 0.0, -2 * M_PI, 2 * M_PI, M_PI, 0.7, "direction of the tilt, from +x (weft) towards +y"},
   };
   s.make_terms = [](const EffectContext& c) {
