@@ -1,3 +1,6 @@
 // The registered effects, one line each (the registration line of docs/adding-an-effect.md). Order is the
 // order of their parameter blocks in a model's layout and of `drapelab effects`.
 DRAPELAB_EFFECT(tilt)
+DRAPELAB_EFFECT(density_variation)
+DRAPELAB_EFFECT(prestrain)
+DRAPELAB_EFFECT(heterogeneity_map)
