@@ -7,8 +7,11 @@
 
 namespace drapelab {
 
-BendTerm::BendTerm(const TriangleMesh& mesh, const std::vector<BendingEdge>& edges, int parameter_offset, bool shared)
-    : offset_(parameter_offset), shared_(shared) {
+BendTerm::BendTerm(const TriangleMesh& mesh, const std::vector<BendingEdge>& edges, int parameter_offset, bool shared,
+                   EnergyModulation modulation)
+    : offset_(parameter_offset), shared_(shared), modulation_(std::move(modulation)) {
+  for (const auto& c : modulation_.coefficients)
+    if (c.size() != edges.size()) throw InputError("bend: a modulation needs one coefficient per bending edge");
   const Eigen::VectorXd areas = rest_areas(mesh);
   for (size_t i = 0; i < edges.size(); ++i) {
     const BendingEdge& be = edges[i];
@@ -94,13 +97,36 @@ void BendTerm::angle_derivatives(int e, double d, const double* p, AngleDerivati
   out.E[3] = k[3] * G[0] + 3.0 * k[2] * G[1] + 3.0 * k[1] * G[2] + k[0] * G[3];
 }
 
+void BendTerm::modulated_angle_derivatives(int e, double d, const Eigen::VectorXd& p, AngleDerivatives& out,
+                                           double& m) const {
+  angle_derivatives(e, d, p.data() + parameter_offset(e), out);
+  m = 1.0;
+  if (!modulation_.active()) return;
+  m = std::exp(modulation_.log_multiplier(e, p));
+  for (int n = 0; n < 4; ++n) out.E[n] *= m;
+  for (int j = 0; j < out.count; ++j)
+    for (int n = 0; n < 3; ++n) out.phi[j][n] *= m;
+}
+
+double BendTerm::energy(const Eigen::VectorXd& x, const Eigen::VectorXd& p) const {
+  if (!modulation_.active()) return Reference::energy(x, p);
+  double E = 0, xe[12];
+  for (int e = 0; e < num_elements(); ++e) {
+    gather_local(e, x, xe);
+    E += std::exp(modulation_.log_multiplier(e, p)) *
+         element_energy<double>(e, xe, p.data() + parameter_offset(e));
+  }
+  return E;
+}
+
 void BendTerm::add_gradient(const Eigen::VectorXd& x, const Eigen::VectorXd& p, Eigen::VectorXd& g) const {
   double xe[12], gt[12];
   for (int e = 0; e < num_elements(); ++e) {
     gather_local(e, x, xe);
     const double d = dihedral_angle(xe) - rest_angle_[e];
     AngleDerivatives ad;
-    angle_derivatives(e, d, p.data() + parameter_offset(e), ad);
+    double m;
+    modulated_angle_derivatives(e, d, p, ad, m);
     dihedral_gradient(xe, gt);
     for (int i = 0; i < 12; ++i) gt[i] *= ad.E[1];
     scatter_vector(e, gt, 1.0, g);
@@ -113,7 +139,8 @@ void BendTerm::add_step_matrix(const Eigen::VectorXd& x, const Eigen::VectorXd& 
   for (int e = 0; e < num_elements(); ++e) {
     gather_local(e, x, xe);
     AngleDerivatives ad;
-    angle_derivatives(e, dihedral_angle(xe) - rest_angle_[e], p.data() + parameter_offset(e), ad);
+    double m;
+    modulated_angle_derivatives(e, dihedral_angle(xe) - rest_angle_[e], p, ad, m);
     const double S = ad.E[2] > 0 ? ad.E[2] : 0.0;  // as element_gauss_newton
     dihedral_gradient(xe, gt);
     for (int i = 0; i < 12; ++i) {
@@ -143,7 +170,8 @@ void BendTerm::add_element_hessians(const Eigen::VectorXd& x, const Eigen::Vecto
     gather_local(e, x, xe);
     const double d = dihedral_angle(xe) - rest_angle_[e];
     AngleDerivatives ad;
-    angle_derivatives(e, d, p.data() + parameter_offset(e), ad);
+    double m;
+    modulated_angle_derivatives(e, d, p, ad, m);
     const double E1 = ad.E[1], E2 = ad.E[2];
     for (int i = 0; i < 12; ++i) xj[i] = G(xe[i], i);
     dihedral_gradient(xj, gj);
@@ -167,7 +195,8 @@ void BendTerm::add_hessian_product(const Eigen::VectorXd& x, const Eigen::Vector
     }
     const double d = dihedral_angle(xe) - rest_angle_[e];
     AngleDerivatives ad;
-    angle_derivatives(e, d, p.data() + parameter_offset(e), ad);
+    double m;
+    modulated_angle_derivatives(e, d, p, ad, m);
     const double E1 = ad.E[1], E2 = ad.E[2];
     dihedral_gradient(xj, gj);
     double gd = 0;
@@ -177,19 +206,26 @@ void BendTerm::add_hessian_product(const Eigen::VectorXd& x, const Eigen::Vector
   }
 }
 
-void BendTerm::add_energy_parameter_gradient(const Eigen::VectorXd& x, const Eigen::VectorXd& /*p*/,
+void BendTerm::add_energy_parameter_gradient(const Eigen::VectorXd& x, const Eigen::VectorXd& p,
                                              Eigen::VectorXd& gp) const {
   double xe[12], phi[4];
   int index[4];
   for (int e = 0; e < num_elements(); ++e) {
     gather_local(e, x, xe);
     const int off = parameter_offset(e);
-    const int n = table_coefficients(e, dihedral_angle(xe) - rest_angle_[e], index, phi);
-    for (int j = 0; j < n; ++j) gp[off + index[j]] += phi[j];
+    const double d = dihedral_angle(xe) - rest_angle_[e];
+    const int n = table_coefficients(e, d, index, phi);
+    if (!modulation_.active()) {
+      for (int j = 0; j < n; ++j) gp[off + index[j]] += phi[j];
+      continue;
+    }
+    const double m = std::exp(modulation_.log_multiplier(e, p));
+    for (int j = 0; j < n; ++j) gp[off + index[j]] += m * phi[j];
+    add_modulation_gradient(e, m * energy_of_angle(e, d, p.data() + off), 1.0, gp);
   }
 }
 
-void BendTerm::add_gradient_parameter_product(const Eigen::VectorXd& x, const Eigen::VectorXd& /*p*/,
+void BendTerm::add_gradient_parameter_product(const Eigen::VectorXd& x, const Eigen::VectorXd& p,
                                               const Eigen::VectorXd& lambda, double scale, Eigen::VectorXd& gp) const {
   double xe[12], gt[12];
   D1 phi[4];
@@ -202,7 +238,18 @@ void BendTerm::add_gradient_parameter_product(const Eigen::VectorXd& x, const Ei
     dihedral_gradient(xe, gt);
     double gl = 0;
     for (int i = 0; i < 12; ++i) gl += gt[i] * lambda[3 * v[i / 3] + i % 3];
-    for (int j = 0; j < n; ++j) gp[off + index[j]] += scale * gl * phi[j].v[0];
+    if (!modulation_.active()) {
+      for (int j = 0; j < n; ++j) gp[off + index[j]] += scale * gl * phi[j].v[0];
+      continue;
+    }
+    // E = m sum_j phi_j p_j: the table part times m, and dm/dq E'(d) (lambda . grad theta)
+    const double m = std::exp(modulation_.log_multiplier(e, p));
+    double dE = 0;
+    for (int j = 0; j < n; ++j) {
+      gp[off + index[j]] += scale * gl * m * phi[j].v[0];
+      dE += phi[j].v[0] * p[off + index[j]];
+    }
+    add_modulation_gradient(e, m * dE * gl, scale, gp);
   }
 }
 
@@ -242,13 +289,15 @@ void BendTerm::add_step_matrix_derivatives(const Eigen::VectorXd& x, const Eigen
     const double d = dihedral_angle(xe) - rest_angle_[e];
     // S = max(E'', 0): its angle derivative E''' and its table derivatives dE''/dp where E'' > 0.
     AngleDerivatives ad;
-    angle_derivatives(e, d, p.data() + off, ad);
+    double m;
+    modulated_angle_derivatives(e, d, p, ad, m);
     const double E2 = ad.E[2];
     if (!(E2 > 0)) continue;  // S = 0 with zero derivatives
     const double E3v = ad.E[3];
     for (int i = 0; i < 12; ++i) ge[i] = E3v * gj[i].a * gl * gw + E2 * (gj[i].v[0] * gw + gl * gj[i].v[1]);
     scatter_vector(e, ge, scale, gx);
     for (int j = 0; j < ad.count; ++j) gp[off + ad.index[j]] += scale * gl * gw * ad.phi[j][2];
+    if (modulation_.active()) add_modulation_gradient(e, gl * gw * E2, scale, gp);
   }
 }
 
@@ -258,7 +307,8 @@ bool BendTerm::add_step_matrix_product(const Eigen::VectorXd& x, const Eigen::Ve
   for (int e = 0; e < num_elements(); ++e) {
     gather_local(e, x, xe);
     AngleDerivatives ad;
-    angle_derivatives(e, dihedral_angle(xe) - rest_angle_[e], p.data() + parameter_offset(e), ad);
+    double m;
+    modulated_angle_derivatives(e, dihedral_angle(xe) - rest_angle_[e], p, ad, m);
     const double S = ad.E[2] > 0 ? ad.E[2] : 0.0;  // as element_gauss_newton
     if (!(S != 0.0)) continue;
     const auto& v = verts_[e];
@@ -285,19 +335,22 @@ bool BendTerm::add_step_adjoint(const Eigen::VectorXd& x, const Eigen::VectorXd&
     seed_directions(e, x, lambda, w, xe, xj, gj, gl, gw);
     const double d = dihedral_angle(xe) - rest_angle_[e];
     AngleDerivatives ad;
-    angle_derivatives(e, d, p.data() + off, ad);
+    double m;
+    modulated_angle_derivatives(e, d, p, ad, m);
     const double E1 = ad.E[1], E2 = ad.E[2], E3 = ad.E[3];
     const int n = ad.count;
     // -h Hess E lambda
     for (int i = 0; i < 12; ++i) ge[i] = -h * (E2 * gj[i].a * gl + E1 * gj[i].v[0]);
     // -h d(lambda . grad E)/dp
     for (int j = 0; j < n; ++j) gp[off + ad.index[j]] += -h * gl * ad.phi[j][1];
+    if (modulation_.active()) add_modulation_gradient(e, gl * E1, -h, gp);
     if (E2 > 0) {  // S = E'' (else S = 0 with zero derivatives)
       for (int i = 0; i < 12; ++i) {
         ge[i] += -h2 * (E3 * gj[i].a * gl * gw + E2 * (gj[i].v[0] * gw + gl * gj[i].v[1]));
         kl[i] = -h2 * E2 * gl * gj[i].a;
       }
       for (int j = 0; j < n; ++j) gp[off + ad.index[j]] += -h2 * gl * gw * ad.phi[j][2];
+      if (modulation_.active()) add_modulation_gradient(e, gl * gw * E2, -h2, gp);
       scatter_vector(e, kl, 1.0, gv);
     }
     scatter_vector(e, ge, 1.0, gx);
@@ -313,7 +366,8 @@ bool BendTerm::add_step_system(const Eigen::VectorXd& x, const Eigen::VectorXd& 
     const auto& vv = verts_[e];
     const double d = dihedral_angle(xe) - rest_angle_[e];
     AngleDerivatives ad;
-    angle_derivatives(e, d, p.data() + parameter_offset(e), ad);
+    double m;
+    modulated_angle_derivatives(e, d, p, ad, m);
     const double E1 = ad.E[1], E2 = ad.E[2];
     const double S = E2 > 0 ? E2 : 0.0;
     dihedral_gradient(xe, gt);

@@ -12,11 +12,15 @@
 // clamped to the table's range, blended between columns with s(f) = 3 f^2 - 2 f^3 (C1: the energy's
 // gradient is continuous, also at theta = theta_rest). The energy includes dk/dalpha (conservative forces).
 // Step matrix: K = max(d2E/dtheta2, 0) dtheta/dx dtheta/dx^T (see element_gauss_newton).
+// Optionally (an effect's change, physics/base_term_changes.hpp) each edge's energy is multiplied by a smooth
+// field m_w = exp(sum_k c_wk q_k) > 0 of effect parameters q_k: E_w -> m_w E_w, exact in x, the table and q.
+// The jet-derived Reference (element_energy, element_gauss_newton) is the unmodulated term.
 #pragma once
 #include <array>
 #include <vector>
 
 #include "geometry/mesh.hpp"
+#include "physics/base_term_changes.hpp"
 #include "physics/element_term.hpp"
 
 namespace drapelab {
@@ -25,7 +29,9 @@ constexpr double kBendSampleCurvature = 2.5;  // 1/m between table columns
 
 class BendTerm : public ElementTerm<BendTerm, 4, 15, 1> {
  public:
-  BendTerm(const TriangleMesh& mesh, const std::vector<BendingEdge>& edges, int parameter_offset, bool shared);
+  // modulation: an optional per-edge energy multiplier (one coefficient per bending edge and mode).
+  BendTerm(const TriangleMesh& mesh, const std::vector<BendingEdge>& edges, int parameter_offset, bool shared,
+           EnergyModulation modulation = {});
   std::string name() const override { return "bend"; }
 
   int num_elements() const { return static_cast<int>(verts_.size()); }
@@ -185,6 +191,7 @@ class BendTerm : public ElementTerm<BendTerm, 4, 15, 1> {
   // jets only on the scalar E(theta) and on the closed-form gradient (for the angle's Hessian). Equal to the
   // jet-derived reference (ElementTerm's versions, kept as Reference) to round-off; see test_kernels.cpp.
   using Reference = ElementTerm<BendTerm, 4, 15, 1>;
+  double energy(const Eigen::VectorXd& x, const Eigen::VectorXd& p) const override;
   void add_gradient(const Eigen::VectorXd& x, const Eigen::VectorXd& p, Eigen::VectorXd& g) const override;
   void add_step_matrix(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double scale,
                        Eigen::VectorXd& values) const override;
@@ -218,6 +225,13 @@ class BendTerm : public ElementTerm<BendTerm, 4, 15, 1> {
   // The exact element Hessians, each projected onto the PSD cone if `project` (add_projected_hessian).
   void add_element_hessians(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double scale,
                             Eigen::VectorXd& values, bool project) const;
+  // angle_derivatives times the edge's multiplier m (m = 1, untouched, without a modulation); p: the whole vector.
+  void modulated_angle_derivatives(int e, double d, const Eigen::VectorXd& p, AngleDerivatives& out, double& m) const;
+  // Adds scale * dm_e/dq_k * value to gp for every mode k (value: the unmodulated quantity, times m_e by the caller).
+  void add_modulation_gradient(int e, double m_value, double scale, Eigen::VectorXd& gp) const {
+    for (size_t k = 0; k < modulation_.indices.size(); ++k)
+      gp[modulation_.indices[k]] += scale * modulation_.coefficients[k][e] * m_value;
+  }
   void seed_directions(int e, const Eigen::VectorXd& x, const Eigen::VectorXd& lambda, const Eigen::VectorXd& w,
                        double* xe, Jet<double, 2>* xj, Jet<double, 2>* gj, double& gl, double& gw) const;
   void gather_local(int e, const Eigen::VectorXd& x, double* xe) const {
@@ -237,6 +251,7 @@ class BendTerm : public ElementTerm<BendTerm, 4, 15, 1> {
   std::vector<std::array<double, 2>> row_weights_;
   int offset_;
   bool shared_;
+  EnergyModulation modulation_;
 };
 
 }  // namespace drapelab

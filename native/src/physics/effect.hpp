@@ -21,6 +21,7 @@
 #include <Eigen/Core>
 
 #include "geometry/mesh.hpp"
+#include "physics/base_term_changes.hpp"
 #include "physics/parameters.hpp"
 #include "physics/term.hpp"
 
@@ -56,6 +57,9 @@ struct EffectSpec {
   std::string signature;    // what it does to a drape's silhouette (for the diagnosis)
   std::vector<EffectParameter> parameters;  // the first is the primary one
   std::function<std::vector<std::unique_ptr<Term>>(const EffectContext&)> make_terms;
+  // Optional: changes inside the base terms (rest shape, a stiffness field; physics/base_term_changes.hpp) for
+  // effects that are not an added energy. Called before the base terms are built; empty for most effects.
+  std::function<void(const EffectContext&, BaseTermChanges&)> change_base_terms;
 };
 
 // Effect name -> parameter name -> value; an effect present here is active (missing parameters take their

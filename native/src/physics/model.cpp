@@ -64,11 +64,16 @@ Model::Model(const TriangleMesh& mesh, const ModelOptions& options) : mesh_(mesh
     }
   if (handle_vertices_.empty()) throw InputError("model: no vertex lies on the support disk (rest radius < support radius)");
 
-  terms_.push_back(std::make_unique<StretchTerm>(mesh_, stretch_off, shared));
-  terms_.push_back(std::make_unique<BendTerm>(mesh_, edges_, bend_off, shared));
+  const EffectContext context{mesh_, edges_, area_weights_, handle_vertices_, layout_, options_};
+  BaseTermChanges changes;  // what active effects change inside the base terms (none: the base model)
+  for (const std::string& name : active_effects_) {
+    const EffectSpec& spec = find_effect(name);
+    if (spec.change_base_terms) spec.change_base_terms(context, changes);
+  }
+  terms_.push_back(std::make_unique<StretchTerm>(mesh_, stretch_off, shared, changes.stretch_rest));
+  terms_.push_back(std::make_unique<BendTerm>(mesh_, edges_, bend_off, shared, changes.bend));
   terms_.push_back(std::make_unique<GravityTerm>(area_weights_, density_off, options.gravity));
   terms_.push_back(std::make_unique<HandleTerm>(handle_vertices_, anchors, handle_off));
-  const EffectContext context{mesh_, edges_, area_weights_, handle_vertices_, layout_, options_};
   for (const std::string& name : active_effects_)
     for (auto& t : find_effect(name).make_terms(context)) terms_.push_back(std::move(t));
 

@@ -242,8 +242,8 @@ void StretchTerm::strain_energy_derivatives(const double* eps, const double* p, 
   }
 }
 
-StretchTerm::StretchTerm(const TriangleMesh& mesh, int parameter_offset, bool shared)
-    : offset_(parameter_offset), shared_(shared) {
+StretchTerm::StretchTerm(const TriangleMesh& mesh, int parameter_offset, bool shared, RestScaling rest)
+    : offset_(parameter_offset), shared_(shared), rest_(std::move(rest)) {
   const int nf = mesh.num_faces();
   faces_.resize(nf);
   dm_inv_.resize(nf);
@@ -306,21 +306,35 @@ inline void add_shape_block(const double B[3][2], const double Y[2][2], double* 
 }
 }  // namespace
 
-void StretchTerm::local_state(int e, const Eigen::VectorXd& x, Local& s) const {
+StretchTerm::RestScale StretchTerm::rest_scale(const Eigen::VectorXd& p) const {
+  RestScale rs;
+  if (!rest_.active()) return rs;
+  double su, sv;
+  rest_.strains(p, su, sv);
+  const double au = 1.0 - su, av = 1.0 - sv;
+  if (!(au > 0 && av > 0)) throw InputError("stretch: a rest-length scaling of 1 - strain <= 0");
+  rs.su = 1.0 / au;
+  rs.sv = 1.0 / av;
+  rs.area = au * av;
+  return rs;
+}
+
+void StretchTerm::local_state(int e, const Eigen::VectorXd& x, const RestScale& rs, Local& s) const {
   const auto& vv = faces_[e];
   double xe[9];
   for (int k = 0; k < 3; ++k) {
     s.v[k] = vv[k];
     for (int c = 0; c < 3; ++c) xe[3 * k + c] = x[3 * vv[k] + c];
   }
-  const auto& Di = dm_inv_[e];
+  const auto& D = dm_inv_[e];
+  const double Di[4] = {D[0] * rs.su, D[1] * rs.sv, D[2] * rs.su, D[3] * rs.sv};  // exact copies when unscaled
   for (int a = 0; a < 2; ++a) {
     s.B[1][a] = Di[a];
     s.B[2][a] = Di[2 + a];
     s.B[0][a] = -(Di[a] + Di[2 + a]);
   }
-  deformation_gradient(e, xe, s.f);
-  green_strain(e, xe, s.eps);
+  deformation_gradient_of(xe, Di, s.f);
+  strain_of(s.f, s.eps);
   for (int v = 0; v < 3; ++v)
     for (int c = 0; c < 3; ++c) {
       const int j = 3 * v + c;
@@ -328,27 +342,32 @@ void StretchTerm::local_state(int e, const Eigen::VectorXd& x, Local& s) const {
       s.Je[1][j] = s.f[c][1] * s.B[v][1];
       s.Je[2][j] = 0.5 * (s.f[c][0] * s.B[v][1] + s.f[c][1] * s.B[v][0]);
     }
-  s.A = area_[e];
+  s.A = area_[e] * rs.area;
 }
 
 double StretchTerm::energy(const Eigen::VectorXd& x, const Eigen::VectorXd& p) const {
   const double* nodes = shared_nodes(p);
-  double E = 0, xe[9], eps[3];
+  const RestScale rs = rest_scale(p);
+  double E = 0, xe[9], eps[3], f[3][2];
   for (int e = 0; e < num_elements(); ++e) {
     gather(e, x, xe);
-    green_strain(e, xe, eps);
+    const auto& D = dm_inv_[e];
+    const double Di[4] = {D[0] * rs.su, D[1] * rs.sv, D[2] * rs.su, D[3] * rs.sv};
+    deformation_gradient_of(xe, Di, f);
+    strain_of(f, eps);
     double W, dW[3], d2W[3][3];
     strain_energy_derivatives(eps, p.data() + parameter_offset(e), nodes, 0, W, dW, d2W);
-    E += area_[e] * W;
+    E += (area_[e] * rs.area) * W;
   }
   return E;
 }
 
 void StretchTerm::add_gradient(const Eigen::VectorXd& x, const Eigen::VectorXd& p, Eigen::VectorXd& g) const {
   const double* nodes = shared_nodes(p);
+  const RestScale rs = rest_scale(p);
   Local s;
   for (int e = 0; e < num_elements(); ++e) {
-    local_state(e, x, s);
+    local_state(e, x, rs, s);
     double W, dW[3], d2W[3][3];
     strain_energy_derivatives(s.eps, p.data() + parameter_offset(e), nodes, 1, W, dW, d2W);
     const double y[3] = {s.A * dW[0], s.A * dW[1], s.A * dW[2]};
@@ -382,10 +401,11 @@ void StretchTerm::element_step_matrix(const Local& s, const double* pe, double* 
 
 void StretchTerm::add_step_matrix(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double scale,
                                   Eigen::VectorXd& values) const {
+  const RestScale rs = rest_scale(p);
   Local s;
   double K[81];
   for (int e = 0; e < num_elements(); ++e) {
-    local_state(e, x, s);
+    local_state(e, x, rs, s);
     element_step_matrix(s, p.data() + parameter_offset(e), K);
     scatter_matrix(e, K, scale, values);
   }
@@ -404,10 +424,11 @@ void StretchTerm::add_projected_hessian(const Eigen::VectorXd& x, const Eigen::V
 void StretchTerm::add_element_hessians(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double scale,
                                        Eigen::VectorXd& values, bool project) const {
   const double* nodes = shared_nodes(p);
+  const RestScale rs = rest_scale(p);
   Local s;
   double H[81];
   for (int e = 0; e < num_elements(); ++e) {
-    local_state(e, x, s);
+    local_state(e, x, rs, s);
     double W, dW[3], d2W[3][3];
     strain_energy_derivatives(s.eps, p.data() + parameter_offset(e), nodes, 2, W, dW, d2W);
     double M[3][9];
@@ -428,9 +449,10 @@ void StretchTerm::add_element_hessians(const Eigen::VectorXd& x, const Eigen::Ve
 void StretchTerm::add_hessian_product(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& dir,
                                       Eigen::VectorXd& out) const {
   const double* nodes = shared_nodes(p);
+  const RestScale rs = rest_scale(p);
   Local s;
   for (int e = 0; e < num_elements(); ++e) {
-    local_state(e, x, s);
+    local_state(e, x, rs, s);
     double d[9];
     for (int k = 0; k < 3; ++k)
       for (int c = 0; c < 3; ++c) d[3 * k + c] = dir[3 * s.v[k] + c];
@@ -458,26 +480,29 @@ void StretchTerm::add_hessian_product(const Eigen::VectorXd& x, const Eigen::Vec
   }
 }
 
-void StretchTerm::add_energy_parameter_gradient(const Eigen::VectorXd& x, const Eigen::VectorXd& /*p*/,
+void StretchTerm::add_energy_parameter_gradient(const Eigen::VectorXd& x, const Eigen::VectorXd& p,
                                                 Eigen::VectorXd& gp) const {
+  const RestScale rs = rest_scale(p);
   Local s;
   double dW[24];
   for (int e = 0; e < num_elements(); ++e) {
-    local_state(e, x, s);
+    local_state(e, x, rs, s);
     strain_energy_table_gradient(s.eps, dW);
     const int off = parameter_offset(e);
     for (int k = 0; k < 24; ++k) gp[off + k] += s.A * dW[k];
   }
+  if (rest_.active()) add_rest_scaling_derivatives(x, p, nullptr, nullptr, 1.0, 0.0, 0.0, gp);
 }
 
-void StretchTerm::add_gradient_parameter_product(const Eigen::VectorXd& x, const Eigen::VectorXd& /*p*/,
+void StretchTerm::add_gradient_parameter_product(const Eigen::VectorXd& x, const Eigen::VectorXd& p,
                                                  const Eigen::VectorXd& lambda, double scale,
                                                  Eigen::VectorXd& gp) const {
   using D1 = Jet<double, 1>;
+  const RestScale rs = rest_scale(p);
   Local s;
   D1 dW[24];
   for (int e = 0; e < num_elements(); ++e) {
-    local_state(e, x, s);
+    local_state(e, x, rs, s);
     D1 ej[3];
     for (int k = 0; k < 3; ++k) {
       double de = 0;
@@ -490,6 +515,7 @@ void StretchTerm::add_gradient_parameter_product(const Eigen::VectorXd& x, const
     const int off = parameter_offset(e);
     for (int k = 0; k < 24; ++k) gp[off + k] += scale * s.A * dW[k].v[0];
   }
+  if (rest_.active()) add_rest_scaling_derivatives(x, p, &lambda, nullptr, 0.0, scale, 0.0, gp);
 }
 
 namespace {
@@ -504,9 +530,10 @@ struct Directional {
 void StretchTerm::add_step_matrix_derivatives(const Eigen::VectorXd& x, const Eigen::VectorXd& p,
                                               const Eigen::VectorXd& lambda, const Eigen::VectorXd& w, double scale,
                                               Eigen::VectorXd& gx, Eigen::VectorXd& gp) const {
+  const RestScale rs = rest_scale(p);
   Local s;
   for (int e = 0; e < num_elements(); ++e) {
-    local_state(e, x, s);
+    local_state(e, x, rs, s);
     const int off = parameter_offset(e);
     Directional L, Wd;
     directional(s, lambda, L.dF, L.de);
@@ -515,13 +542,15 @@ void StretchTerm::add_step_matrix_derivatives(const Eigen::VectorXd& x, const Ei
     step_matrix_derivative_element(s, p.data() + off, L.dF, L.de, Wd.dF, Wd.de, scale, ge, gp.data() + off, 0.0, nullptr);
     scatter_vector(e, ge, 1.0, gx);
   }
+  if (rest_.active()) add_rest_scaling_derivatives(x, p, &lambda, &w, 0.0, 0.0, scale, gp);
 }
 
 bool StretchTerm::add_step_matrix_product(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& dir,
                                           double scale, Eigen::VectorXd& out) const {
+  const RestScale rs = rest_scale(p);
   Local s;
   for (int e = 0; e < num_elements(); ++e) {
-    local_state(e, x, s);
+    local_state(e, x, rs, s);
     Directional D;
     directional(s, dir, D.dF, D.de);
     double c[4];
@@ -549,9 +578,10 @@ bool StretchTerm::add_step_adjoint(const Eigen::VectorXd& x, const Eigen::Vector
                                    const Eigen::VectorXd& w, double h, Eigen::VectorXd& gx, Eigen::VectorXd& gv,
                                    Eigen::VectorXd& gp) const {
   const double* nodes = shared_nodes(p);
+  const RestScale rs = rest_scale(p);
   Local s;
   for (int e = 0; e < num_elements(); ++e) {
-    local_state(e, x, s);
+    local_state(e, x, rs, s);
     const int off = parameter_offset(e);
     const double* pe = p.data() + off;
     Directional L, Wd;
@@ -596,6 +626,7 @@ bool StretchTerm::add_step_adjoint(const Eigen::VectorXd& x, const Eigen::Vector
     scatter_vector(e, ge, 1.0, gx);
     scatter_vector(e, Kl, 1.0, gv);
   }
+  if (rest_.active()) add_rest_scaling_derivatives(x, p, &lambda, &w, 0.0, -h, -h * h, gp);
   return true;
 }
 
@@ -678,10 +709,11 @@ bool StretchTerm::add_step_system(const Eigen::VectorXd& x, const Eigen::VectorX
                                   double scale, Eigen::VectorXd& values, Eigen::VectorXd& Kv,
                                   Eigen::VectorXd& g) const {
   const double* nodes = shared_nodes(p);
+  const RestScale rs = rest_scale(p);
   Local s;
   double K[81], ve[9], kv[9];
   for (int e = 0; e < num_elements(); ++e) {
-    local_state(e, x, s);
+    local_state(e, x, rs, s);
     const double* pe = p.data() + parameter_offset(e);
     // gradient
     double W, dW[3], d2W[3][3];
@@ -702,6 +734,59 @@ bool StretchTerm::add_step_system(const Eigen::VectorXd& x, const Eigen::VectorX
     scatter_vector(e, kv, scale, Kv);
   }
   return true;
+}
+
+// The rest scaling's parameter derivatives by nested jets: inner directions (lambda, w) on x, outer (a_u, a_v),
+// through the same energy and Gauss-Newton form as the kernels above (with Dm^-1 diag(1 / a_u, 1 / a_v) and
+// a_u a_v A); then the chain rule to the parameters, a_u = 1 - sum_k weft_k q_k, a_v = 1 - sum_k warp_k q_k.
+// Only models with a rest scaling pay for it.
+void StretchTerm::add_rest_scaling_derivatives(const Eigen::VectorXd& x, const Eigen::VectorXd& p,
+                                               const Eigen::VectorXd* lambda, const Eigen::VectorXd* w, double cE,
+                                               double cG, double cK, Eigen::VectorXd& gp) const {
+  using I = Jet<double, 2>;
+  using U = Jet<I, 2>;
+  double su, sv;
+  rest_.strains(p, su, sv);
+  const U au(I(1.0 - su), 0), av(I(1.0 - sv), 1);
+  double acc[2] = {0, 0};  // d/da_u, d/da_v of cE E + cG lambda . grad E + cK lambda^T K w
+  U xe[9], f[3][2], eps[3], r[9], S[81];
+  for (int e = 0; e < num_elements(); ++e) {
+    const auto& v = faces_[e];
+    for (int i = 0; i < 9; ++i) {
+      const int dof = 3 * v[i / 3] + i % 3;
+      I inner(x[dof]);
+      if (lambda) inner.v[0] = (*lambda)[dof];
+      if (w) inner.v[1] = (*w)[dof];
+      xe[i] = U(inner);
+    }
+    const double* pe = p.data() + parameter_offset(e);
+    const auto& D = dm_inv_[e];
+    const U Di[4] = {D[0] / au, D[1] / av, D[2] / au, D[3] / av};
+    deformation_gradient_of(xe, Di, f);
+    const U A = area_[e] * au * av;
+    if (cE != 0.0 || cG != 0.0) {
+      strain_of(f, eps);
+      const U E = A * strain_energy(eps, pe);
+      for (int k = 0; k < 2; ++k) acc[k] += cE * E.v[k].a + cG * E.v[k].v[0];
+    }
+    if (cK != 0.0) {
+      gauss_newton_of(f, pe, A, r, S);
+      // q = (J_r lambda)^T S (J_r w): d/da_k through J_r lambda, S and J_r w
+      for (int k = 0; k < 2; ++k) {
+        double dq = 0;
+        for (int a = 0; a < 9; ++a)
+          for (int b = 0; b < 9; ++b) {
+            const U& Sab = S[a * 9 + b];
+            if (Sab.a.a == 0.0 && Sab.v[k].a == 0.0) continue;
+            dq += r[a].v[k].v[0] * Sab.a.a * r[b].a.v[1] + r[a].a.v[0] * Sab.v[k].a * r[b].a.v[1] +
+                  r[a].a.v[0] * Sab.a.a * r[b].v[k].v[1];
+          }
+        acc[k] += cK * dq;
+      }
+    }
+  }
+  for (size_t k = 0; k < rest_.indices.size(); ++k)
+    gp[rest_.indices[k]] -= rest_.weft[k] * acc[0] + rest_.warp[k] * acc[1];
 }
 
 }  // namespace drapelab

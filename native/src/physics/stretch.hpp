@@ -21,12 +21,18 @@
 // the integral is evaluated by 3-point Gauss-Legendre quadrature (the definition of W used here).
 // Step matrix: Gauss-Newton A_j J_eps^T C J_eps (C frozen) plus the positive part of the geometric
 // stiffness; PSD for valid tables.
+// Optionally (an effect's change, physics/base_term_changes.hpp) the rest pattern is scaled per axis,
+// u -> a_u u, v -> a_v v with a_u = 1 - s_u, a_v = 1 - s_v (rest lengths shrink by the strains s): then
+// Dm^-1 -> Dm^-1 diag(1 / a_u, 1 / a_v) and A_j -> a_u a_v A_j, exact in x, the table and the strains' parameters
+// (their derivatives by jets through the templated energy and Gauss-Newton form below). The jet-derived
+// Reference (element_energy, element_gauss_newton) is the unscaled term.
 #pragma once
 #include <array>
 #include <cmath>
 #include <vector>
 
 #include "geometry/mesh.hpp"
+#include "physics/base_term_changes.hpp"
 #include "physics/element_term.hpp"
 
 namespace drapelab {
@@ -45,28 +51,38 @@ const StretchWeightGrid& stretch_weight_grid();
 
 class StretchTerm : public ElementTerm<StretchTerm, 3, 24, 9> {
  public:
-  // parameter_offset: offset of the "stretch" block; shared = one table for all faces.
-  StretchTerm(const TriangleMesh& mesh, int parameter_offset, bool shared);
+  // parameter_offset: offset of the "stretch" block; shared = one table for all faces; rest: an optional scaling
+  // of the rest pattern.
+  StretchTerm(const TriangleMesh& mesh, int parameter_offset, bool shared, RestScaling rest = {});
   std::string name() const override { return "stretch"; }
 
   int num_elements() const { return static_cast<int>(faces_.size()); }
   const std::array<int, 3>& element_vertices(int e) const { return faces_[e]; }
   int parameter_offset(int e) const { return offset_ + (shared_ ? 0 : 24 * e); }
 
-  template <class T>
-  void deformation_gradient(int e, const T* x, T f[3][2]) const {
-    const auto& Di = dm_inv_[e];
+  // F = Ds Di for a row-major 2 x 2 rest inverse Di (the face's, or a scaled one).
+  template <class T, class D>
+  static void deformation_gradient_of(const T* x, const D* Di, T f[3][2]) {
     for (int c = 0; c < 3; ++c) {
       const T d1 = x[3 + c] - x[c], d2 = x[6 + c] - x[c];
       f[c][0] = d1 * Di[0] + d2 * Di[2];
       f[c][1] = d1 * Di[1] + d2 * Di[3];
     }
   }
+  template <class T>
+  void deformation_gradient(int e, const T* x, T f[3][2]) const {
+    deformation_gradient_of(x, dm_inv_[e].data(), f);
+  }
 
   template <class T>
   void green_strain(int e, const T* x, T* eps) const {
     T f[3][2];
     deformation_gradient(e, x, f);
+    strain_of(f, eps);
+  }
+  // eps = (G_uu, G_vv, G_uv) of F.
+  template <class T>
+  static void strain_of(const T f[3][2], T* eps) {
     T g00 = f[0][0] * f[0][0] + f[1][0] * f[1][0] + f[2][0] * f[2][0];
     T g11 = f[0][1] * f[0][1] + f[1][1] * f[1][1] + f[2][1] * f[2][1];
     T g01 = f[0][0] * f[0][1] + f[1][0] * f[1][1] + f[2][0] * f[2][1];
@@ -196,12 +212,16 @@ class StretchTerm : public ElementTerm<StretchTerm, 3, 24, 9> {
   void element_gauss_newton(int e, const T* x, const T* p, T* r, T* S) const {
     T f[3][2];
     deformation_gradient(e, x, f);
-    green_strain(e, x, r);
+    gauss_newton_of(f, p, area_[e], r, S);
+  }
+  // The Gauss-Newton residuals and weights of a face with deformation gradient f and rest area A.
+  template <class T, class Table, class Area>
+  static void gauss_newton_of(const T f[3][2], const Table* p, const Area& A, T* r, T* S) {
+    strain_of(f, r);
     for (int c = 0; c < 3; ++c)
       for (int a = 0; a < 2; ++a) r[3 + 2 * c + a] = f[c][a];
     T c[4];
     stiffness(r, p, c);
-    const double A = area_[e];
     for (int k = 0; k < 81; ++k) S[k] = T(0.0);
     S[0] = A * c[0];
     S[1] = A * c[1];
@@ -238,12 +258,22 @@ class StretchTerm : public ElementTerm<StretchTerm, 3, 24, 9> {
   // The exact element Hessians, each projected onto the PSD cone if `project` (add_projected_hessian).
   void add_element_hessians(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double scale,
                             Eigen::VectorXd& values, bool project) const;
+  // The rest pattern's scaling at p: the column factors of Dm^-1, 1 / a_u and 1 / a_v, and the rest-area factor
+  // a_u a_v; all exactly 1 without a scaling or at zero strain.
+  struct RestScale {
+    double su = 1, sv = 1, area = 1;
+  };
+  RestScale rest_scale(const Eigen::VectorXd& p) const;
+  // Adds, for the rest scaling's parameters, cE dE/dq + cG d(lambda . grad E)/dq + cK d(lambda^T K w)/dq to gp.
+  void add_rest_scaling_derivatives(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd* lambda,
+                                    const Eigen::VectorXd* w, double cE, double cG, double cK,
+                                    Eigen::VectorXd& gp) const;
   static constexpr double kQuadT[3] = {0.5 - 0.3872983346207417, 0.5, 0.5 + 0.3872983346207417};
   static constexpr double kQuadW[3] = {5.0 / 18.0, 8.0 / 18.0, 5.0 / 18.0};
 
   // Per-element state of the hand-written kernels.
   struct Local;
-  void local_state(int e, const Eigen::VectorXd& x, Local& s) const;
+  void local_state(int e, const Eigen::VectorXd& x, const RestScale& rs, Local& s) const;
   static void element_step_matrix(const Local& s, const double* pe, double* K);
   void directional(const Local& s, const Eigen::VectorXd& u, double dF[3][2], double de[3]) const;
   // Per-face derivative of q = lambda^T K w: adds scale * dq/dx to ge and scale * dq/dp to gp; if Kl is given,
@@ -273,6 +303,7 @@ class StretchTerm : public ElementTerm<StretchTerm, 3, 24, 9> {
   std::vector<double> area_;
   int offset_;
   bool shared_;
+  RestScaling rest_;
 };
 
 }  // namespace drapelab

@@ -1,0 +1,71 @@
+// Effect "heterogeneity_map": the bending stiffness varies smoothly over the specimen (uneven finishing,
+// moisture, a batch gradient). Each bending edge's energy is multiplied by the field
+//   m(X) = exp(cos1 rho cos(t) + sin1 rho sin(t) + cos2 rho^2 cos(2 t) + sin2 rho^2 sin(2 t) + radial rho)
+// at the edge's rest midpoint X = rho R (cos t, sin t) (R the specimen radius, the largest rest radius of the
+// mesh; t from +x, the weft, towards +y, the warp): low-order harmonic polynomials, smooth over the whole disk,
+// equal to the angular modes cos(k t), sin(k t) at the rim. Each coefficient is a natural-log amplitude [1]:
+// at the rim, cos2 = 0.3 makes bending 35 % stiffer along x and y than at 45 degrees. m = 1 exactly at the off
+// value (all coefficients 0), and m > 0 always (the bending step matrix stays PSD).
+// Not an added energy: a multiplier inside the bend term (physics/base_term_changes.hpp), exact in positions,
+// the bending table and the coefficients (E_w -> m_w E_w; dE_w/dc_k = phi_k(X_w) m_w E_w). Stretching is not
+// modulated (the optional part).
+#include <cmath>
+
+#include "physics/effect.hpp"
+#include "physics/model.hpp"
+
+namespace drapelab {
+namespace {
+
+constexpr const char* kName = "heterogeneity_map";
+
+// The modes' values at rest position (u, v) / R.
+double mode_value(int k, double x, double y) {
+  switch (k) {
+    case 0: return x;                  // cos1: rho cos t
+    case 1: return y;                  // sin1: rho sin t
+    case 2: return x * x - y * y;      // cos2: rho^2 cos 2t
+    case 3: return 2.0 * x * y;        // sin2: rho^2 sin 2t
+    default: return std::hypot(x, y);  // radial: rho
+  }
+}
+
+}  // namespace
+
+EffectSpec make_heterogeneity_map_effect() {
+  EffectSpec s;
+  s.name = kName;
+  s.explanation =
+      "the bending stiffness varies smoothly over the specimen: a log field of low-order angular (1- and 2-fold) "
+      "and radial modes multiplies each bending edge's energy";
+  s.signature =
+      "1-fold modes: folds deeper and more frequent on the softer side, a 1-fold r(theta) residual; 2-fold modes: "
+      "folds gather on the softer axis (a 2-fold residual, like a warp-weft anisotropy); radial: the drape "
+      "coefficient moves as with a stiffer or softer material near the rim";
+  // Moderate strengths: see docs/physics.md (heterogeneity_map) for the measured silhouette change.
+  s.parameters = {
+      {"cos1", "1", 0.0, -1.0, 1.0, 0.3, 0.4, "log bending factor at the rim along +x (weft), rho cos t"},
+      {"sin1", "1", 0.0, -1.0, 1.0, 0.3, 0.4, "log bending factor at the rim along +y (warp), rho sin t"},
+      {"cos2", "1", 0.0, -1.0, 1.0, 0.3, 0.4, "log bending factor at the rim on the x and y axes, rho^2 cos 2t"},
+      {"sin2", "1", 0.0, -1.0, 1.0, 0.3, 0.4, "log bending factor at the rim on the diagonals, rho^2 sin 2t"},
+      {"radial", "1", 0.0, -1.0, 1.0, 0.3, 0.4, "log bending factor growing linearly with the rest radius, rho"},
+  };
+  s.make_terms = [](const EffectContext&) { return std::vector<std::unique_ptr<Term>>{}; };
+  s.change_base_terms = [](const EffectContext& c, BaseTermChanges& changes) {
+    double R = 0;
+    for (int i = 0; i < c.mesh.num_vertices(); ++i) R = std::max(R, c.mesh.uv.row(i).norm());
+    const char* names[5] = {"cos1", "sin1", "cos2", "sin2", "radial"};
+    for (int k = 0; k < 5; ++k) {
+      std::vector<double> phi;
+      phi.reserve(c.bending_edges.size());
+      for (const BendingEdge& be : c.bending_edges) {
+        const Eigen::RowVector2d X = 0.5 * (c.mesh.uv.row(be.a) + c.mesh.uv.row(be.b)) / R;
+        phi.push_back(mode_value(k, X[0], X[1]));
+      }
+      changes.bend.add(c.layout.block(effect_block_name(kName, names[k])).offset, std::move(phi));
+    }
+  };
+  return s;
+}
+
+}  // namespace drapelab

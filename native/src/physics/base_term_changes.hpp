@@ -1,0 +1,64 @@
+// Changes an effect makes inside a base term, for effects that are not an added energy but a change of the base
+// physics itself (the rest shape of the membrane, a spatial field over the bending stiffness). An effect fills
+// them from its spec's `change_base_terms` (physics/effect.hpp); the model hands them to the stretch and bend
+// terms it builds. Both are written so that the base term is unchanged bit for bit when no effect asks for a
+// change (the term takes its original path) and when the effect's parameters are at their off values (the
+// change multiplies by exactly 1). Several effects may add to one change: their contributions sum.
+//
+// The base terms give exact derivatives in the effect parameters too (energy, force, step matrix), checked by
+// tests/native/physics/test_effect_parameters.cpp for every registered effect.
+#pragma once
+#include <cmath>
+#include <vector>
+
+#include <Eigen/Core>
+
+namespace drapelab {
+
+// Stretching: the rest pattern is scaled along its axes, u -> (1 - s_u) u (weft), v -> (1 - s_v) v (warp),
+// so rest lengths shrink by the strains s_u, s_v [1] (positive: the fabric shrank; the flat specimen is then
+// under tension). The strains are linear in parameters: s_u = sum_k weft[k] p[indices[k]], s_v likewise.
+struct RestScaling {
+  std::vector<int> indices;
+  std::vector<double> weft, warp;
+
+  bool active() const { return !indices.empty(); }
+  void add(int index, double weft_coefficient, double warp_coefficient) {
+    indices.push_back(index);
+    weft.push_back(weft_coefficient);
+    warp.push_back(warp_coefficient);
+  }
+  // (s_u, s_v) at p.
+  void strains(const Eigen::VectorXd& p, double& su, double& sv) const {
+    su = 0;
+    sv = 0;
+    for (size_t k = 0; k < indices.size(); ++k) {
+      su += weft[k] * p[indices[k]];
+      sv += warp[k] * p[indices[k]];
+    }
+  }
+};
+
+// A per-element energy multiplier m_e = exp(sum_k c_ek p[indices[k]]) (a log-linear field; m = 1 at p = 0).
+struct EnergyModulation {
+  std::vector<int> indices;
+  std::vector<std::vector<double>> coefficients;  // [k][e]: mode k's coefficient on element e
+
+  bool active() const { return !indices.empty(); }
+  void add(int index, std::vector<double> per_element) {
+    indices.push_back(index);
+    coefficients.push_back(std::move(per_element));
+  }
+  double log_multiplier(int e, const Eigen::VectorXd& p) const {
+    double s = 0;
+    for (size_t k = 0; k < indices.size(); ++k) s += coefficients[k][e] * p[indices[k]];
+    return s;
+  }
+};
+
+struct BaseTermChanges {
+  RestScaling stretch_rest;
+  EnergyModulation bend;
+};
+
+}  // namespace drapelab
