@@ -191,3 +191,42 @@ def test_tilt_recovery_round_trip(tmp_path):
     azimuth = (azimuth + np.pi) % (2 * np.pi) - np.pi
     assert 0.11 < angle < 0.19, (job.theta["effect_mu"], job.effect_start)
     assert abs(azimuth - 1.2) < 0.3, (job.theta["effect_mu"], job.effect_start)
+
+
+def _effect_image(path, effects, bend):
+    model = sim.ClothModel(sim.cusick_specimen(1), density=0.192, effects=effects)
+    p = model.parameters(stretch=_linear_stretch(), bend=bend)
+    x = model.simulate(p, mode="dynamic", record=False)
+    img = render.hard_silhouette(render.orthographic_camera(), x, model.faces)
+    measure.write_image(path, 1.0 - np.asarray(img))
+
+
+def _linear_stretch():
+    # The fitter's starting stretching (fit.json init: every row the small-strain row), so that only the
+    # effect differs between the synthetic drape and the fit's model.
+    s = np.array(tables.COTTON_BLUE.stretch, dtype=float)
+    s[1:] = s[0]
+    return s
+
+
+@pytest.mark.parametrize("name", ["density_variation", "prestrain", "heterogeneity_map"])
+def test_primary_strength_recovery_round_trip_with_the_material_known(name, tmp_path):
+    # The effect's primary parameter at its moderate strength on one circle1 drape; the fit knows the material
+    # (bending held at the truth: learning rate 0) and fits the strength from its off value (MAP, prior weight
+    # from fit.json, pixel + drape-coefficient terms). Recovered within 25 %. (With the material fitted too, a
+    # radial density or a prestrain trades off against the bending scale from one image: the diagnosis issue's
+    # "material absorbs the effect"; that needs several drapes and the reference's posterior.)
+    entry = registered(name)
+    primary = entry["parameters"][0]
+    truth = primary["moderate"]
+    bend = tables.COTTON_BLUE.bend
+    path = str(tmp_path / "effect.png")
+    _effect_image(path, {name: {primary["name"]: truth}}, bend)
+    cfg = small_config()
+    cfg["init"]["scale_search"] = []
+    cfg["learning_rates"]["homo"]["mu"] = 0.0
+    job = infer.FitJob([path], 0.192, model="homo", seed=0, config=cfg, threads=1, init_bend=bend,
+                       effects={name: {primary["name"]: None}})
+    job.run(epochs=20)
+    (value,) = job.theta["effect_mu"]
+    assert value == pytest.approx(truth, rel=0.25), (job.effect_start, [h.get("effects") for h in job.history])
