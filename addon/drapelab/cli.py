@@ -4,7 +4,7 @@ import importlib
 import sys
 
 # One module per command under drapelab.commands, each with register(subparsers) -> sets func.
-COMMANDS = ["demo", "bench", "measure", "compare", "fit", "evaluate", "effects", "synth"]
+COMMANDS = ["demo", "bench", "measure", "compare", "fit", "evaluate", "effects", "synth", "diagnose"]
 
 
 def main(argv=None):

@@ -1,0 +1,662 @@
+"""Diagnosis of a preset against measurements: where the model fails, which registered effect is missing.
+
+``diagnose(preset, images, ...)`` answers "what differs between these silhouettes and the model P?"
+(docs/diagnose.md, CONVENTIONS "Diagnosing against a reference"):
+
+1. Where it fails. K posterior-predictive draws of P (the same draws, effect draws and placement noise as
+   ``infer.evaluate`` with that seed) are draped once each; per image: best-of-K pixel MSE and IoU, drape
+   coefficient / node count / node amplitude against the draws' 90 % interval, r(theta) of the measurement
+   and of the best draw, and the residual's harmonic amplitudes k = 1..6 against the re-drape floor (the
+   same harmonics of best draw vs the other draws: what re-draping alone puts there).
+2. What is missing. For every registered effect not in P: a score (Lagrange-multiplier) test at the effect's
+   off value. The draws are draped on one model with every candidate active at its off values (the base
+   model bit for bit: tested), rendered with the fitter's soft renderer, and the data term's gradient with
+   respect to each candidate's parameters is back-propagated per draw. The statistic is Hotelling's
+       T^2 = K gbar^T S^+ gbar      (gbar, S: mean and covariance over the K draws; rank-aware, after
+                                     scaling each parameter by its prior scale)
+   i.e. the mean pull of the data towards switching the effect on, measured in units of how much that pull
+   varies from one re-drape to the next. p-value: T^2 (K - q) / (q (K - 1)) ~ F(q, K - q), q = rank of S
+   (exact for Gaussian gradients; the asymptotic chi2(q), which the issue suggests, is also reported: with
+   K = 16 draws and q = 5 it is anti-conservative by orders of magnitude). Per-draw gradients are exact but
+   heavy-tailed (folds bifurcate), so their norms are capped at fit.json gradient_clip.factor x the median
+   first, as the fitter does. The threshold is alpha = 0.01,
+   Bonferroni-corrected over the candidates tested. The score test sees only parameters with a gradient at
+   the off point: a tilt's azimuth has none at zero angle (the test then scores the tilt towards +x only).
+   The data term is the pixel term alone: the soft silhouette's drape coefficient sits ~0.02 above the hard
+   one's (docs/fitting.md), a bias that would pull consistently on every effect that moves the drape
+   coefficient.
+3. Refits. The candidates below the threshold (up to MAX_REFITS, smallest p first) are refitted under the time
+   budget: ``infer.FitJob`` with effects {name: None} (P's own effects fixed), starting from P's material
+   (its mean log table, its stretching table, no bending scale search). FitJob's prior is one isotropic
+   Gaussian around the start table: its sd is P's mean posterior log sd ("material_prior" says so).
+   Each refit is evaluated like the base (same seed, K draws, P's camera and P's global log sd) and written as
+   DIR/presets/<effect>.json. gain = (base loss - refit loss) / added parameters, loss = the mean hard-image data
+   term over draws and images. ``recommended`` = the effect with the largest positive gain among those below
+   the threshold, else None.
+
+Time budget (seconds, the whole job): the draws and score tests come first (their cost is K drapes with
+backward); what remains, less the refits' evaluations (estimated from the measured drape time) and a reserve
+for the report, is split equally between the refits. Without a budget each refit runs fit.json default_epochs.
+"""
+import copy
+import html
+import math
+import os
+import threading
+import time
+import concurrent.futures
+
+import numpy as np
+
+from . import fit_effects, infer, measure, render
+from ._native import Cancelled, InputError, SolverError
+
+__all__ = ["diagnose", "score_test", "write_report", "DEFAULT_SAMPLES", "ALPHA", "MAX_REFITS"]
+
+DEFAULT_SAMPLES = 16      # posterior-predictive draws (the score test's sample size)
+MIN_SAMPLES = 3           # a covariance over draws needs at least this many
+ALPHA = 0.01              # family-wise significance level, Bonferroni over the candidates tested
+MAX_REFITS = 2            # refits of the most promising candidates
+HARMONIC_ORDERS = 6       # residual harmonics reported: k = 1..6
+RANK_TOLERANCE = 1e-9     # eigenvalues of the scaled gradient covariance below this x the largest are dropped
+REPORT_RESERVE_S = 5.0    # seconds kept back from the refits for the evaluation bookkeeping and the report
+SCORE_SIGMA_DC = 0.0      # the score test's data term: pixel term only (see the module doc)
+FOLD_WORDS = {
+    1: "1-fold: the drape hangs further out on one side (offset, tilt, a density or stiffness gradient)",
+    2: "2-fold: the drape is longer along one axis (warp-weft anisotropy or shrinkage, camera aspect)",
+}
+
+
+def _progress(progress, stage, message, **extra):
+    if progress:
+        progress(dict(stage=stage, message=message, **extra))
+
+
+def score_test(gradients, scale=None, clip=None):
+    """Score test from per-draw gradients (K, q) of the data term at the off point (see the module doc).
+    scale: per-parameter factors (the prior scales: the covariance's rank is judged on comparable units); clip:
+    per-draw norms above clip x their median are scaled down to it. Returns {statistic, rank, p_value
+    (Hotelling F), p_value_chi2, gradient_mean (unclipped, per parameter unit), clipped (draws capped)}."""
+    from scipy import stats
+
+    g = np.asarray(gradients, dtype=float)
+    if g.ndim != 2 or g.shape[0] < 2:
+        raise InputError(f"score_test: expected (draws >= 2, parameters) gradients, got shape {g.shape}")
+    k = g.shape[0]
+    z = g * (np.ones(g.shape[1]) if scale is None else np.asarray(scale, dtype=float))
+    clipped = 0
+    if clip:
+        # Per-draw gradients of a rollout are exact but heavy-tailed (a fold bifurcating near the end makes one
+        # draw's gradient 5-10x the others'; infer.FitJob.clip_threshold): norms are capped at clip x the median.
+        norms = np.linalg.norm(z, axis=1)
+        cap = float(clip) * float(np.median(norms))
+        if cap > 0:
+            factor = np.minimum(1.0, cap / np.maximum(norms, 1e-300))
+            clipped = int(np.sum(factor < 1.0))
+            z = z * factor[:, None]
+    mean = z.mean(axis=0)
+    cov = np.atleast_2d(np.cov(z, rowvar=False, ddof=1))
+    w, v = np.linalg.eigh(cov)
+    top = float(w.max()) if w.size else 0.0
+    keep = w > RANK_TOLERANCE * top if top > 0 else np.zeros_like(w, dtype=bool)
+    rank = int(keep.sum())
+    if rank == 0:
+        return {"statistic": 0.0, "rank": 0, "p_value": 1.0, "p_value_chi2": 1.0,
+                "gradient_mean": g.mean(axis=0).tolist(), "clipped": clipped}
+    proj = v[:, keep].T @ mean
+    t2 = float(k * np.sum(proj ** 2 / w[keep]))
+    p_chi2 = float(stats.chi2.sf(t2, rank))
+    if k > rank:
+        f = t2 * (k - rank) / (rank * (k - 1))
+        p = float(stats.f.sf(f, rank, k - rank))
+    else:  # cannot happen (rank <= K - 1), kept for safety
+        p = p_chi2
+    return {"statistic": t2, "rank": rank, "p_value": p, "p_value_chi2": p_chi2,
+            "gradient_mean": g.mean(axis=0).tolist(), "clipped": clipped}
+
+
+def _check_inputs(preset, images, meshes, candidates, time_budget, samples):
+    if not images:
+        raise InputError("images: give at least one measured silhouette")
+    for path in images:
+        if not os.path.isfile(path):
+            raise InputError(f"images: {path}: no such file")
+    meshes = list(meshes or [])
+    if meshes and len(meshes) != len(images):
+        raise InputError(f"meshes: {len(meshes)} meshes for {len(images)} images (they pair in order)")
+    if preset is None:
+        raise InputError("preset: give the preset to diagnose")
+    if isinstance(preset, (str, os.PathLike)):
+        if not os.path.isfile(preset):
+            raise InputError(f"preset: {os.fspath(preset)}: no such file")
+        p = infer.load_preset(preset)
+    else:
+        p = infer.validate_preset(copy.deepcopy(preset))
+    reg = fit_effects.registry()
+    active = set(p.get("active_effects") or {})
+    if candidates is None:
+        names = [n for n in reg if n not in active]
+    else:
+        if isinstance(candidates, str):
+            candidates = [c for c in candidates.split(",")]
+        names = []
+        for c in candidates:
+            c = str(c).strip()
+            if c not in reg:
+                raise InputError(f"candidates: unknown effect {c!r} (registered: {', '.join(reg)})")
+            if c in active:
+                raise InputError(f"candidates: {c!r} is already active in the preset")
+            if c not in names:
+                names.append(c)
+    if time_budget is not None and not (float(time_budget) > 0):
+        raise InputError(f"time_budget: must be > 0 seconds, got {time_budget}")
+    k = DEFAULT_SAMPLES if samples is None else int(samples)
+    if k < MIN_SAMPLES:
+        raise InputError(f"samples: the score test needs at least {MIN_SAMPLES} draws, got {samples}")
+    return p, meshes, names, k
+
+
+def _observations(images):
+    obs = [infer._Observation(path, None) for path in images]
+    first = obs[0]
+    for o in obs[1:]:
+        if o.mask.shape != first.mask.shape:
+            raise InputError(f"images: {o.path} is {o.mask.shape[1]} x {o.mask.shape[0]} px, {first.path} "
+                             f"{first.mask.shape[1]} x {first.mask.shape[0]}: diagnose images of one calibration")
+        if abs(o.calibration["px_per_m"] - first.calibration["px_per_m"]) > 0.01 * first.calibration["px_per_m"]:
+            raise InputError(f"images: {o.path} has {o.calibration['px_per_m']:.1f} px/m, {first.path} "
+                             f"{first.calibration['px_per_m']:.1f} px/m: diagnose images of one calibration")
+    return obs
+
+
+def _summary(shapes, observations, camera_cal, sigma_obs, sigma_dc):
+    """Base-style metrics of draped draws (hard images) against the observations, and per-image details."""
+    ok = [s for s in shapes if s is not None and "error" not in s]
+    dcs = np.array([s["dc"] for s in ok])
+    nodes = np.array([s["nodes"] for s in ok])
+    amps = np.array([s["amplitude"] for s in ok])
+    dc_iv = [float(v) for v in np.percentile(dcs, [5, 95])]
+    node_iv = [float(v) for v in np.percentile(nodes, [5, 95])]
+    amp_iv = [float(v) for v in np.percentile(amps, [5, 95])]
+    values, counts = np.unique(nodes, return_counts=True)
+    node_mode = int(values[np.argmax(counts)])
+    per_image = []
+    for o in observations:
+        mses = np.array([measure.pixel_mse(s["image"], o.mask) for s in ok])
+        best = int(np.argmin(mses))
+        loss = float(np.mean([infer.data_term(s["image"], o, sigma_obs, sigma_dc)[0] for s in ok]))
+        per_image.append({"image": o.path, "mse": float(mses[best]), "iou": float(measure.iou(ok[best]["image"], o.mask)),
+                          "loss": loss, "best_draw": best,
+                          "drape_coefficient": {"observed": o.dc, "predicted_mean": float(dcs.mean()), "interval90": dc_iv},
+                          "node_count": {"observed": o.nodes, "predicted_mode": node_mode, "interval90": node_iv},
+                          "node_amplitude_m": {"observed": o.amplitude, "predicted_mean": float(amps.mean()),
+                                               "interval90": amp_iv}})
+    base = {"mse": float(np.mean([e["mse"] for e in per_image])),
+            "iou": float(np.mean([e["iou"] for e in per_image])),
+            "dc_error": float(np.mean([abs(e["drape_coefficient"]["predicted_mean"] - e["drape_coefficient"]["observed"])
+                                       for e in per_image])),
+            "node_error": float(np.mean([abs(e["node_count"]["predicted_mode"] - e["node_count"]["observed"])
+                                         for e in per_image])),
+            "amplitude_error": float(np.mean([abs(e["node_amplitude_m"]["predicted_mean"] - e["node_amplitude_m"]["observed"])
+                                              for e in per_image])),
+            "loss": float(np.mean([e["loss"] for e in per_image]))}
+    return base, per_image, ok
+
+
+def _outside_words(entry):
+    """Sentences for the measured values outside the predictive 90 % interval."""
+    out = []
+    for key, what, unit, factor in (("drape_coefficient", "drape coefficient", "", 1.0),
+                                    ("node_count", "node count", "", 1.0),
+                                    ("node_amplitude_m", "node amplitude (fold depth)", " mm", 1000.0)):
+        e = entry[key]
+        lo, hi = e["interval90"]
+        v = e["observed"]
+        if v < lo or v > hi:
+            side = "above" if v > hi else "below"
+            out.append(f"The measured {what} {factor * v:.3g}{unit} lies {side} the model's 90 % predictive interval "
+                       f"[{factor * lo:.3g}, {factor * hi:.3g}]{unit}.")
+    return out
+
+
+def _signature(obs, ok, best, calibration):
+    """r(theta) of the measurement and of the best draw, the residual and its harmonics k = 1..6 against the
+    re-drape floor (median harmonics of best draw minus each other draw)."""
+    r_obs = np.asarray(measure.r_theta(obs.mask, calibration), dtype=float)
+    curves = [np.asarray(measure.r_theta(s["image"], calibration), dtype=float) for s in ok]
+    r_best = curves[best]
+    residual = r_obs - r_best
+    n = HARMONIC_ORDERS + 1
+    amp = np.asarray(measure.harmonics(residual, n), dtype=float)[1:n]
+    others = [np.asarray(measure.harmonics(r_best - c, n), dtype=float)[1:n] for i, c in enumerate(curves) if i != best]
+    floor = np.median(others, axis=0) if others else np.zeros(HARMONIC_ORDERS)
+    ratio = amp / np.maximum(floor, 1e-12)
+    k = int(np.argmax(ratio)) + 1
+    words = FOLD_WORDS.get(k, f"{k}-fold: fold placement or node count (what re-draping changes)")
+    if ratio[k - 1] > 2.0:
+        text = (f"The residual's strongest harmonic against the re-drape floor is k = {k} ({1000 * amp[k - 1]:.2f} mm, "
+                f"{ratio[k - 1]:.1f}x the floor {1000 * floor[k - 1]:.2f} mm): {words}.")
+    else:
+        text = (f"No residual harmonic k = 1..{HARMONIC_ORDERS} stands out of the re-drape floor (largest ratio "
+                f"{ratio[k - 1]:.1f}x at k = {k}): the residual looks like re-draping.")
+    return {"harmonics_m": amp.tolist(), "redrape_floor_m": floor.tolist(), "dominant_k": k, "words": text}, \
+        {"r_measured": r_obs, "r_best": r_best, "residual": residual}
+
+
+def _joint_drapes(preset, observations, names, k, seed, config, threads, template_dir, mesh_level, progress,
+                  cancel_event):
+    """Drapes K draws of the preset on one model with every candidate active at its off values (P's own effects
+    at their sampled values), recording the rollout; returns the shapes (x, hard image, dc, nodes, amplitude)
+    and per draw the gradient of the pixel data term (mean over images) for every candidate parameter."""
+    reg = fit_effects.registry()
+    shape = observations[0].mask.shape
+    lanes = max(1, min(int(threads or min(os.cpu_count() or 1, 2)), k))
+    pred = infer._Predictive(preset, shape, 1, config, template_dir, mesh_level, "dynamic")
+    base_effects = fit_effects.sample_effect_values(pred.effects, np.random.default_rng([seed, 11]), k)
+    offs = {n: {p["name"]: p["off"] for p in reg[n]["parameters"]} for n in names}
+    p_active = fit_effects.active_effect_values(pred.effects)
+    mesh = infer.sim.cusick_specimen(pred.level, template_dir=template_dir)
+    models = [infer.sim.ClothModel(mesh, heterogeneous=True, density=preset["density_kg_m2"],
+                                   effects={**p_active, **offs}) for _ in range(lanes)]
+    renderers = [render.SoftRenderer(pred.camera, sigma=config["render_sigma_px"]) for _ in range(lanes)]
+    draws = infer.preset_bend_samples(preset, models[0].num_bending_edges, np.random.default_rng(seed), k)
+    keys = [f"{n}.{p['name']}" for n in names for p in reg[n]["parameters"]]
+    sigma_obs = float(config["sigma_obs"])
+    amplitude, modes = pred.placement
+    rest = models[0].rest_positions
+    shapes, grads = [None] * k, [None] * k
+    done = [0]
+    lock = threading.Lock()
+    t0 = time.monotonic()
+
+    def run(lane):
+        m, r = models[lane], renderers[lane]
+        for i in range(lane, k, lanes):
+            if cancel_event is not None and cancel_event.is_set():
+                return
+            effects = {**(base_effects[i] if base_effects else {}), **offs}
+            p = m.parameters(stretch=pred.stretch, bend=draws[i], effects=effects)
+            v0 = infer.placement_velocities(rest, np.random.default_rng([seed, i, 1]), amplitude, modes) \
+                if amplitude > 0 else None
+            try:
+                x = m.simulate(p, mode="dynamic", record=True, velocities0=v0, **config["dynamic"])
+            except SolverError as e:
+                shapes[i] = {"error": str(e)}
+                continue
+            hard = infer._hard_image(pred.camera, x, m.faces)
+            nodes = measure.analyse_nodes(measure.r_theta(hard, pred.calibration))
+            soft = r.render(x, m.faces)
+            g_image = np.zeros_like(soft)
+            for o in observations:
+                g_image += infer.data_term(soft, o, sigma_obs, SCORE_SIGMA_DC)[1] / len(observations)
+            g = m.backward(r.backward(g_image))
+            shapes[i] = {"x": x, "image": hard, "dc": measure.drape_coefficient(hard, pred.calibration.px_per_m),
+                         "nodes": nodes.count, "amplitude": nodes.amplitude_m}
+            grads[i] = {key: float(g[key]) for key in keys}
+            with lock:
+                done[0] += 1
+                _progress(progress, "draws", f"draw {done[0]}/{k} draped and differentiated "
+                                             f"({time.monotonic() - t0:.1f} s)", done=done[0], total=k)
+
+    if lanes == 1:
+        run(0)
+    else:
+        with concurrent.futures.ThreadPoolExecutor(lanes) as pool:
+            for f in [pool.submit(run, lane) for lane in range(lanes)]:
+                f.result()
+    return pred, models, shapes, grads, time.monotonic() - t0, lanes
+
+
+def _refit(preset, images, name, level, seed, config, threads, template_dir, budget, cancel_event, progress):
+    """Short refit with `name` fitted from P's material (see the module doc); returns the refit preset."""
+    cfg = copy.deepcopy(config)
+    log_std = float(np.mean(preset["posterior"]["bend"]["log_std"]))
+    prior_sd = max(log_std, 1e-3)
+    cfg["init"]["scale_search"] = []
+    cfg["init"]["stretch_strain_dependent"] = True  # keep P's stretching table as it is
+    cfg["init"]["bdp_std"] = prior_sd
+    cfg["prior"] = {"log_bend_mean": "start", "log_bend_std": prior_sd}
+    cfg["calibration"]["enabled"] = False
+    if preset.get("placement_noise"):
+        cfg["placement_noise"] = dict(preset["placement_noise"])
+    effects = {n: {p: v for p, v in vals.items()} for n, vals in
+               fit_effects.active_effect_values(preset.get("active_effects")).items()}
+    effects[name] = None
+    job = infer.FitJob(images, preset["density_kg_m2"], model=preset["model"], seed=seed, config=cfg,
+                       mesh_level=level, template_dir=template_dir, threads=threads,
+                       init_bend=np.exp(np.asarray(preset["posterior"]["bend"]["log_mean"])),
+                       init_stretch=np.asarray(preset["stretch_N_m"]), effects=effects)
+
+    def epoch(e):
+        fitted = "".join(f"  {key} {v:+.4g}" for key, v in (e.get("effects") or {}).items())
+        _progress(progress, "refit", f"refit +{name}: epoch {e['epoch']} loss {e['loss']:.4f} MSE {e['mse']:.4f}"
+                                     f"{fitted}", effect=name)
+
+    if budget is None:
+        job.run(epochs=int(cfg["default_epochs"]), progress=epoch, cancel_event=cancel_event)
+    else:
+        job.run(time_budget=budget, progress=epoch, cancel_event=cancel_event)
+    refit = job.preset(options={"diagnose": True, "effects": job.plan.describe(), "seed": seed})
+    g = preset["posterior"]["bend"].get("global_log_std")
+    if g:  # the base predictive's calibrated per-draw spread, so that base and refit compare like for like
+        refit["posterior"]["bend"]["global_log_std"] = float(g)
+    refit["camera"] = dict(preset["camera"])
+    refit["fabric"] = dict(preset.get("fabric") or {})
+    return infer.validate_preset(refit), job
+
+
+def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, samples=None, seed=0, config=None,
+             threads=None, template_dir=None, mesh_level=None, out_dir=None, progress=None, cancel_event=None):
+    """Diagnoses `preset` (a path or a preset dict) against measured silhouettes (module doc). Returns the diagnosis
+    dict; with `out_dir`, writes DIR/diagnosis.json (after every stage), DIR/presets/<effect>.json per refit and
+    the report DIR/index.html with its PNGs. `progress` receives {stage, message, ...}; `cancel_event` stops
+    cleanly: the diagnosis then holds what was done ("cancelled": true)."""
+    t0 = time.monotonic()
+    preset_path = os.fspath(preset) if isinstance(preset, (str, os.PathLike)) else None
+    p, meshes, names, k = _check_inputs(preset, images, meshes, candidates, time_budget, samples)
+    config = copy.deepcopy(config or infer.load_config())
+    if out_dir:
+        measure.check_output_path(os.path.join(out_dir, "diagnosis.json"), "diagnosis")
+    observations = _observations(images)
+    reg = fit_effects.registry()
+    threshold = ALPHA / max(1, len(names))
+    label = (p.get("fabric") or {}).get("name") or (os.path.basename(preset_path) if preset_path else "preset")
+    result = {"preset": preset_path, "model": p["model"], "images": list(images), "samples": k, "seed": int(seed),
+              "candidates": names, "base": None, "ranking": [], "recommended": None, "threshold": threshold,
+              "threshold_rule": f"alpha {ALPHA} Bonferroni-corrected over the {len(names)} candidates tested "
+                                f"({ALPHA} / {len(names)}): the family-wise chance of naming an effect on data "
+                                f"without one stays below {ALPHA}",
+              "test": "Hotelling T^2 of the per-draw score (pixel data term gradient at the off value), p from "
+                      "F(q, K - q); p_value_chi2: the asymptotic chi2(q)",
+              "material_prior": None, "history": [], "cancelled": False, "seconds": {}}
+    figures = {"images": []}
+
+    def save():
+        result["seconds"]["total"] = time.monotonic() - t0
+        if out_dir:
+            os.makedirs(out_dir, exist_ok=True)
+            measure.write_json(os.path.join(out_dir, "diagnosis.json"), _public(result))
+
+    try:
+        # 1. where it fails, and the score tests (one rollout + backward per draw)
+        _progress(progress, "draws", f"{label}: {k} posterior draws on {len(images)} image(s), score tests of "
+                                     f"{', '.join(names) or 'no candidates'}")
+        pred, models, shapes, grads, seconds, lanes = _joint_drapes(
+            p, observations, names, k, seed, config, threads, template_dir, mesh_level, progress, cancel_event)
+        result["seconds"]["draws"] = seconds
+        result["mesh_level"] = pred.level
+        done = [i for i in range(k) if shapes[i] is not None and "error" not in shapes[i]]
+        result["failed_draws"] = sum(1 for s in shapes if s is not None and "error" in s)
+        if cancel_event is not None and cancel_event.is_set():
+            result["cancelled"] = True
+        if not done:
+            if result["cancelled"]:
+                save()
+                return result
+            raise SolverError(f"diagnose: every one of the {k} posterior draws failed to drape")
+        base, per_image, ok = _summary([shapes[i] for i in done], observations, pred.calibration,
+                                       float(config["sigma_obs"]), float(config.get("sigma_dc") or 0.0))
+        result["base"] = base
+        for o, e in zip(observations, per_image):
+            sig, curves = _signature(o, ok, e["best_draw"], pred.calibration)
+            e["signature"] = sig
+            e["outside_interval"] = _outside_words(e)
+            figures["images"].append({"mask": o.mask, "best": ok[e["best_draw"]]["image"], **curves})
+        result["per_image"] = per_image
+        result["draws_used"] = len(done)
+        per_draw = seconds * lanes / max(1, len(done))
+        # ranking
+        g_done = [grads[i] for i in done]
+        for n in names:
+            params = reg[n]["parameters"]
+            keys = [f"{n}.{q['name']}" for q in params]
+            entry = {"effect": n, "parameters": keys, "statistic": None, "p_value": None, "refit": None,
+                     "gain": None, "explanation": None}
+            if len(g_done) >= MIN_SAMPLES:
+                st = score_test([[g[key] for key in keys] for g in g_done], [q["prior_scale"] for q in params],
+                                clip=(config.get("gradient_clip") or {}).get("factor"))
+                entry.update(statistic=st["statistic"], p_value=st["p_value"], p_value_chi2=st["p_value_chi2"],
+                             rank=st["rank"], clipped_draws=st["clipped"], gradient_mean=dict(zip(keys, st["gradient_mean"])))
+                pull = ", ".join(f"{key} {'up' if gm < 0 else 'down'}" for key, gm in zip(keys, st["gradient_mean"])
+                                 if gm != 0)
+                verdict = "significant" if st["p_value"] < threshold else "not significant"
+                entry["explanation"] = (f"{reg[n]['explanation']}. Predicts {reg[n]['signature']}. Score T^2 "
+                                        f"{st['statistic']:.3g} on {st['rank']} dof, p = {st['p_value']:.2g} "
+                                        f"({verdict} at {threshold:.2g}); the data pull {pull or 'nothing'}.")
+            else:
+                entry["explanation"] = f"{reg[n]['explanation']}. Not tested: fewer than {MIN_SAMPLES} draws draped."
+            result["ranking"].append(entry)
+        result["ranking"].sort(key=lambda e: (e["p_value"] is None, e["p_value"] if e["p_value"] is not None else 1.0))
+        result["seconds"]["score"] = time.monotonic() - t0
+        save()
+        if result["cancelled"]:
+            raise Cancelled()
+
+        # 2. refits of the most promising candidates
+        promising = [e for e in result["ranking"] if e["p_value"] is not None and e["p_value"] < threshold][:MAX_REFITS]
+        if promising:
+            result["material_prior"] = (f"start table = the preset's log_mean, isotropic log sd = the preset's mean "
+                                        f"posterior log sd {float(np.mean(p['posterior']['bend']['log_std'])):.3f} "
+                                        f"(FitJob takes one prior sd, not the preset's per-entry posterior)")
+        for idx, entry in enumerate(promising):
+            budget = None
+            if time_budget is not None:
+                left = float(time_budget) - (time.monotonic() - t0)
+                evaluation = per_draw * 0.4 * k / lanes  # forward only: ~40 % of a draw with backward (measured)
+                budget = (left - REPORT_RESERVE_S - (len(promising) - idx) * evaluation) / (len(promising) - idx)
+                if budget <= 0:
+                    entry["explanation"] += " Not refitted: the time budget was spent."
+                    continue
+            ts = time.monotonic()
+            _progress(progress, "refit", f"refit with {entry['effect']} "
+                                         f"({'default epochs' if budget is None else f'{budget:.0f} s'})",
+                      effect=entry["effect"])
+            refit, job = _refit(p, images, entry["effect"], pred.level, seed, config, threads, template_dir, budget,
+                                cancel_event, progress)
+            rp = infer._Predictive(refit, observations[0].mask.shape, lanes, config, template_dir, pred.level, "dynamic")
+            draws = infer.preset_bend_samples(refit, rp.num_edges, np.random.default_rng(seed), k)
+            rshapes = rp.drape(draws, seed, cancel_event=cancel_event)
+            rbase, rper, _ = _summary(rshapes, observations, rp.calibration, float(config["sigma_obs"]),
+                                      float(config.get("sigma_dc") or 0.0))
+            entry["refit"] = {"mse": rbase["mse"], "iou": rbase["iou"], "loss": rbase["loss"],
+                              "dc_error": rbase["dc_error"], "node_error": rbase["node_error"],
+                              "amplitude_error": rbase["amplitude_error"], "epochs": job.epoch,
+                              "seconds": time.monotonic() - ts,
+                              "values": {key: e["value"] for key, e in refit["active_effects"][entry["effect"]].items()}}
+            entry["gain"] = (base["loss"] - rbase["loss"]) / len(entry["parameters"])
+            entry["explanation"] += (f" Refit ({job.epoch} epochs): loss {base['loss']:.4g} -> {rbase['loss']:.4g}, "
+                                     f"best-of-{k} MSE {base['mse']:.4f} -> {rbase['mse']:.4f}.")
+            if out_dir:
+                path = os.path.join(out_dir, "presets", f"{entry['effect']}.json")
+                os.makedirs(os.path.dirname(path), exist_ok=True)
+                infer.write_preset(path, refit)
+                entry["refit"]["preset"] = os.path.relpath(path, out_dir)
+            result["history"].append(_history_entry(f"{label} + {entry['effect']}", refit, rbase, "diagnose refit"))
+            save()
+    except Cancelled:
+        result["cancelled"] = True
+        _progress(progress, "cancelled", "cancelled: writing what is done")
+    finally:
+        pass
+
+    gaining = [e for e in result["ranking"] if e["p_value"] is not None and e["p_value"] < threshold
+               and e["gain"] is not None and e["gain"] > 0]
+    if gaining:
+        best = max(gaining, key=lambda e: e["gain"])
+        result["recommended"] = best["effect"]
+        result["verdict"] = (f"{best['effect']} is significant (p = {best['p_value']:.2g} < {threshold:.2g}) and its "
+                             f"refit lowers the loss by {best['gain']:.4g} per added parameter: "
+                             f"fit --effects {best['effect']}")
+    else:
+        tested = [e for e in result["ranking"] if e["p_value"] is not None]
+        smallest = min((e["p_value"] for e in tested), default=None)
+        why = ("no candidate was tested" if smallest is None else
+               f"the smallest p-value is {smallest:.2g} against the threshold {threshold:.2g} ({result['threshold_rule']})"
+               if smallest >= threshold else
+               "the significant candidates' refits did not lower the loss (or were not run)")
+        result["verdict"] = f"Nothing significant: {why}."
+    result["history"] = _history(p, label, result.get("base")) + result["history"]
+    save()
+    if out_dir and result.get("base") is not None:
+        write_report(out_dir, result, figures, observations, pred.calibration)
+    result["seconds"]["total"] = time.monotonic() - t0
+    return _public(result)
+
+
+def _history_entry(model, preset, metrics, source):
+    effects = {n: {q: e["value"] for q, e in params.items()} for n, params in (preset.get("active_effects") or {}).items()}
+    return {"model": model, "effects": effects, "source": source,
+            **{key: metrics.get(key) for key in ("mse", "iou", "dc_error", "node_error", "amplitude_error", "loss")}}
+
+
+def _history(p, label, base):
+    out = []
+    training = (p.get("metrics") or {}).get("training_image") or {}
+    if training.get("mse") is not None:
+        out.append(_history_entry(f"{label} (training image)", p, {"mse": training.get("mse"), "iou": training.get("iou")},
+                                  "preset training metrics"))
+    if base is not None:
+        out.append(_history_entry(label, p, base, "diagnose base"))
+    return out
+
+
+def _public(result):
+    """JSON-safe copy (non-finite numbers as null)."""
+    def clean(v):
+        if isinstance(v, dict):
+            return {key: clean(x) for key, x in v.items()}
+        if isinstance(v, (list, tuple)):
+            return [clean(x) for x in v]
+        if isinstance(v, (np.floating, float)):
+            return float(v) if math.isfinite(v) else None
+        if isinstance(v, np.integer):
+            return int(v)
+        return v
+    return clean(result)
+
+
+# ---------------------------------------------------------------- report
+def _figure(size=(6.4, 3.6)):
+    from matplotlib.figure import Figure
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    fig = Figure(figsize=size, dpi=110)
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def _save(fig, path):
+    def write(tmp):
+        fig.savefig(tmp, format="png")
+    measure._atomic_write(path, "figure", ".png", write)
+
+
+def write_report(out_dir, result, figures, observations, calibration):
+    """DIR/index.html and its PNGs: overlays, r(theta) with residual, harmonic bars, predictive intervals, the
+    ranking (-log10 p with the threshold line) and the history chart."""
+    os.makedirs(out_dir, exist_ok=True)
+    parts = [f"<h1>Diagnosis of {html.escape(str(result.get('preset') or 'preset'))}</h1>",
+             f"<p><b>{html.escape(result.get('verdict', ''))}</b></p>"]
+    if result.get("cancelled"):
+        parts.append("<p><b>Cancelled</b>: this report holds what was done.</p>")
+    b = result["base"]
+    parts.append(f"<p>{result['draws_used']} posterior draws on circle{result.get('mesh_level')}: best-of-K MSE "
+                 f"{b['mse']:.4f}, IoU {b['iou']:.4f}, |dDC| {b['dc_error']:.3f}, node error {b['node_error']:.2f}, "
+                 f"amplitude error {1000 * b['amplitude_error']:.2f} mm, loss {b['loss']:.4g}.</p>")
+    for i, (e, f) in enumerate(zip(result["per_image"], figures["images"])):
+        name = html.escape(os.path.basename(e["image"]))
+        over = f"overlay_{i}.png"
+        measure.write_overlay(os.path.join(out_dir, over), f["mask"], f["best"], title=f"{os.path.basename(e['image'])}: "
+                              f"best draw (MSE {e['mse']:.4f})", calibration=calibration)
+        fig = _figure((7.0, 3.6))
+        ax = fig.add_subplot(1, 2, 1)
+        t = np.linspace(0, 360, len(f["r_measured"]), endpoint=False)
+        ax.plot(t, 1000 * f["r_measured"], label="measured")
+        ax.plot(t, 1000 * f["r_best"], label="best draw")
+        ax.plot(t, 1000 * f["residual"] + 90.0, label="residual + 90 mm", color="k", lw=0.8)
+        ax.set_xlabel("theta (deg)")
+        ax.set_ylabel("r (mm)")
+        ax.legend(fontsize=7)
+        ax2 = fig.add_subplot(1, 2, 2)
+        s = e["signature"]
+        ks = np.arange(1, HARMONIC_ORDERS + 1)
+        ax2.bar(ks - 0.2, 1000 * np.asarray(s["harmonics_m"]), 0.4, label="residual")
+        ax2.bar(ks + 0.2, 1000 * np.asarray(s["redrape_floor_m"]), 0.4, label="re-drape floor")
+        ax2.set_xlabel("harmonic k")
+        ax2.set_ylabel("amplitude (mm)")
+        ax2.legend(fontsize=7)
+        fig.tight_layout()
+        rt = f"rtheta_{i}.png"
+        _save(fig, os.path.join(out_dir, rt))
+        words = "".join(f"<li>{html.escape(w)}</li>" for w in [s["words"]] + e["outside_interval"])
+        parts.append(f"<h2>{name}</h2><img src='{over}'><img src='{rt}'><ul>{words}</ul>")
+    # predictive intervals
+    fig = _figure((7.5, 3.0))
+    for j, (key, what, factor) in enumerate((("drape_coefficient", "drape coefficient", 1.0),
+                                             ("node_count", "node count", 1.0),
+                                             ("node_amplitude_m", "node amplitude (mm)", 1000.0))):
+        ax = fig.add_subplot(1, 3, j + 1)
+        for i, e in enumerate(result["per_image"]):
+            lo, hi = e[key]["interval90"]
+            ax.plot([i, i], [factor * lo, factor * hi], color="C0", lw=6, alpha=0.4)
+            ax.plot(i, factor * e[key]["observed"], "o", color="C3")
+        ax.set_title(what, fontsize=9)
+        ax.set_xticks(range(len(result["per_image"])))
+        ax.set_xlabel("image")
+    fig.tight_layout()
+    _save(fig, os.path.join(out_dir, "intervals.png"))
+    parts.append("<h2>Predictive 90 % intervals (bars) and measurements (dots)</h2><img src='intervals.png'>")
+    # ranking
+    ranked = [e for e in result["ranking"] if e["p_value"] is not None]
+    fig = _figure((6.4, 0.6 + 0.5 * max(1, len(ranked))))
+    ax = fig.add_subplot(1, 1, 1)
+    y = np.arange(len(ranked))
+    ax.barh(y, [-math.log10(max(e["p_value"], 1e-300)) for e in ranked], color="C0")
+    ax.axvline(-math.log10(result["threshold"]), color="C3", ls="--", label=f"threshold p = {result['threshold']:.2g}")
+    ax.set_yticks(y)
+    ax.set_yticklabels([e["effect"] for e in ranked])
+    ax.invert_yaxis()
+    ax.set_xlabel("-log10 p (score test)")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    _save(fig, os.path.join(out_dir, "ranking.png"))
+    def cell(value, fmt):
+        return "" if value is None else format(value, fmt)
+
+    rows = ""
+    for e in result["ranking"]:
+        refit_mse = None if e["refit"] is None else e["refit"]["mse"]
+        rows += (f"<tr><td>{html.escape(e['effect'])}</td><td>{cell(e['statistic'], '.3g')}</td>"
+                 f"<td>{cell(e['p_value'], '.2g')}</td><td>{cell(refit_mse, '.4f')}</td>"
+                 f"<td>{cell(e['gain'], '.4g')}</td><td>{html.escape(e['explanation'] or '')}</td></tr>")
+    parts.append("<h2>What is missing: score tests at each effect's off value</h2><img src='ranking.png'>"
+                 f"<p>{html.escape(result['threshold_rule'])}. {html.escape(result['test'])}.</p>"
+                 "<table border=1 cellpadding=3><tr><th>effect</th><th>T^2</th><th>p</th><th>refit MSE</th>"
+                 f"<th>gain / parameter</th><th>explanation</th></tr>{rows}</table>")
+    # history
+    hist = [h for h in result["history"] if h.get("mse") is not None]
+    fig = _figure((6.4, 3.2))
+    ax = fig.add_subplot(1, 1, 1)
+    x = np.arange(len(hist))
+    ax.plot(x, [h["mse"] for h in hist], "o-", label="best-of-K MSE")
+    dcs = [h.get("dc_error") for h in hist]
+    if any(d is not None for d in dcs):
+        ax2 = ax.twinx()
+        ax2.plot(x, [np.nan if d is None else d for d in dcs], "s--", color="C1", label="|dDC|")
+        ax2.set_ylabel("|dDC|")
+        ax2.legend(fontsize=7, loc="upper right")
+    ax.set_xticks(x)
+    ax.set_xticklabels([h["model"] for h in hist], rotation=15, fontsize=7, ha="right")
+    ax.set_ylabel("MSE")
+    ax.legend(fontsize=7, loc="upper left")
+    fig.tight_layout()
+    _save(fig, os.path.join(out_dir, "history.png"))
+    fell = [h for h in hist if h["source"] == "diagnose refit" and b is not None and h["mse"] < b["mse"]]
+    parts.append("<h2>Model history</h2><img src='history.png'>"
+                 f"<p>{'The error fell with ' + ', '.join(h['model'] for h in fell) if fell else 'No refit lowered the best-of-K MSE.' if any(h['source'] == 'diagnose refit' for h in hist) else 'No refit was run.'}</p>")
+    text = "<!doctype html><meta charset='utf-8'><title>drapelab diagnosis</title><body style='font-family:sans-serif'>" \
+           + "\n".join(parts) + "</body>\n"
+
+    def write(tmp):
+        with open(tmp, "w") as fh:
+            fh.write(text)
+    measure._atomic_write(os.path.join(out_dir, "index.html"), "report", ".html", write)
