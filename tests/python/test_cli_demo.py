@@ -47,6 +47,12 @@ def test_bench_smoke(tmp_path, capsys):
     for key in ("forward_ms_per_step", "backward_ms_per_step", "factorize_ms", "epoch_s", "peak_rss_mb"):
         assert mesh[key] > 0, key
     assert report["render"]["forward_ms"] > 0 and len(report["paper_gpu"]["meshes"]) == 3
+    # one row per registered effect beside the base model's (on circle1 here: circle3 is not listed)
+    effects = report["effects"]
+    assert effects["mesh"] == "circle1" and [r["name"] for r in effects["rows"]] == ["base"] + [
+        e["name"] for e in sim.effects()]
+    for r in effects["rows"]:
+        assert r["forward_ms_per_step"] > 0 and r["backward_ms_per_step"] > 0, r
     assert "circle1" in capsys.readouterr().out
     assert cli.main(["bench", "--meshes", "7", "--json", str(out)]) == 2
 

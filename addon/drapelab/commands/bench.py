@@ -19,6 +19,11 @@ subprocess (so that peak memory is per mesh), with OPENBLAS_NUM_THREADS=1 and OM
   static_warm_solve_ms, static_warm_iterations  the same from the end of the rollout
   static_adjoint_ms                           its adjoint at the last equilibrium found (one Hessian
                                               factorisation and solve)
+Then one row per registered effect (`drapelab effects`), beside the base model's row, each in its own subprocess
+on circle3 (or, when --meshes leaves it out, the first mesh listed), every parameter of the effect at its moderate
+strength (the registry's value):
+  effects: forward_ms_per_step, backward_ms_per_step   as above (steady state, after one recorded rollout +
+                                                       backward), and the effect's values
 Also the soft renderer's forward and backward (ms, 256 x 256, Gaussian profile, sigma 1 px, median of 10)
 on the circle3 drape, and the paper's GPU figures (seconds per step, NVIDIA TITAN Xp) for comparison.
 With --fit (or --meshes none --fit), also one whole BDP fit as a user runs it (`fit` with its defaults: fit.json's
@@ -44,6 +49,7 @@ FIT_IMAGE_NAME = "fabric_02/silhouettes/sample_02_capture_1.jpg"  # Cotton Blue,
 FIT_IMAGE = os.path.join(_ROOT, "assets", "cusick", FIT_IMAGE_NAME)
 FIT_TARGET_S = 300.0  # issue 4: one fabric fitted in <= 5 minutes on this 2-core machine
 RENDER_LEVEL = 3
+EFFECT_LEVEL = 3  # the effect rows' mesh (issue 17: circle3)
 RENDER_REPEATS = 10
 FACTORIZE_REPEATS = 5
 THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
@@ -65,6 +71,8 @@ def register(subparsers):
                    help="comma-separated mesh levels among 1..5 (default 1,2,3,4,5)")
     p.add_argument("--steps", type=int, default=100, metavar="N", help="rollout steps (default 100)")
     p.add_argument("--no-static", action="store_true", help="skip the static solve and its adjoint")
+    p.add_argument("--no-effects", action="store_true",
+                   help="skip the rows with each registered effect on (circle3, moderate strength)")
     p.add_argument("--fit", action="store_true",
                    help="also time one whole BDP fit of the bundled Cotton Blue silhouette (about 3-4 minutes)")
     p.add_argument("--fit-epochs", type=int, default=None, metavar="N",
@@ -148,6 +156,10 @@ def run(args):
         print(f" {time.perf_counter() - t0:.0f} s", flush=True)
     if render is None and levels:
         render = run_child({"task": "render", "level": RENDER_LEVEL}, env)
+    effects = None
+    if levels and not args.no_effects:
+        effects, effect_failures = run_effect_rows(EFFECT_LEVEL if EFFECT_LEVEL in levels else levels[0], args.steps, env)
+        failed += effect_failures
     fit = None
     if args.fit:
         t0 = time.perf_counter()
@@ -170,12 +182,32 @@ def run(args):
         "paper_gpu": {"device": "NVIDIA TITAN Xp", "source": "Gong, Mao, Wang, CVPR 2024, supplement",
                       "meshes": PAPER_GPU},
     }
+    if effects is not None:
+        report["effects"] = effects
     if fit is not None:
         report["fit"] = fit
     measure.write_json(args.json, report)
     print_table(report)
     print(f"wrote {args.json}")
     return 1 if failed else 0
+
+
+def run_effect_rows(level, steps, env):
+    """The base model and each registered effect at its moderate strength on one mesh, one subprocess each."""
+    from .. import sim
+
+    names = [None] + [e["name"] for e in sim.effects()]
+    print(f"  effects on circle{level} (moderate strength):", end="", flush=True)
+    rows, failed = [], 0
+    for name in names:
+        r = run_child({"task": "effect", "level": level, "steps": steps, "effect": name}, env)
+        r.setdefault("name", name or "base")
+        if "error" in r:
+            failed += 1
+        rows.append(r)
+        print(f" {r['name']}" + (" (error)" if "error" in r else ""), end="", flush=True)
+    print(flush=True)
+    return {"mesh": f"circle{level}", "steps": steps, "rows": rows}, failed
 
 
 def machine_info():
@@ -237,6 +269,19 @@ def print_mesh_table(report):
     print(f"paper ({gpu['device']}), ms per step: " + ", ".join(
         f"{g['vertices']} verts {1000 * g['forward_s_per_step']:.0f} fwd / {1000 * g['backward_s_per_step']:.0f} bwd"
         for g in gpu["meshes"]))
+    ef = report.get("effects")
+    if ef:
+        base = next((r for r in ef["rows"] if r["name"] == "base" and "error" not in r), None)
+        print(f"effects on {ef['mesh']} at moderate strength ({ef['steps']} steps), ms per step:")
+        for r in ef["rows"]:
+            if "error" in r:
+                print(f"  {r['name']:<20} error: {r['error']}")
+                continue
+            ratio = ""
+            if base and r is not base:
+                ratio = (f"  (x{r['forward_ms_per_step'] / base['forward_ms_per_step']:.2f} / "
+                         f"x{r['backward_ms_per_step'] / base['backward_ms_per_step']:.2f} of base)")
+            print(f"  {r['name']:<20} fwd {r['forward_ms_per_step']:>8.1f}  bwd {r['backward_ms_per_step']:>8.1f}{ratio}")
     rd = report.get("render") or {}
     if "error" in rd:
         print(f"soft renderer: error: {rd['error']}")
@@ -354,6 +399,32 @@ def child_mesh(task):
     return out
 
 
+def child_effect(task):
+    """Forward and backward ms per step with one effect on at its moderate strength (or the base model)."""
+    import numpy as np
+
+    from .. import sim, tables
+
+    level, steps, name = task["level"], task["steps"], task.get("effect")
+    effects = None
+    if name:
+        spec = next(e for e in sim.effects() if e["name"] == name)
+        effects = {name: {q["name"]: q["moderate"] for q in spec["parameters"]}}
+    model = sim.ClothModel(sim.cusick_specimen(level), density=tables.COTTON_BLUE.density, effects=effects)
+    p = model.parameters(material=tables.COTTON_BLUE)  # keeps the effect's values
+    h = sim.DEFAULT_TIME_STEP
+    weights = np.random.default_rng(0).standard_normal((model.num_vertices, 3))
+    model.simulate(p, steps=steps, time_step=h)  # first epoch: set-up, the kept factors' memory
+    model.backward(weights)
+    t0 = time.perf_counter()
+    model.simulate(p, steps=steps, time_step=h)
+    t1 = time.perf_counter()
+    model.backward(weights)
+    t2 = time.perf_counter()
+    return {"name": name or "base", "values": (effects or {}).get(name, {}), "vertices": model.num_vertices,
+            "forward_ms_per_step": 1000 * (t1 - t0) / steps, "backward_ms_per_step": 1000 * (t2 - t1) / steps}
+
+
 def child_render(task):
     from .. import sim
     mesh = sim.cusick_specimen(task["level"])
@@ -393,7 +464,7 @@ def child_fit(task):
 
 def child_main(argv):
     task = json.loads(argv[argv.index("--child") + 1])
-    kinds = {"mesh": child_mesh, "render": child_render, "fit": child_fit}
+    kinds = {"mesh": child_mesh, "render": child_render, "fit": child_fit, "effect": child_effect}
     result = kinds[task["task"]](task)
     print(json.dumps(result), flush=True)
     return 0
