@@ -736,53 +736,73 @@ bool StretchTerm::add_step_system(const Eigen::VectorXd& x, const Eigen::VectorX
   return true;
 }
 
-// The rest scaling's parameter derivatives by nested jets: inner directions (lambda, w) on x, outer (a_u, a_v),
-// through the same energy and Gauss-Newton form as the kernels above (with Dm^-1 diag(1 / a_u, 1 / a_v) and
-// a_u a_v A); then the chain rule to the parameters, a_u = 1 - sum_k weft_k q_k, a_v = 1 - sum_k warp_k q_k.
-// Only models with a rest scaling pay for it.
+// The rest scaling's parameter derivatives. The scaling enters a face only through F' = F diag(1 / a_u, 1 / a_v)
+// (F, and the directional dF along lambda and w, unscaled and fixed) and A' = a_u a_v A, so jets in (a_u, a_v)
+// through the same expressions as the kernels above give them exactly: the energy with a directional jet along
+// lambda (E and lambda . grad E), and q = lambda^T K w in its closed form A' [el^T C ew + S+ : sum_c dFl_c dFw_c^T]
+// (as step_matrix_derivative_element). Then the chain rule to the parameters, a_u = 1 - sum_k weft_k q_k,
+// a_v = 1 - sum_k warp_k q_k. Only models with a rest scaling pay for it.
 void StretchTerm::add_rest_scaling_derivatives(const Eigen::VectorXd& x, const Eigen::VectorXd& p,
                                                const Eigen::VectorXd* lambda, const Eigen::VectorXd* w, double cE,
                                                double cG, double cK, Eigen::VectorXd& gp) const {
-  using I = Jet<double, 2>;
-  using U = Jet<I, 2>;
+  using A2 = Jet<double, 2>;  // d/d(a_u, a_v)
+  using T1 = Jet<A2, 1>;      // and d/dt along lambda
   double su, sv;
   rest_.strains(p, su, sv);
-  const U au(I(1.0 - su), 0), av(I(1.0 - sv), 1);
+  const A2 au(1.0 - su, 0), av(1.0 - sv, 1);
+  const A2 inv[2] = {1.0 / au, 1.0 / av};
+  const A2 area_factor = au * av;
   double acc[2] = {0, 0};  // d/da_u, d/da_v of cE E + cG lambda . grad E + cK lambda^T K w
-  U xe[9], f[3][2], eps[3], r[9], S[81];
+  double xe[9], le[9] = {0}, we[9] = {0}, f[3][2], dFl[3][2], dFw[3][2];
   for (int e = 0; e < num_elements(); ++e) {
-    const auto& v = faces_[e];
-    for (int i = 0; i < 9; ++i) {
-      const int dof = 3 * v[i / 3] + i % 3;
-      I inner(x[dof]);
-      if (lambda) inner.v[0] = (*lambda)[dof];
-      if (w) inner.v[1] = (*w)[dof];
-      xe[i] = U(inner);
-    }
-    const double* pe = p.data() + parameter_offset(e);
-    const auto& D = dm_inv_[e];
-    const U Di[4] = {D[0] / au, D[1] / av, D[2] / au, D[3] / av};
+    gather(e, x, xe);
+    if (lambda) gather(e, *lambda, le);
+    if (w) gather(e, *w, we);
+    const double* Di = dm_inv_[e].data();
     deformation_gradient_of(xe, Di, f);
-    const U A = area_[e] * au * av;
+    deformation_gradient_of(le, Di, dFl);  // linear: Ds(lambda) Dm^-1
+    deformation_gradient_of(we, Di, dFw);
+    A2 fs[3][2], dl[3][2], dw[3][2];
+    for (int c = 0; c < 3; ++c)
+      for (int a = 0; a < 2; ++a) {
+        fs[c][a] = f[c][a] * inv[a];
+        dl[c][a] = dFl[c][a] * inv[a];
+        dw[c][a] = dFw[c][a] * inv[a];
+      }
+    A2 eps[3], el[3] = {A2(0.0), A2(0.0), A2(0.0)}, ew[3] = {A2(0.0), A2(0.0), A2(0.0)};
+    strain_of(fs, eps);
+    for (int c = 0; c < 3; ++c) {
+      el[0] += fs[c][0] * dl[c][0];
+      el[1] += fs[c][1] * dl[c][1];
+      el[2] += 0.5 * (fs[c][0] * dl[c][1] + fs[c][1] * dl[c][0]);
+      ew[0] += fs[c][0] * dw[c][0];
+      ew[1] += fs[c][1] * dw[c][1];
+      ew[2] += 0.5 * (fs[c][0] * dw[c][1] + fs[c][1] * dw[c][0]);
+    }
+    const A2 A = area_[e] * area_factor;
+    const double* pe = p.data() + parameter_offset(e);
     if (cE != 0.0 || cG != 0.0) {
-      strain_of(f, eps);
-      const U E = A * strain_energy(eps, pe);
-      for (int k = 0; k < 2; ++k) acc[k] += cE * E.v[k].a + cG * E.v[k].v[0];
+      T1 et[3];
+      for (int k = 0; k < 3; ++k) {
+        et[k] = T1(eps[k]);
+        et[k].v[0] = el[k];
+      }
+      const T1 E = T1(A) * strain_energy(et, pe);
+      for (int k = 0; k < 2; ++k) acc[k] += cE * E.a.v[k] + cG * E.v[0].v[k];
     }
     if (cK != 0.0) {
-      gauss_newton_of(f, pe, A, r, S);
-      // q = (J_r lambda)^T S (J_r w): d/da_k through J_r lambda, S and J_r w
-      for (int k = 0; k < 2; ++k) {
-        double dq = 0;
-        for (int a = 0; a < 9; ++a)
-          for (int b = 0; b < 9; ++b) {
-            const U& Sab = S[a * 9 + b];
-            if (Sab.a.a == 0.0 && Sab.v[k].a == 0.0) continue;
-            dq += r[a].v[k].v[0] * Sab.a.a * r[b].a.v[1] + r[a].a.v[0] * Sab.v[k].a * r[b].a.v[1] +
-                  r[a].a.v[0] * Sab.a.a * r[b].v[k].v[1];
-          }
-        acc[k] += cK * dq;
-      }
+      A2 c[4];
+      stiffness(eps, pe, c);
+      const A2 s00 = c[0] * eps[0] + c[1] * eps[1], s11 = c[1] * eps[0] + c[2] * eps[1], s01 = 0.5 * c[3] * eps[2];
+      A2 P[2][2];
+      positive_part(s00, s01, s11, P);
+      A2 geometric(0.0);
+      for (int cc = 0; cc < 3; ++cc)
+        for (int a = 0; a < 2; ++a)
+          for (int b = 0; b < 2; ++b) geometric += P[a][b] * (dl[cc][a] * dw[cc][b]);
+      const A2 q = A * (c[0] * (el[0] * ew[0]) + c[1] * (el[0] * ew[1] + el[1] * ew[0]) + c[2] * (el[1] * ew[1]) +
+                        c[3] * (el[2] * ew[2]) + geometric);
+      for (int k = 0; k < 2; ++k) acc[k] += cK * q.v[k];
     }
   }
   for (size_t k = 0; k < rest_.indices.size(); ++k)
