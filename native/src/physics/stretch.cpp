@@ -738,15 +738,15 @@ bool StretchTerm::add_step_system(const Eigen::VectorXd& x, const Eigen::VectorX
 
 // The rest scaling's parameter derivatives. The scaling enters a face only through F' = F diag(1 / a_u, 1 / a_v)
 // (F, and the directional dF along lambda and w, unscaled and fixed) and A' = a_u a_v A, so jets in (a_u, a_v)
-// through the same expressions as the kernels above give them exactly: the energy with a directional jet along
-// lambda (E and lambda . grad E), and q = lambda^T K w in its closed form A' [el^T C ew + S+ : sum_c dFl_c dFw_c^T]
+// through the same expressions as the kernels above give them exactly: the strains and their directional
+// derivatives, with W's closed-form derivatives for E and lambda . grad E, and q = lambda^T K w in its closed form A' [el^T C ew + S+ : sum_c dFl_c dFw_c^T]
 // (as step_matrix_derivative_element). Then the chain rule to the parameters, a_u = 1 - sum_k weft_k q_k,
 // a_v = 1 - sum_k warp_k q_k. Only models with a rest scaling pay for it.
 void StretchTerm::add_rest_scaling_derivatives(const Eigen::VectorXd& x, const Eigen::VectorXd& p,
                                                const Eigen::VectorXd* lambda, const Eigen::VectorXd* w, double cE,
                                                double cG, double cK, Eigen::VectorXd& gp) const {
   using A2 = Jet<double, 2>;  // d/d(a_u, a_v)
-  using T1 = Jet<A2, 1>;      // and d/dt along lambda
+  const double* nodes = shared_nodes(p);
   double su, sv;
   rest_.strains(p, su, sv);
   const A2 au(1.0 - su, 0), av(1.0 - sv, 1);
@@ -782,13 +782,20 @@ void StretchTerm::add_rest_scaling_derivatives(const Eigen::VectorXd& x, const E
     const A2 A = area_[e] * area_factor;
     const double* pe = p.data() + parameter_offset(e);
     if (cE != 0.0 || cG != 0.0) {
-      T1 et[3];
-      for (int k = 0; k < 3; ++k) {
-        et[k] = T1(eps[k]);
-        et[k].v[0] = el[k];
+      // E = A' W(eps'), lambda . grad E = A' dW(eps') . el': their a-derivatives from W's closed-form derivatives
+      const double ev[3] = {eps[0].a, eps[1].a, eps[2].a};
+      double W, dW[3], d2W[3][3];
+      strain_energy_derivatives(ev, pe, nodes, 2, W, dW, d2W);
+      for (int k = 0; k < 2; ++k) {
+        double dE = A.v[k] * W, dG = 0;
+        for (int i = 0; i < 3; ++i) {
+          dE += A.a * dW[i] * eps[i].v[k];
+          double h = 0;
+          for (int j = 0; j < 3; ++j) h += d2W[i][j] * eps[j].v[k];
+          dG += A.v[k] * dW[i] * el[i].a + A.a * (h * el[i].a + dW[i] * el[i].v[k]);
+        }
+        acc[k] += cE * dE + cG * dG;
       }
-      const T1 E = T1(A) * strain_energy(et, pe);
-      for (int k = 0; k < 2; ++k) acc[k] += cE * E.a.v[k] + cG * E.v[0].v[k];
     }
     if (cK != 0.0) {
       A2 c[4];
