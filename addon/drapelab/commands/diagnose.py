@@ -7,8 +7,9 @@ best draw's overlay, r(theta) of the measurement and of the best draw with the r
 k = 1..6 (against the re-drape floor), and the drape coefficient, node count and node amplitude against the
 draws' 90 % interval. For every registered effect not in P (or only --candidates) it runs a score test at the
 effect's off value (the data term's gradient per draw, back-propagated through the rollout; Hotelling's T^2
-over the draws, p from F), with the threshold 0.01 Bonferroni-corrected over the candidates tested. Up to two
-candidates below the threshold are refitted (fit --effects NAME from P's material) and written as
+over the draws, p from F), with the threshold --alpha (0.01) Bonferroni-corrected over the candidates tested.
+Up to two candidates below the threshold are refitted (fit --effects NAME with P's material held at its
+posterior: only the effect is fitted) and written as
 DIR/presets/NAME.json; `recommended` is the significant effect whose refit lowers the loss most per added
 parameter, or null ("nothing significant").
 
@@ -40,6 +41,8 @@ def register(subparsers):
     p.add_argument("--samples", type=int, default=DEFAULT_SAMPLES, metavar="K",
                    help=f"posterior-predictive draws (default {DEFAULT_SAMPLES}; at least 3)")
     p.add_argument("--seed", type=int, default=0, metavar="S")
+    p.add_argument("--alpha", type=float, default=0.01, metavar="A",
+                   help="family-wise significance level, Bonferroni-corrected over the candidates (default 0.01)")
     p.add_argument("--mesh-level", type=int, default=None, choices=[1, 2, 3, 4, 5],
                    help="Cusick template mesh of the draws and refits (default: the preset's)")
     p.add_argument("--config", default=None, metavar="FIT.json", help="fit settings (default addon/drapelab/config/fit.json)")
@@ -67,7 +70,7 @@ def run(args):
         result = diagnose.diagnose(args.preset, args.images, meshes=args.meshes, candidates=args.candidates,
                                    time_budget=args.time_budget, samples=args.samples, seed=args.seed, config=config,
                                    threads=args.threads, mesh_level=args.mesh_level, out_dir=args.report,
-                                   progress=progress, cancel_event=cancel)
+                                   progress=progress, cancel_event=cancel, alpha=args.alpha)
     finally:
         signal.signal(signal.SIGINT, previous)
     b = result.get("base")

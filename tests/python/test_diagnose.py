@@ -1,0 +1,171 @@
+"""diagnose: the contract of diagnosis.json and the report, the score test's gradient against central
+differences, a tilted drape (tilt ranked first) and a control (nothing significant), bad input."""
+import copy
+import json
+import os
+
+import numpy as np
+import pytest
+
+from drapelab import cli, diagnose, fit_effects, infer, measure, render, sim
+
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+PRESET = os.path.join(ROOT, "assets", "presets", "fabric_02_cotton_blue_bdp.json")
+BASE_KEYS = {"mse", "iou", "dc_error", "node_error", "amplitude_error", "loss"}
+RANKING_KEYS = {"effect", "statistic", "p_value", "refit", "gain", "explanation"}
+
+
+def small_config(**overrides):
+    cfg = copy.deepcopy(infer.load_config())
+    cfg["mesh_level"] = 1
+    cfg["calibration"]["mesh_level"] = None
+    cfg.update(overrides)
+    return cfg
+
+
+def drape_image(path, effects=None, seed=0):
+    """A silhouette of the preset's mean material on circle1 (one re-drape: placement noise of its own seed)."""
+    preset = infer.load_preset(PRESET)
+    model = sim.ClothModel(sim.cusick_specimen(1), density=preset["density_kg_m2"], effects=effects)
+    p = model.parameters(stretch=preset["stretch_N_m"], bend=np.exp(np.asarray(preset["posterior"]["bend"]["log_mean"])))
+    v0 = infer.placement_velocities(model.rest_positions, np.random.default_rng([seed, 99]), 0.05, 32)
+    x = model.simulate(p, mode="dynamic", record=False, velocities0=v0)
+    measure.write_image(path, 1.0 - np.asarray(render.hard_silhouette(render.orthographic_camera(), x, model.faces)))
+    return path
+
+
+@pytest.fixture(scope="module")
+def images(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("diagnose")
+    return {"tilt": drape_image(str(folder / "tilt.png"), {"tilt": {"angle_rad": 0.3, "azimuth_rad": 0.0}}),
+            "control": drape_image(str(folder / "control.png"))}
+
+
+def _one_draw(images, names, seed=3):
+    cfg = small_config()
+    preset = infer.load_preset(PRESET)
+    obs = diagnose._observations([images["tilt"]])
+    pred, models, shapes, grads, _, _ = diagnose._joint_drapes(preset, obs, names, 1, seed, cfg, 1, None, 1, None, None)
+    draw = infer.preset_bend_samples(preset, models[0].num_bending_edges, np.random.default_rng(seed), 1)[0]
+    v0 = infer.placement_velocities(models[0].rest_positions, np.random.default_rng([seed, 0, 1]), *pred.placement)
+    return cfg, preset, obs, pred, models[0], shapes[0], grads[0], draw, v0
+
+
+def test_model_with_candidates_at_off_drapes_the_base_model_bit_for_bit(images):
+    cfg, preset, _, pred, _, shape, _, draw, v0 = _one_draw(images, list(fit_effects.registry()))
+    base = sim.ClothModel(sim.cusick_specimen(1), heterogeneous=True, density=preset["density_kg_m2"])
+    x = base.simulate(base.parameters(stretch=pred.stretch, bend=draw), record=False, velocities0=v0, **cfg["dynamic"])
+    assert np.array_equal(x, shape["x"])
+
+
+@pytest.mark.parametrize("key", [
+    "tilt.angle_rad", "density_variation.radial", "heterogeneity_map.cos2",
+    pytest.param("prestrain.strain", marks=pytest.mark.xfail(reason=(
+        "measured: the drape is not smooth in prestrain.strain at 0 (central differences 5e4, -9e3, 3e6 at steps "
+        "1e-5, 1e-6, 1e-7; the adjoint -5e4): a kink or branch switch in the native prestrain term at zero strain"),
+        strict=False)),
+])
+def test_score_gradient_matches_central_differences(images, key):
+    # The score is d(pixel data term)/d(effect parameter) at the off value, back-propagated through the recorded
+    # rollout of one posterior draw (with its placement noise): against central differences of that data term.
+    name, param = key.split(".")
+    cfg, _, obs, pred, m, _, grads, draw, v0 = _one_draw(images, [name])
+    renderer = render.SoftRenderer(pred.camera, sigma=cfg["render_sigma_px"])
+    offs = {name: {p["name"]: p["off"] for p in fit_effects.registry()[name]["parameters"]}}
+
+    def data(value):
+        effects = copy.deepcopy(offs)
+        effects[name][param] = value
+        xe = m.simulate(m.parameters(stretch=pred.stretch, bend=draw, effects=effects), record=False,
+                        velocities0=v0, **cfg["dynamic"])
+        return infer.data_term(renderer.render(xe, m.faces), obs[0], cfg["sigma_obs"], diagnose.SCORE_SIGMA_DC)[0]
+
+    eps = 1e-6
+    fd = (data(eps) - data(-eps)) / (2 * eps)
+    assert grads[key] == pytest.approx(fd, rel=1e-4, abs=1e-6), key
+    if name == "tilt":
+        assert grads["tilt.azimuth_rad"] == 0.0  # no gradient at zero angle: the test scores a tilt towards +x
+
+
+def test_score_test_statistic():
+    rng = np.random.default_rng(0)
+    null = diagnose.score_test(rng.standard_normal((16, 2)))
+    assert null["rank"] == 2 and null["p_value"] > 0.01
+    shifted = diagnose.score_test(rng.standard_normal((16, 2)) + [3.0, 0.0])
+    assert shifted["p_value"] < 1e-4 and shifted["p_value_chi2"] < shifted["p_value"]  # chi2 is anti-conservative
+    flat = diagnose.score_test(np.c_[rng.standard_normal(8), np.zeros(8)])  # a parameter without gradient
+    assert flat["rank"] == 1
+
+
+def test_tilted_drape_ranks_tilt_first_and_the_control_is_clean(images, tmp_path):
+    # Measured (K = 12, seed 0, circle1, fabric 2's preset, images of its mean material with one placement):
+    # see docs/diagnose.md for the statistics. The tilt's score is noisy per draw (folds bifurcate), so a
+    # 0.3 rad tilt needs >= ~12 draws to pass the Bonferroni threshold 0.0025.
+    cfg = small_config()
+    out = str(tmp_path / "tilt")
+    tilt = diagnose.diagnose(PRESET, [images["tilt"]], samples=16, seed=0, config=cfg, mesh_level=1,
+                             time_budget=1.0, out_dir=out)  # no time for a refit: the CLI test runs one
+    assert sorted(e["effect"] for e in tilt["ranking"]) == sorted(fit_effects.registry())
+    assert tilt["ranking"][0]["effect"] == "tilt", tilt["ranking"]
+    assert tilt["ranking"][0]["p_value"] < tilt["threshold"] == pytest.approx(0.01 / 4)
+    control = diagnose.diagnose(PRESET, [images["control"]], samples=16, seed=0, config=cfg, mesh_level=1,
+                                time_budget=1.0)
+    assert control["recommended"] is None
+    assert min(e["p_value"] for e in control["ranking"]) >= control["threshold"], control["ranking"]
+    assert control["verdict"].startswith("Nothing significant")
+    print("tilt", [(e["effect"], e["statistic"], e["p_value"], e["refit"], e["gain"]) for e in tilt["ranking"]],
+          tilt["seconds"], "control", [(e["effect"], e["statistic"], e["p_value"]) for e in control["ranking"]],
+          control["seconds"])
+
+
+def test_cli_writes_the_report_the_contract_and_a_refit(images, tmp_path, capsys):
+    # --alpha 1: the tilt is "significant" whatever 4 draws say, so that its refit runs (about 15 s).
+    out = str(tmp_path / "report")
+    cfg = tmp_path / "fit.json"
+    cfg.write_text(json.dumps(small_config()))
+    code = cli.main(["diagnose", "--preset", PRESET, "--images", images["tilt"], "--samples", "4", "--seed", "1",
+                     "--mesh-level", "1", "--config", str(cfg), "--candidates", "tilt", "--alpha", "1",
+                     "--time-budget", "20", "--report", out])
+    assert code == 0
+    with open(os.path.join(out, "diagnosis.json")) as f:
+        d = json.load(f)
+    assert {"base", "ranking", "recommended", "threshold", "history"} <= set(d)
+    assert set(d["base"]) == BASE_KEYS and all(np.isfinite(v) for v in d["base"].values())
+    (entry,) = d["ranking"]
+    assert RANKING_KEYS <= set(entry) and entry["effect"] == "tilt" and d["threshold"] == 1.0
+    assert set(entry["refit"]) >= {"mse", "iou", "loss"} and np.isfinite(entry["gain"])
+    assert d["recommended"] == ("tilt" if entry["gain"] > 0 else None)
+    refit = infer.load_preset(os.path.join(out, "presets", "tilt.json"))
+    assert refit["active_effects"]["tilt"]["angle_rad"]["fitted"]
+    assert refit["posterior"]["bend"]["log_mean"] == infer.load_preset(PRESET)["posterior"]["bend"]["log_mean"]
+    assert [h["source"] for h in d["history"]] == ["preset training metrics", "diagnose base", "diagnose refit"]
+    assert {"model", "effects", "mse", "dc_error"} <= set(d["history"][-1]) and "tilt" in d["history"][-1]["effects"]
+    for name in ("index.html", "overlay_0.png", "rtheta_0.png", "intervals.png", "ranking.png", "history.png"):
+        assert os.path.getsize(os.path.join(out, name)) > 0, name
+    # the base is infer.evaluate's predictive (same draws, effects and placement noise for a seed)
+    ev = infer.evaluate(PRESET, [images["tilt"]], samples=4, seed=1, threads=1, mesh_level=1, config=small_config())
+    assert d["base"]["mse"] == pytest.approx(ev["mean"]["mse"], abs=1e-12)
+    assert "diagnosis.json" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    ({"candidates": ["tilt", "no_such_effect"]}, "unknown effect 'no_such_effect'"),
+    ({"preset": "/nonexistent/preset.json"}, "/nonexistent/preset.json"),
+    ({"images": []}, "images"),
+    ({"images": ["/nonexistent/img.png"]}, "/nonexistent/img.png"),
+    ({"samples": 2}, "samples"),
+    ({"time_budget": 0}, "time_budget"),
+])
+def test_bad_input_is_named(images, kwargs, message):
+    args = dict(preset=PRESET, images=[images["control"]], config=small_config(), mesh_level=1)
+    args.update(kwargs)
+    with pytest.raises(infer.InputError, match=message):
+        diagnose.diagnose(args.pop("preset"), args.pop("images"), **args)
+
+
+def test_images_of_different_calibration_are_refused(images, tmp_path):
+    small = str(tmp_path / "small.png")
+    yy, xx = np.mgrid[:128, :128]
+    measure.write_image(small, np.where(np.hypot(xx - 64, yy - 64) < 40, 0.0, 1.0))  # a dark disk on white
+    with pytest.raises(infer.InputError, match="one calibration"):
+        diagnose.diagnose(PRESET, [images["control"], small], config=small_config(), mesh_level=1)
