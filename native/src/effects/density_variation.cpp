@@ -71,8 +71,9 @@ EffectSpec make_density_variation_effect() {
       "the area density is not uniform: it varies linearly with the rest radius and along x and y (changes the "
       "load only; the rollout's inertia keeps the base masses)";
   s.signature =
-      "heavier rim (radial > 0): the skirt hangs closer to the disk and the drape coefficient falls, fold count "
-      "almost unchanged; a gradient: a 1-fold r(theta) residual, the heavier side hanging lower";
+      "heavier rim (radial > 0): the skirt hangs closer to the disk and the drape coefficient falls, as with a "
+      "denser fabric; a gradient: the drape coefficient stays, a 1-fold r(theta) residual, the heavier side "
+      "hanging lower";
   // Moderate strengths, measured on circle3 (Cotton Blue tables, 100 x 0.05 s rollout; the re-drape noise floor
   // is 0.031 in drape coefficient): radial 0.3 moves DC by -0.074 (2.4x; -0.3: +0.095, 0.2: -0.051), pixel MSE
   // 0.026 against the base drape. A gradient leaves DC almost unchanged (+0.001 at 0.15, +0.003 at 0.3) and moves

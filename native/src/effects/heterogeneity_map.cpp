@@ -39,9 +39,9 @@ EffectSpec make_heterogeneity_map_effect() {
       "the bending stiffness varies smoothly over the specimen: a log field of low-order angular (1- and 2-fold) "
       "and radial modes multiplies each bending edge's energy";
   s.signature =
-      "1-fold modes: folds deeper and more frequent on the softer side, a 1-fold r(theta) residual; 2-fold modes: "
-      "folds gather on the softer axis (a 2-fold residual, like a warp-weft anisotropy); radial: the drape "
-      "coefficient moves as with a stiffer or softer material near the rim";
+      "radial > 0 (stiffer towards the rim): the drape coefficient rises, as with a stiffer material; angular "
+      "modes: the drape coefficient stays, the folds move towards the softer side (1-fold) or axis (2-fold), a "
+      "1- or 2-fold r(theta) residual";
   // Moderate strengths, measured on circle3 (Cotton Blue tables, 100 x 0.05 s rollout; re-drape noise floor 0.031
   // in drape coefficient): radial 0.4 moves DC by +0.055 (1.8x; -0.4: -0.078, 2.5x), pixel MSE 0.03-0.04 against
   // the base drape. The angular modes leave DC within 0.004 and at 0.5 move the silhouette by MSE 0.023 (cos1),
