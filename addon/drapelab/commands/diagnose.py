@@ -7,11 +7,11 @@ best draw's overlay, r(theta) of the measurement and of the best draw with the r
 k = 1..6 (against the re-drape floor), and the drape coefficient, node count and node amplitude against the
 draws' 90 % interval. For every registered effect not in P (or only --candidates) it runs a score test at the
 effect's off value (the data term's gradient per draw, back-propagated through the rollout; Hotelling's T^2
-over the draws, p from F), with the threshold --alpha (0.01) Bonferroni-corrected over the candidates tested.
-Up to two candidates below the threshold are refitted (fit --effects NAME with P's material held at its
-posterior: only the effect is fitted) and written as
-DIR/presets/NAME.json; `recommended` is the significant effect whose refit lowers the loss most per added
-parameter, or null ("nothing significant").
+over the draws, p from sign flips of the draws), with the threshold --alpha (0.01) Bonferroni-corrected over
+the candidates tested. Up to two candidates below the threshold are refitted (fit --effects NAME with P's
+material held at its posterior: only the effect is fitted) and written as DIR/presets/NAME.json;
+`recommended` is the significant effect whose refit lowers the loss most per added parameter, or null
+("nothing significant").
 
 --time-budget S covers the whole job: the draws and score tests run first (K drapes with backward; not
 shortened by the budget: choose K), then what remains, less an estimate of the refits' evaluations (K drapes
