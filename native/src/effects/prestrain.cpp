@@ -5,9 +5,10 @@
 // energy (physics/stretch.hpp) this is
 //   F = Ds Dm^-1 diag(1 / (1 - s_weft), 1 / (1 - s_warp)),   E_j = (1 - s_weft)(1 - s_warp) A_j W(eps(F))   [J]
 // (the strain energy per rest area, over the shrunk rest area). The masses and the bending rest data keep the
-// cut specimen's values: the mass is what the specimen weighs, and the bending term reads lengths only through
-// its stiffness scale L / (h1 + h2), which a uniform shrink leaves unchanged (an anisotropic one changes it
-// by less than |warp_minus_weft|, neglected).
+// cut specimen's values: the mass is what the specimen weighs, and the bending term reads rest lengths through
+// its scale L / (h1 + h2), which a uniform shrink leaves unchanged (an anisotropic one changes it by about
+// |warp_minus_weft|), and through the curvature alpha = |sin(theta / 2)| / (h1 + h2) at which it reads its
+// table, which a shrink by s moves by about s (a 3 % shift along the table's curvature axis; both neglected).
 // Not an added energy: a change inside the stretch term (physics/base_term_changes.hpp), exactly the base term
 // at strain = warp_minus_weft = 0 (the scaling factors are exactly 1), with exact derivatives in the strains.
 #include "physics/effect.hpp"
