@@ -558,12 +558,25 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                              f"fit --effects {best['effect']}")
     else:
         tested = [e for e in result["ranking"] if e["p_value"] is not None]
+        significant = [e for e in tested if e["p_value"] < threshold]
         smallest = min((e["p_value"] for e in tested), default=None)
-        why = ("no candidate was tested" if smallest is None else
-               f"the smallest p-value is {smallest:.2g} against the threshold {threshold:.2g} ({result['threshold_rule']})"
-               if smallest >= threshold else
-               "the significant candidates' refits did not lower the loss (or were not run)")
-        result["verdict"] = f"Nothing significant: {why}."
+        if significant:
+            refitted = [e["effect"] for e in significant if e["refit"] is not None]
+            not_run = [e["effect"] for e in significant if e["refit"] is None]
+            why = []
+            if refitted:
+                why.append(f"the refit with {', '.join(refitted)} did not lower the loss")
+            if not_run:
+                reason = "the diagnosis was cancelled" if result["cancelled"] else "no time was left or only " \
+                         f"{MAX_REFITS} are refitted"
+                why.append(f"{', '.join(not_run)} not refitted ({reason})")
+            result["verdict"] = (f"No recommendation: {', '.join(e['effect'] for e in significant)} below the "
+                                 f"threshold {threshold:.2g}, but {'; '.join(why)}.")
+        else:
+            why = ("no candidate was tested" if smallest is None else
+                   f"the smallest p-value is {smallest:.2g} against the threshold {threshold:.2g} "
+                   f"({result['threshold_rule']})")
+            result["verdict"] = f"Nothing significant: {why}."
     result["history"] = _history(p, label, result.get("base")) + result["history"]
     save()
     if out_dir and result.get("base") is not None:

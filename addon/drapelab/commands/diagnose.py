@@ -75,7 +75,7 @@ def run(args):
         signal.signal(signal.SIGINT, previous)
     b = result.get("base")
     if b:
-        print(f"base: best-of-{result['samples']} MSE {b['mse']:.4f}  IoU {b['iou']:.4f}  |dDC| {b['dc_error']:.3f}  "
+        print(f"base: best-of-{result['draws_used']} MSE {b['mse']:.4f}  IoU {b['iou']:.4f}  |dDC| {b['dc_error']:.3f}  "
               f"node error {b['node_error']:.2f}  amplitude error {1000 * b['amplitude_error']:.2f} mm  "
               f"loss {b['loss']:.4g}")
     for e in result["ranking"]:
