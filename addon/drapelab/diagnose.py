@@ -21,8 +21,9 @@
    with K = 16 draws and q = 5 is anti-conservative by orders of magnitude. Per-draw gradients are exact but
    heavy-tailed (folds bifurcate), so their norms are capped at fit.json gradient_clip.factor x the median
    first, as the fitter does. The threshold is alpha = 0.01,
-   Bonferroni-corrected over the candidates tested. The score test sees only parameters with a gradient at
-   the off point: a tilt's azimuth has none at zero angle (the test then scores the tilt towards +x only).
+   Bonferroni-corrected over the candidates tested. A parameter without gradient at the off point (a tilt's
+   azimuth at zero angle) drops out of the rank; the tilt's angle is therefore also scored with the azimuth
+   turned by 90 degrees (SECOND_DIRECTIONS: one more rollout per draw), so both tilt directions are seen.
    The material is a nuisance: what a change of its overall bending scale explains (a drape coefficient off the
    measured one pulls on every effect that moves it) is projected out of each draw's score first (the efficient
    score, with the information estimated by the outer product of the per-draw gradients; one dof lost).
@@ -74,6 +75,11 @@ RANK_TOLERANCE = 1e-9     # eigenvalues of the scaled gradient covariance below 
 MATERIAL_LEARNING_RATE_FACTOR = 0.0  # refits hold the material at P's posterior (module doc)
 REPORT_RESERVE_S = 5.0    # seconds kept back from the refits for the evaluation bookkeeping and the report
 SCORE_SIGMA_DC = 0.0      # the score test's data term: pixel term only (see the module doc)
+# Effects whose primary parameter acts along a direction parameter that has no gradient at the off value (a
+# tilt's azimuth at zero angle): the primary's score is also taken with the direction parameter at this value
+# (still the base model, the primary being off), so that the test sees the effect in every direction, at the
+# cost of one more recorded rollout and backward per draw. Key in the gradients: "tilt.angle_rad@azimuth_rad".
+SECOND_DIRECTIONS = {"tilt": {"azimuth_rad": math.pi / 2}}
 FOLD_WORDS = {
     1: "1-fold: the drape hangs further out on one side (offset, tilt, a density or stiffness gradient)",
     2: "2-fold: the drape is longer along one axis (warp-weft anisotropy or shrinkage, camera aspect)",
@@ -306,6 +312,9 @@ def _joint_drapes(preset, observations, names, k, seed, config, threads, templat
     models = [infer.sim.ClothModel(mesh, heterogeneous=True, density=preset["density_kg_m2"],
                                    effects={**p_active, **offs}) for _ in range(lanes)]
     renderers = [render.SoftRenderer(pred.camera, sigma=config["render_sigma_px"]) for _ in range(lanes)]
+    turned = {n: {**offs[n], **SECOND_DIRECTIONS[n]} for n in names if n in SECOND_DIRECTIONS}
+    turned_models = [infer.sim.ClothModel(mesh, heterogeneous=True, density=preset["density_kg_m2"],
+                                          effects={**p_active, **turned}) for _ in range(lanes)] if turned else None
     draws = infer.preset_bend_samples(preset, models[0].num_bending_edges, np.random.default_rng(seed), k)
     keys = [f"{n}.{p['name']}" for n in names for p in reg[n]["parameters"]]
     sigma_obs = float(config["sigma_obs"])
@@ -342,6 +351,20 @@ def _joint_drapes(preset, observations, names, k, seed, config, threads, templat
             grads[i] = {key: float(g[key]) for key in keys}
             # the nuisance direction: the material's overall bending scale, d data / d log(scale)
             grads[i]["bend.log_scale"] = float(np.sum(np.asarray(g["bend"]) * draws[i]))
+            if turned:  # the same base drape on a model whose gradient-less directions are turned
+                mt = turned_models[lane]
+                pt = mt.parameters(stretch=pred.stretch, bend=draws[i],
+                                   effects={**(base_effects[i] if base_effects else {}), **turned})
+                xt = mt.simulate(pt, mode="dynamic", record=True, velocities0=v0, **config["dynamic"])
+                soft_t = r.render(xt, mt.faces)
+                g_t = np.zeros_like(soft_t)
+                for o in observations:
+                    g_t += infer.data_term(soft_t, o, sigma_obs, SCORE_SIGMA_DC)[1] / len(observations)
+                gt = mt.backward(r.backward(g_t))
+                for n in turned:
+                    primary = reg[n]["parameters"][0]["name"]
+                    for q in SECOND_DIRECTIONS[n]:
+                        grads[i][f"{n}.{primary}@{q}"] = float(gt[f"{n}.{primary}"])
             with lock:
                 done[0] += 1
                 _progress(progress, "draws", f"draw {done[0]}/{k} draped and differentiated "
@@ -476,10 +499,14 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
         for n in names:
             params = reg[n]["parameters"]
             keys = [f"{n}.{q['name']}" for q in params]
+            scales = [q["prior_scale"] for q in params]
+            for q in SECOND_DIRECTIONS.get(n, {}):
+                keys.append(f"{keys[0]}@{q}")
+                scales.append(params[0]["prior_scale"])
             entry = {"effect": n, "parameters": keys, "statistic": None, "p_value": None, "refit": None,
                      "gain": None, "explanation": None}
             if len(g_done) >= MIN_SAMPLES:
-                st = score_test([[g[key] for key in keys] for g in g_done], [q["prior_scale"] for q in params],
+                st = score_test([[g[key] for key in keys] for g in g_done], scales,
                                 clip=(config.get("gradient_clip") or {}).get("factor"),
                                 nuisance=[g["bend.log_scale"] for g in g_done])
                 entry.update(statistic=st["statistic"], p_value=st["p_value"], p_value_f=st["p_value_f"],
@@ -534,7 +561,7 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                               "amplitude_error": rbase["amplitude_error"], "epochs": job.epoch,
                               "seconds": time.monotonic() - ts,
                               "values": {key: e["value"] for key, e in refit["active_effects"][entry["effect"]].items()}}
-            entry["gain"] = (base["loss"] - rbase["loss"]) / len(entry["parameters"])
+            entry["gain"] = (base["loss"] - rbase["loss"]) / len(reg[entry["effect"]]["parameters"])
             entry["explanation"] += (f" Refit ({job.epoch} epochs): loss {base['loss']:.4g} -> {rbase['loss']:.4g}, "
                                      f"best-of-{k} MSE {base['mse']:.4f} -> {rbase['mse']:.4f}.")
             if out_dir:

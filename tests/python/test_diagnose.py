@@ -84,7 +84,11 @@ def test_score_gradient_matches_central_differences(images, key):
     fd = (data(eps) - data(-eps)) / (2 * eps)
     assert grads[key] == pytest.approx(fd, rel=1e-4, abs=1e-6), key
     if name == "tilt":
-        assert grads["tilt.azimuth_rad"] == 0.0  # no gradient at zero angle: the test scores a tilt towards +x
+        assert grads["tilt.azimuth_rad"] == 0.0  # no gradient at zero angle: the angle is scored turned too
+        offs["tilt"]["azimuth_rad"] = diagnose.SECOND_DIRECTIONS["tilt"]["azimuth_rad"]
+        fd = (data(eps) - data(-eps)) / (2 * eps)
+        assert grads["tilt.angle_rad@azimuth_rad"] == pytest.approx(fd, rel=1e-4, abs=1e-6)
+        assert abs(fd - grads[key]) > 1e-3 * abs(fd)  # another direction
 
 
 def test_score_test_statistic():
@@ -142,6 +146,8 @@ def test_cli_writes_the_report_the_contract_and_a_refit(images, tmp_path, capsys
     assert set(d["base"]) == BASE_KEYS and all(np.isfinite(v) for v in d["base"].values())
     (entry,) = d["ranking"]
     assert RANKING_KEYS <= set(entry) and entry["effect"] == "tilt" and d["threshold"] == 1.0
+    assert entry["parameters"] == ["tilt.angle_rad", "tilt.azimuth_rad", "tilt.angle_rad@azimuth_rad"]
+    assert entry["rank"] == 2  # the azimuth has no gradient at zero angle; the turned angle has
     assert set(entry["refit"]) >= {"mse", "iou", "loss"} and np.isfinite(entry["gain"])
     assert d["recommended"] == ("tilt" if entry["gain"] > 0 else None)
     refit = infer.load_preset(os.path.join(out, "presets", "tilt.json"))
