@@ -521,7 +521,9 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
             else:
                 entry["explanation"] = f"{reg[n]['explanation']}. Not tested: fewer than {MIN_SAMPLES} draws draped."
             result["ranking"].append(entry)
-        result["ranking"].sort(key=lambda e: (e["p_value"] is None, e["p_value"] if e["p_value"] is not None else 1.0))
+        # ties: with K = 16 draws the sign-flip p-value cannot go below 2 / 2^16 = 3.1e-5; Hotelling's F breaks them
+        result["ranking"].sort(key=lambda e: (e["p_value"] is None, e["p_value"] if e["p_value"] is not None else 1.0,
+                                              e.get("p_value_f") if e.get("p_value_f") is not None else 1.0))
         result["seconds"]["score"] = time.monotonic() - t0
         save()
         if result["cancelled"]:
