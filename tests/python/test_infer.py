@@ -722,3 +722,28 @@ def test_node_search_refinement_through_calibrate_preset(monkeypatch):
     out = infer.calibrate_preset(copy.deepcopy(preset), [ASSET_IMAGE], config=cfg, threads=1)
     assert out["calibration"]["stretch_scale"] == 2.0
     assert np.allclose(out["stretch_N_m"], stretch0 * 2.0)
+
+
+def test_dc_term_compares_the_soft_drape_coefficient_less_its_bias_with_the_observation():
+    # The soft silhouette's area exceeds the hard one's (the blur's halo): a fit estimates that bias on its mean
+    # drape when it starts and subtracts it, so that at that drape the DC term measures the hard drape coefficient
+    # against the observation's (hard) one.
+    cfg = small_config(samples_per_epoch=1)
+    job = infer.FitJob([ASSET_IMAGE], 0.192, model="homo", seed=0, config=cfg, threads=1)
+    job.config["init"]["scale_search"] = []
+    job.run(epochs=1)
+    assert 0.005 < job.dc_bias < 0.06, job.dc_bias  # measured 0.0255 on circle1 drapes
+    w, o = job.workers[0], job.observations[0]
+    x = w.model.simulate(w.model.parameters(stretch=job.stretch, bend=np.exp(job.previous_theta["mu"])),
+                         mode="dynamic", record=False, **cfg["dynamic"])
+    soft = w.renderer.render(x, w.faces)
+    hard = np.asarray(render.hard_silhouette(job.camera, x, w.faces), dtype=float)
+    px = o.calibration["px_per_m"]
+    dc_soft, dc_hard = infer.soft_drape_coefficient(soft, px)[0], infer.soft_drape_coefficient(hard, px)[0]
+    assert dc_soft - job.dc_bias == pytest.approx(dc_hard, abs=1e-12)
+    pixel_only = infer.data_term(soft, o, job.sigma_obs, 0.0)[0]
+    with_dc = infer.data_term(soft, o, job.sigma_obs, job.sigma_dc, job.dc_bias)[0]
+    assert with_dc - pixel_only == pytest.approx((dc_hard - o.dc) ** 2 / (2 * job.sigma_dc ** 2), rel=1e-9)
+    assert job.preset()["likelihood"]["dc_soft_bias"] == job.dc_bias
+    fixed = infer.FitJob([ASSET_IMAGE], 0.192, model="homo", config=small_config(dc_soft_bias=0.0), threads=1)
+    assert fixed.dc_bias == 0.0
