@@ -61,7 +61,7 @@ import time
 
 import numpy as np
 
-from . import fit_effects, measure, render, sim, tables
+from . import budget, fit_effects, measure, render, sim, tables
 from ._native import Cancelled, InputError, SolverError
 
 __all__ = ["MODELS", "load_config", "FitJob", "fit", "load_preset", "write_preset", "sample_bend_tables",
@@ -560,14 +560,17 @@ class FitJob:
         return self.dc_bias
 
     def run(self, epochs=None, time_budget=None, progress=None, cancel_event=None, checkpoint=None):
-        """Runs epochs until `epochs` in total are done or `time_budget` seconds pass. Returns the history."""
+        """Runs epochs until `epochs` in total are done or the next epoch would not end within `time_budget`
+        seconds of this call (predicted by the longest epoch of this call; the first always starts, and the
+        scale search counts). Returns the history."""
         if epochs is None and time_budget is None:
             epochs = int(self.config["default_epochs"])
         if epochs is not None and int(epochs) < 1:
             raise InputError(f"epochs: must be >= 1, got {epochs}")
-        if time_budget is not None and not (float(time_budget) > 0):
-            raise InputError(f"time_budget: must be > 0 seconds, got {time_budget}")
+        time_budget = budget.check_time_budget(time_budget)
+        _check_fit_memory(self)
         t0 = time.monotonic()
+        longest = 0.0  # the longest epoch of this run (accepted or not): the next one is predicted to take as long
         if self.epoch == 0 and self.scale is None:
             ts = time.monotonic()
             self.scale_search(cancel_event)
@@ -583,7 +586,7 @@ class FitJob:
         while True:
             if epochs is not None and self.epoch >= int(epochs):
                 break
-            if time_budget is not None and time.monotonic() - t0 >= float(time_budget):
+            if time_budget is not None and time.monotonic() - t0 + longest > time_budget:
                 break
             if cancel_event is not None and cancel_event.is_set():
                 raise Cancelled()
@@ -591,6 +594,7 @@ class FitJob:
             try:
                 terms, grads = self.objective(self.theta, self.epoch, cancel_event, clip=self.clip_threshold())
             except SolverError as e:
+                longest = max(longest, time.monotonic() - te)
                 # The last step took the tables where a drape fails (diverged rollout, no equilibrium):
                 # undo it and halve the learning rate. Nothing to undo before the first step.
                 if self.previous_theta is None:
@@ -614,6 +618,7 @@ class FitJob:
                 entry["effects"] = dict(zip(self.plan.names, map(float, self.theta["effect_mu"])))
             self.history.append(entry)
             self.elapsed += entry["seconds"]
+            longest = max(longest, entry["seconds"])
             if checkpoint:
                 self.save_checkpoint(checkpoint)
             if progress:
@@ -718,23 +723,96 @@ class FitJob:
         }
 
 
+def _check_fit_memory(job):
+    """Refuses a fit whose lanes, images and samples would not fit in memory (budget.fit_memory_bytes)."""
+    o = job.observations
+    estimate = budget.fit_memory_bytes(job.workers[0].model.num_vertices, len(job.workers),
+                                       int(job.config["dynamic"]["steps"]), len(o), o[0].mask.size, job.samples)
+    budget.check_memory(estimate, f"this fit ({len(job.workers)} lanes on circle{job.mesh_level}, {len(o)} images of "
+                        f"{o[0].mask.shape[1]} x {o[0].mask.shape[0]} px, {job.samples} samples per epoch)",
+                        "use fewer --threads, fewer or smaller images")
+
+
+def _plan_time_budget(job, total, t_start, template_dir=None):
+    """The split of a bdp fit's time budget between epochs and drape calibration (see drapelab.budget), from one
+    round of drapes on the calibration mesh timed now (the calibration's own lanes, forward and settings)."""
+    config = job.config
+    cal = config.get("calibration") or {}
+    draws = int(cal.get("draws", 8))
+    lanes = max(1, min(job.threads, draws))
+    level = int(cal.get("mesh_level") or job.mesh_level)
+    ts = time.monotonic()
+    mesh = sim.cusick_specimen(level, template_dir=template_dir)
+    models = [sim.ClothModel(mesh, heterogeneous=True, density=job.density, effects=job.plan.values())
+              for _ in range(lanes)]
+    forward = config["evaluate"]["forward"]
+    bend = np.broadcast_to(np.exp(job.log_bend0), (models[0].num_bending_edges,) + BEND_SHAPE)
+    cal_obj = measure.calibration(job.observations[0].calibration["px_per_m"],
+                                  tuple(job.observations[0].calibration["centre_px"]))
+    shapes = _drape_draws(models, job.stretch, [bend] * lanes, forward,
+                          config["dynamic"] if forward == "dynamic" else config["static"], job.placement, job.seed,
+                          job.camera, cal_obj)
+    round_seconds = time.monotonic() - ts
+    failed = [sh["error"] for sh in shapes if "error" in sh]
+    if failed:
+        raise SolverError(f"time budget: the starting table does not drape on circle{level}: {failed[0]}")
+    sets_min, sets_full = budget.calibration_sets(cal)
+    drape_fit = round_seconds * job.workers[0].model.num_vertices / models[0].num_vertices
+    epoch_drapes = math.ceil(job.samples * len(job.observations) / len(job.workers))
+    share = float((config.get("time_budget") or {}).get("calibration_share", budget.DEFAULT_CALIBRATION_SHARE))
+    return budget.FitPlan(total, time.monotonic() - t_start, math.ceil(draws / lanes) * round_seconds, sets_min,
+                          sets_full, share, drape_fit, len(config["init"].get("scale_search") or []), epoch_drapes)
+
+
 def fit(images, density, model="bdp", epochs=None, time_budget=None, seed=0, out=None, checkpoint=None,
-        resume=None, progress=None, cancel_event=None, fabric=None, calibration_progress=None, **options):
+        resume=None, progress=None, cancel_event=None, fabric=None, calibration_progress=None, plan_progress=None,
+        **options):
     """Fits and (when `out` is given) writes a preset. Returns the preset dict. `progress` receives each epoch's
-    history entry, `calibration_progress` each drape-calibration evaluation (see calibrate_preset)."""
+    history entry, `calibration_progress` each drape-calibration evaluation (see calibrate_preset).
+
+    `time_budget` (seconds) covers the whole call. A bdp fit with the drape calibration on first drapes one round
+    on the calibration mesh to time it, then splits the budget (drapelab.budget: the calibration gets what its
+    fewest sets of drapes need, up to fit.json time_budget.calibration_share of the budget or what its longest
+    node search needs; the epochs the rest), refusing a budget too small for the calibration, the scale search
+    and one epoch with those estimates; `plan_progress` receives the split (FitPlan.as_dict). The preset records
+    it in training.time_budget."""
+    t_start = time.monotonic()
+    time_budget = budget.check_time_budget(time_budget)
     if out:
         measure.check_output_path(out, "preset")
     job = FitJob(images, density, model=model, seed=seed, **options)
     if resume:
         job.load_checkpoint(resume)
-    job.run(epochs=epochs, time_budget=time_budget, progress=progress, cancel_event=cancel_event,
+    calibrating = model == "bdp" and (job.config.get("calibration") or {}).get("enabled", False)
+    plan = None
+    epoch_budget = time_budget
+    if time_budget is not None:
+        if calibrating:
+            plan = _plan_time_budget(job, time_budget, t_start, options.get("template_dir")).check()
+            if plan_progress:
+                plan_progress(plan.as_dict())
+            epoch_budget = plan.epochs - (time.monotonic() - t_start - plan.setup)
+        else:
+            epoch_budget = time_budget - (time.monotonic() - t_start)
+    epochs_before = job.epoch
+    job.run(epochs=epochs, time_budget=epoch_budget, progress=progress, cancel_event=cancel_event,
             checkpoint=checkpoint)
+    if job.epoch == 0 and time_budget is not None:
+        raise InputError(f"time_budget: {time_budget:g} s ran out before the first epoch ("
+                         f"{time.monotonic() - t_start:.1f} s spent on set-up and the scale search)")
     preset = job.preset(fabric=fabric, options={"model": model, "epochs": epochs, "time_budget": time_budget,
                                                 "seed": seed, "effects": job.plan.describe(),
                                                 **{k: v for k, v in options.items() if k not in ("config", "effects")}})
-    if model == "bdp" and (job.config.get("calibration") or {}).get("enabled", False):
+    epochs_end = time.monotonic() - t_start
+    if calibrating:
+        left = None if time_budget is None else time_budget - epochs_end
         preset = calibrate_preset(preset, images, seed=seed, threads=job.threads, template_dir=options.get("template_dir"),
-                                  config=job.config, cancel_event=cancel_event, progress=calibration_progress)
+                                  config=job.config, cancel_event=cancel_event, progress=calibration_progress,
+                                  time_budget=left)
+    if time_budget is not None:
+        preset["training"]["time_budget"] = dict(plan.as_dict() if plan else {"total_s": time_budget},
+                                                 epochs_run=job.epoch - epochs_before, epochs_end_s=epochs_end,
+                                                 end_s=time.monotonic() - t_start)
     if out:
         write_preset(out, preset)
     return preset
@@ -898,7 +976,7 @@ def _bracket_midpoint(signed, tolerance):
 
 
 def calibrate_preset(preset, images, seed=0, threads=None, template_dir=None, config=None, cancel_event=None,
-                     progress=None):
+                     progress=None, time_budget=None):
     """The drape calibration of a bdp posterior (the last stage of `fit`; also applies to an existing preset).
 
     1. Scale: the fitted mean table is shifted by one global log factor c so that the posterior-predictive
@@ -937,7 +1015,10 @@ def calibrate_preset(preset, images, seed=0, threads=None, template_dir=None, co
     Returns a new preset with the shifted log_mean, global_log_std, the scaled stretching and a "calibration"
     record (what was measured, every set of drapes in "evaluated", and the fit.json settings used in "settings").
     A preset that was calibrated before is first taken back to its fit (shift, stretching scale and mesh level
-    undone): calibrating is idempotent."""
+    undone): calibrating is idempotent.
+    `time_budget` (seconds, optional): steps 1 and 2 always run; a node-search step (and the refinement) is taken
+    only if it and the sets of drapes that must follow it fit in what is left, at the longest set measured so far
+    (record: "time_budget_s", "node_search_stopped_by_time_budget"; every evaluated entry has its "seconds")."""
     preset = validate_preset(json.loads(json.dumps(preset)))
     if preset["model"] != "bdp":
         raise InputError(f"calibrate: only a bdp posterior is calibrated (this preset is {preset['model']!r})")
@@ -973,6 +1054,7 @@ def calibrate_preset(preset, images, seed=0, threads=None, template_dir=None, co
         raise InputError("fit.json calibration: need shift_tolerance >= 0")
     if not images:
         raise InputError("images: give the training silhouettes")
+    time_budget = None if time_budget is None else float(time_budget)  # may be <= 0: steps 1-2 run regardless
     t0 = time.monotonic()
     fit_level = int(preset["simulation"]["mesh_level"])
     level = int(opts.get("mesh_level") or fit_level)
@@ -990,8 +1072,22 @@ def calibrate_preset(preset, images, seed=0, threads=None, template_dir=None, co
     draws = preset_bend_samples(base, predictive.num_edges, np.random.default_rng([seed, 7]), k)
     evaluated = {}  # (log2 stretch scale, log bending shift) -> (mean DC, sd DC, mean node count)
 
+    set_seconds = {}  # (log2 stretch scale, log bending shift) -> seconds of that set of drapes
+    stopped = []  # node-search steps not taken for lack of time
+
+    def affordable(sets):
+        """Whether `sets` more sets of drapes fit in the time budget (at the longest set so far)."""
+        if time_budget is None:
+            return True
+        return time.monotonic() - t0 + sets * max(set_seconds.values()) <= time_budget
+
+    # Sets of drapes that follow the node search when it moved the stretching: the bending secant steps there and
+    # the slope's central difference.
+    tail = iterations + 2
+
     def measure_at(s, c):
         if (s, c) not in evaluated:
+            ts = time.monotonic()
             predictive.stretch = stretch0 * 2.0 ** s
             shapes = [sh for sh in predictive.drape(draws * math.exp(c), seed, cancel_event=cancel_event)
                       if "error" not in sh]
@@ -1001,6 +1097,7 @@ def calibrate_preset(preset, images, seed=0, threads=None, template_dir=None, co
             dcs = [sh["dc"] for sh in shapes]
             evaluated[(s, c)] = (float(np.mean(dcs)), float(np.std(dcs, ddof=1)),
                                  float(np.mean([sh["nodes"] for sh in shapes])))
+            set_seconds[(s, c)] = time.monotonic() - ts
             if progress:
                 dc_, sd_, nodes_ = evaluated[(s, c)]
                 progress({"stage": "calibration", "evaluation": len(evaluated), "stretch_scale": 2.0 ** s,
@@ -1039,6 +1136,9 @@ def calibrate_preset(preset, images, seed=0, threads=None, template_dir=None, co
     def nodes_at(v):
         """Stretching 2^v, one secant step on the bending from the neighbour's shift; None: it does not drape."""
         prev = v - 1 if v > 0 else v + 1
+        if not affordable(2 + tail + (2 if refine else 0)):
+            stopped.append(v)
+            return None
         try:
             chosen[v] = fit_scale(v, chosen[prev][0], chosen[prev][1], 1)
         except SolverError:
@@ -1054,6 +1154,9 @@ def calibrate_preset(preset, images, seed=0, threads=None, template_dir=None, co
     # half-octave between them (one secant step on the bending from the neighbour closer in nodes).
     mid = _bracket_midpoint({v: evaluated[(v, chosen[v][0])][2] - observed_nodes for v in chosen}, tolerance) \
         if refine else None
+    if mid is not None and not affordable(2 + tail):
+        stopped.append(mid)
+        mid = None
     if mid is not None:
         near = min((mid - 0.5, mid + 0.5), key=gap)
         try:
@@ -1103,7 +1206,9 @@ def calibrate_preset(preset, images, seed=0, threads=None, template_dir=None, co
         "draws": k, "settings": {"draws": k, "iterations": iterations, "log_step": step,
                                  "shift_tolerance": shift_tolerance, "node_search": search_settings},
         "evaluated": [{"stretch_scale": 2.0 ** key[0], "log_scale_shift": key[1], "dc": v[0],
-                                   "dc_sd": v[1], "nodes": v[2]} for key, v in sorted(evaluated.items())],
+                                   "dc_sd": v[1], "nodes": v[2], "seconds": set_seconds[key]}
+                      for key, v in sorted(evaluated.items())],
+        "time_budget_s": time_budget, "node_search_stopped_by_time_budget": bool(stopped),
         "seconds": time.monotonic() - t0}
     return validate_preset(preset)
 
@@ -1222,6 +1327,11 @@ def evaluate(preset_or_path, images, meshes=None, samples=None, seed=0, threads=
     observations = [_Observation(p, None) for p in images]
     lanes = max(1, min(int(threads or min(os.cpu_count() or 1, 2)), n))
     predictive = _Predictive(preset, observations[0].mask.shape, lanes, config, template_dir, mesh_level, forward)
+    shape = observations[0].mask.shape
+    budget.check_memory(budget.evaluate_memory_bytes(predictive.models[0].num_vertices, predictive.num_edges, lanes, n, len(observations),
+                                                     observations[0].mask.size),
+                        f"evaluate ({n} draws on circle{predictive.level}, {len(observations)} images of "
+                        f"{shape[1]} x {shape[0]} px)", "use fewer --samples or smaller images")
     draws = preset_bend_samples(preset, predictive.num_edges, np.random.default_rng(seed), n)
     shapes = predictive.drape(draws, seed, progress, cancel_event)
     failed = [s["error"] for s in shapes if "error" in s]

@@ -6,8 +6,11 @@ mesh is given), drape_coefficient {observed, predicted_mean, interval90}, node_c
 predicted_mode}, node_amplitude_m {observed, predicted_mean, interval90}. "mean" averages mse, iou, hausdorff_m,
 dc_abs_error and gives dc_coverage90, node_within1, amplitude_bias_m (predicted - observed node amplitude: < 0,
 the model's folds are shallower than the measured) and amplitude_coverage90. N defaults to 1000 for bdp (1 for
-the deterministic homo/heter).
+the deterministic homo/heter). Ctrl-C cancels: nothing is written and the status is 130.
 """
+import signal
+import sys
+import threading
 
 
 def register(subparsers):
@@ -34,8 +37,16 @@ def run(args):
         if done == total or done % max(1, total // 10) == 0:
             print(f"sample {done}/{total}", flush=True)
 
-    result = infer.evaluate(args.preset, args.images, meshes=args.meshes, samples=args.samples, seed=args.seed,
-                            threads=args.threads, forward=args.forward, progress=progress)
+    cancel = threading.Event()
+    previous = signal.signal(signal.SIGINT, lambda *_: cancel.set())
+    try:
+        result = infer.evaluate(args.preset, args.images, meshes=args.meshes, samples=args.samples, seed=args.seed,
+                                threads=args.threads, forward=args.forward, progress=progress, cancel_event=cancel)
+    except infer.Cancelled:
+        print(f"evaluate cancelled; {args.json} not written", file=sys.stderr)
+        return 130
+    finally:
+        signal.signal(signal.SIGINT, previous)
     measure.write_json(args.json, result)
     m = result["mean"]
     line = f"{result['model']} N={result['samples']}: MSE {m['mse']:.4f}  IoU {m['iou']:.4f}  |dDC| {m['dc_abs_error']:.3f}  " \

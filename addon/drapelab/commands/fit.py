@@ -1,10 +1,11 @@
 """`drapelab fit --images IMG... --density KG_M2 [--model homo|heter|bdp] [--epochs N | --time-budget S] [--seed S]
---out PRESET.json`: fit a material posterior to Cusick silhouettes and write a preset.
+[--no-calibration] --out PRESET.json`: fit a material posterior to Cusick silhouettes and write a preset.
 
 Learns the bending table in log space (stretching stays at its starting table; see drapelab.infer). Settings
 (learning rates, likelihood sigma, prior, Monte Carlo samples, mesh resolution) come from
 addon/drapelab/config/fit.json or --config. A checkpoint is written after every epoch (--checkpoint, default
 PRESET.json.ckpt) and --resume continues from one. Ctrl-C cancels cleanly: the last checkpoint stays valid.
+--time-budget covers the whole fit, drape calibration included (see its help).
 
 --effects switches on effects from the registry (./drapelab effects): a bare NAME fits all its parameters
 with the material, from their off values (prior: the registry's prior scale); NAME=VALUE fixes the effect's
@@ -26,7 +27,14 @@ def register(subparsers):
     p.add_argument("--model", choices=["homo", "heter", "bdp"], default="bdp")
     g = p.add_mutually_exclusive_group()
     g.add_argument("--epochs", type=int, default=None, metavar="N")
-    g.add_argument("--time-budget", type=float, default=None, metavar="SECONDS")
+    g.add_argument("--time-budget", type=float, default=None, metavar="SECONDS",
+                   help="time for the whole fit (set-up, epochs, bdp drape calibration, writing). A bdp fit first "
+                        "times one round of calibration drapes, then gives the calibration what its fewest sets "
+                        "of drapes need, up to half the budget (fit.json time_budget.calibration_share) or what "
+                        "its longest node search needs, and the epochs the rest; a budget too small for the "
+                        "calibration, the scale search and one epoch is refused with these estimates")
+    p.add_argument("--no-calibration", action="store_true",
+                   help="skip the bdp drape calibration (fit.json calibration.enabled false)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", required=True, metavar="PRESET.json")
     p.add_argument("--camera", choices=["ortho", "perspective"], default="ortho")
@@ -48,6 +56,8 @@ def run(args):
     measure.check_output_path(args.out, "preset")
     effects = sim.parse_effects_arg(args.effects, bare=None)  # {name: {}}: fitted; values: fixed
     config = infer.load_config(args.config)
+    if args.no_calibration:
+        config["calibration"] = dict(config.get("calibration") or {}, enabled=False)
     checkpoint = args.checkpoint or args.out + ".ckpt"
     cancel = threading.Event()
     previous = signal.signal(signal.SIGINT, lambda *_: cancel.set())
@@ -62,10 +72,16 @@ def run(args):
               f"drape coefficient {c['dc']:.3f} +- {c['dc_sd']:.3f} (observed {c['dc_observed']:.3f}), nodes "
               f"{c['nodes']:.1f} (observed {c['nodes_observed']:.1f})  {c['seconds']:.1f} s", flush=True)
 
+    def plan_progress(p):
+        print(f"time budget {p['total_s']:g} s: set-up {p['setup_s']:.1f} s, epochs {p['epochs_s']:.1f} s, drape "
+              f"calibration {p['calibration_s']:.1f} s ({p['calibration_sets'][0]}-{p['calibration_sets'][1]} sets "
+              f"of drapes of {p['calibration_set_s']:.1f} s)", flush=True)
+
     try:
         preset = infer.fit(args.images, args.density, model=args.model, epochs=args.epochs,
                            time_budget=args.time_budget, seed=args.seed, out=args.out, checkpoint=checkpoint,
                            resume=args.resume, progress=progress, calibration_progress=calibration_progress,
+                           plan_progress=plan_progress,
                            cancel_event=cancel,
                            fabric={"name": args.name} if args.name else None, config=config,
                            camera=args.camera, mesh_level=args.mesh_level, threads=args.threads, effects=effects)
@@ -88,5 +104,9 @@ def run(args):
               f"{c['dc_predicted']:.3f} (observed {c['dc_observed']:.3f}), scale x{math.exp(c['log_scale_shift']):.3f}, "
               f"global log sd {c['global_log_std']:.3f}; nodes {c['nodes_predicted_before']:.1f} -> "
               f"{c['nodes_predicted']:.1f} (observed {c['nodes_observed']:.1f}), stretching x{c['stretch_scale']:g}; "
-              f"on circle{c['mesh_level']}")
+              f"on circle{c['mesh_level']}" + (" (node search cut short by the time budget)"
+                                               if c.get("node_search_stopped_by_time_budget") else ""))
+    b = t.get("time_budget")
+    if b:
+        print(f"time budget {b['total_s']:g} s: done in {b['end_s']:.1f} s (epochs ended at {b['epochs_end_s']:.1f} s)")
     return 0

@@ -1,0 +1,146 @@
+"""Up-front estimates of a job's time and memory, so that a job that cannot fit is refused before it runs.
+
+Time (fit --time-budget T covers the whole job: set-up, epochs, drape calibration, writing):
+    The drape calibration (infer.calibrate_preset) drapes sets of `draws` posterior draws; a set costs
+    e = ceil(draws / lanes) x (one round of `lanes` drapes in parallel), measured up front by draping one such
+    round on the calibration mesh (a dynamic rollout's cost does not depend on the table: a fixed number of
+    steps, each one factorisation). It needs at least N_min = 3 + iterations + 2 sets (the mean drape
+    coefficient and the slope at the fit, the secant steps, the slope at the result) and at most
+    N_full = N_min + 2 per node-search step + 2 for the refinement + iterations + 2 (the node search).
+    The calibration is given min(N_full e, max(N_min e, calibration_share x T)) (fit.json
+    time_budget.calibration_share); the epochs get the rest. A budget below set-up + N_min e + the scale search
+    + one epoch (the last two estimated from the measured drape, scaled by vertex count) is refused with those
+    figures. The epochs stop when the next would not finish in their share (predicted by the longest epoch so
+    far); the node search stops when its next step and the calibration's remaining sets would not fit.
+Memory:
+    A recorded rollout keeps one sparse Cholesky factor per step up to factor_memory_mb (sim.ClothModel.simulate);
+    FACTOR_BYTES_PER_VERTEX is an upper bound of a factor's size per vertex measured on circle1..5 (10.2 MB on
+    circle3, 35.3 MB on circle5: docs/performance.md). A fit keeps, per Monte Carlo lane, one recorded rollout
+    (factors + the rollout's states); per image a float64 mask, and per epoch a soft image, its gradient and a
+    hard image for every (sample, image) pair. An evaluation keeps every draw's bending tables, positions and hard
+    image. A job estimated above MEMORY_FRACTION of the machine's physical memory is refused with the estimate.
+"""
+import math
+import os
+import time
+
+from ._native import InputError
+
+FACTOR_BYTES_PER_VERTEX = 5.0e3      # bytes of one kept Cholesky factor per vertex (measured 3.8-4.7 KB, circle3-5)
+DEFAULT_FACTOR_MEMORY_MB = 1024.0    # sim.ClothModel.simulate's default budget for kept factors
+MODEL_BYTES_PER_VERTEX = 20.0e3      # a model, its solver workspace and one drape's vectors, per vertex (generous)
+MEMORY_FRACTION = 0.8                # of physical memory: leaves room for the OS and Blender's own scene
+EPOCH_DRAPE_FACTOR = 1.5             # an epoch's drape (recorded rollout + adjoint) / an unrecorded rollout
+DEFAULT_CALIBRATION_SHARE = 0.5      # fit.json time_budget.calibration_share when absent
+
+
+def physical_memory_bytes():
+    """The machine's physical memory in bytes (None when the platform does not say)."""
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def check_memory(estimate_bytes, what, advice):
+    """Raises InputError when `estimate_bytes` exceeds MEMORY_FRACTION of physical memory, naming the job,
+    the estimate and what to change. Returns the estimate."""
+    total = physical_memory_bytes()
+    if total is not None and estimate_bytes > MEMORY_FRACTION * total:
+        raise InputError(f"{what} would need about {estimate_bytes / 2 ** 30:.1f} GB of memory, more than "
+                         f"{MEMORY_FRACTION:.0%} of this machine's {total / 2 ** 30:.1f} GB; {advice}")
+    return estimate_bytes
+
+
+def rollout_bytes(vertices, steps, record=True, factor_memory_mb=DEFAULT_FACTOR_MEMORY_MB):
+    """About the memory of one model and one rollout on a mesh of `vertices` vertices (recorded: the kept factors,
+    capped at factor_memory_mb, and per step the state x, v and the step's solution)."""
+    model = MODEL_BYTES_PER_VERTEX * vertices
+    if not record:
+        return model
+    factors = min(steps * FACTOR_BYTES_PER_VERTEX * vertices, factor_memory_mb * 2 ** 20)
+    return model + factors + steps * 3 * 3 * vertices * 8
+
+
+def fit_memory_bytes(vertices, lanes, steps, images, image_pixels, samples):
+    """About the peak memory of a fit: `lanes` recorded rollouts, the image masks, and per epoch three float64
+    images for each of samples x images drapes."""
+    return (lanes * rollout_bytes(vertices, steps) + images * image_pixels * 8
+            + samples * images * 3 * image_pixels * 8)
+
+
+def evaluate_memory_bytes(vertices, bending_edges, lanes, draws, images, image_pixels):
+    """About the peak memory of an evaluation: every draw's bending tables (15 per edge), positions and hard image,
+    the masks, and one unrecorded model per lane."""
+    return (lanes * rollout_bytes(vertices, 1, record=False)
+            + draws * (bending_edges * 15 * 8 + vertices * 3 * 8 + image_pixels * 8) + images * image_pixels * 8)
+
+
+def calibration_sets(calibration):
+    """(N_min, N_full): the fewest and the most sets of drapes calibrate_preset makes with these fit.json
+    calibration settings (see the module doc; the node search only when enabled)."""
+    iterations = int(calibration.get("iterations", 2))
+    minimum = 3 + iterations + 2
+    search = calibration.get("node_search") or {}
+    if not search.get("enabled", False):
+        return minimum, minimum
+    steps = max(int(search.get("max_log2", 0)), -int(search.get("min_log2", 0)))
+    full = minimum + 2 * steps + (2 if search.get("refine", False) else 0) + iterations + 2
+    return minimum, full
+
+
+class FitPlan:
+    """How a fit's time budget is split (all in seconds from the start of the job)."""
+
+    def __init__(self, total, setup, set_seconds, sets_min, sets_full, share, drape_estimate, scale_drapes,
+                 epoch_drapes):
+        self.total = float(total)
+        self.setup = float(setup)              # spent before the plan (loading, the timed round of drapes)
+        self.set_seconds = float(set_seconds)  # one set of calibration drapes
+        self.sets_min, self.sets_full = int(sets_min), int(sets_full)
+        self.calibration_min = self.sets_min * self.set_seconds
+        self.scale_search = scale_drapes * drape_estimate
+        self.first_epoch = epoch_drapes * drape_estimate * EPOCH_DRAPE_FACTOR
+        self.minimum = self.setup + self.calibration_min + self.scale_search + self.first_epoch
+        room = self.total - self.setup - self.scale_search - self.first_epoch
+        self.calibration = min(self.sets_full * self.set_seconds, max(self.calibration_min, share * self.total), room)
+        self.epochs = self.total - self.setup - self.calibration
+
+    def check(self):
+        if self.total < self.minimum:
+            raise InputError(
+                f"time_budget: {self.total:g} s is too small: the drape calibration alone needs about "
+                f"{self.calibration_min:.0f} s ({self.sets_min} sets of drapes of {self.set_seconds:.1f} s measured), "
+                f"set-up {self.setup:.0f} s, the scale search and a first epoch about "
+                f"{self.scale_search + self.first_epoch:.0f} s; use a time budget >= {math.ceil(self.minimum * 1.1):d} s, "
+                f"or switch the calibration off (fit --no-calibration, fit.json calibration.enabled false)")
+        return self
+
+    def as_dict(self):
+        return {"total_s": self.total, "setup_s": self.setup, "epochs_s": self.epochs,
+                "calibration_s": self.calibration, "calibration_set_s": self.set_seconds,
+                "calibration_sets": [self.sets_min, self.sets_full], "minimum_s": self.minimum}
+
+
+def check_time_budget(time_budget):
+    """A time budget in seconds (None: none), refused unless a finite number > 0."""
+    if time_budget is None:
+        return None
+    try:
+        t = float(time_budget)
+    except (TypeError, ValueError, OverflowError):
+        raise InputError(f"time_budget: expected a number of seconds, got {time_budget!r}") from None
+    if not (math.isfinite(t) and t > 0):
+        raise InputError(f"time_budget: must be a finite number of seconds > 0, got {time_budget!r}")
+    return t
+
+
+class Deadline:
+    """A point in time (time.monotonic) and how much of it is left."""
+
+    def __init__(self, seconds, start=None):
+        self.start = time.monotonic() if start is None else start
+        self.end = self.start + seconds
+
+    def left(self):
+        return self.end - time.monotonic()
