@@ -114,6 +114,15 @@ def check_density(density):
     return d
 
 
+def check_optional_int(value, name, minimum):
+    """An integer argument (None: the default) >= minimum, else InputError naming it."""
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
+        raise InputError(f"{name}: expected an integer >= {minimum}, got {value!r}")
+    return int(value)
+
+
 def sample_bend_tables(model_kind, theta, num_edges, noise=None):
     """Bending tables (E, 3, 5) in N m (or (3, 5) for homo) for parameters theta and standard-normal noise."""
     if model_kind == "homo":
@@ -778,6 +787,8 @@ def fit(images, density, model="bdp", epochs=None, time_budget=None, seed=0, out
     it in training.time_budget."""
     t_start = time.monotonic()
     time_budget = budget.check_time_budget(time_budget)
+    check_optional_int(seed, "seed", 0)
+    check_optional_int(options.get("threads"), "threads", 1)
     if out:
         measure.check_output_path(out, "preset")
     job = FitJob(images, density, model=model, seed=seed, **options)
@@ -865,7 +876,10 @@ def validate_preset(preset, source="preset"):
     preset = migrate_preset(preset, source)
     if preset.get("model") not in MODELS:
         raise InputError(f"{source}: unknown model {preset.get('model')!r}")
-    check_density(preset.get("density_kg_m2"))
+    try:
+        check_density(preset.get("density_kg_m2"))
+    except InputError as e:
+        raise InputError(f"{source}: {str(e).replace('density:', 'density_kg_m2:', 1)}") from None
     posterior = preset.get("posterior", {})
     bend = posterior.get("bend", {}) if isinstance(posterior, dict) else None
     if not isinstance(bend, dict):
@@ -885,6 +899,12 @@ def validate_preset(preset, source="preset"):
     stretch = _float_array(preset.get("stretch_N_m", []), source, "stretch_N_m")
     if stretch.shape != tables.STRETCH_SHAPE or not np.all(np.isfinite(stretch)):
         raise InputError(f"{source}: stretch_N_m must be a finite 6 x 4 table")
+    negative = np.argwhere(np.delete(stretch, 1, axis=1) < 0)  # c12 (column 1), a Poisson coupling, may be < 0
+    if negative.size:
+        row, col = int(negative[0][0]), int(negative[0][1])
+        col += col >= 1
+        raise InputError(f"{source}: stretch_N_m must be >= 0 (except c12), got {stretch[row, col]:g} at row {row} "
+                         f"{tables.STRETCH_COLUMNS[col]}")
     placement = preset.get("placement_noise")
     if placement is not None:
         if not isinstance(placement, dict):
@@ -1321,6 +1341,8 @@ def evaluate(preset_or_path, images, meshes=None, samples=None, seed=0, threads=
     if meshes and len(meshes) != len(images):
         raise InputError(f"meshes: {len(meshes)} meshes for {len(images)} images (they pair in order)")
     kind = preset["model"]
+    check_optional_int(seed, "seed", 0)
+    check_optional_int(threads, "threads", 1)
     n = int(samples) if samples is not None else int(config["evaluate"]["samples"][kind])
     if n < 1:
         raise InputError(f"samples: must be >= 1, got {samples}")

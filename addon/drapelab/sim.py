@@ -24,6 +24,7 @@ solve. Long calls release the GIL; ``progress(done, total)`` is called on the ca
 failed solve raises ``SolverError`` (a RuntimeError).
 """
 import os
+import re
 import threading
 
 import numpy as np
@@ -523,6 +524,9 @@ class ClothModel:
         velocities0 (V, 3): initial velocities of a dynamic rollout (default at rest).
         factor_memory_mb: memory (MB) for the per-step factorisations kept for backward (default 1024);
         steps beyond it are refactorised during backward (same result, slower).
+        A dynamic rollout that diverges (a vertex faster than max_speed m/s, or a non-finite or indefinite step)
+        raises SolverError naming the step, with the state before that step attached: ``e.step`` (0-based, the
+        number of steps completed), ``e.positions`` and ``e.velocities`` (V, 3), all finite.
         """
         if mode not in MODES:
             raise InputError(f"mode: expected one of {MODES}, got {mode!r}")
@@ -546,8 +550,16 @@ class ClothModel:
             if mode == "dynamic":
                 if self._dynamic is None:
                     self._dynamic = native.ImplicitEuler(self._native)
-                x = self._dynamic.forward(p, time_step=time_step, steps=steps, max_speed=max_speed,
-                                          record=bool(record), progress=sink, x0=x0, v0=v0, **memory)
+                try:
+                    x = self._dynamic.forward(p, time_step=time_step, steps=steps, max_speed=max_speed,
+                                              record=bool(record), progress=sink, x0=x0, v0=v0, **memory)
+                except SolverError as e:
+                    # The rollout stops before the failing step: its state is the last finite one.
+                    match = re.match(r"rollout: step (\d+) ", str(e))
+                    e.step = int(match.group(1)) if match else None
+                    e.positions = np.asarray(self._dynamic.positions).reshape(-1, 3)
+                    e.velocities = np.asarray(self._dynamic.velocities).reshape(-1, 3)
+                    raise
                 self.last_result = {"mode": mode, "steps": steps, "time_step": time_step, "recorded": bool(record),
                                     "timing": dict(self._dynamic.timing)}
             else:

@@ -109,7 +109,11 @@ void write_obj(const std::string& path, const MatrixX3d& positions, const Matrix
       }
       out << '\n';
     }
-    if (!out) throw InputError(path + ": write failed (disk full?)");
+    out.close();  // the last buffer is written here: a full disk shows only now
+    if (!out) {
+      std::remove(tmp.c_str());  // never leave a half-written file behind
+      throw InputError(path + ": write failed (disk full?)");
+    }
   }
   if (std::rename(tmp.c_str(), path.c_str()) != 0) {
     std::remove(tmp.c_str());

@@ -659,7 +659,27 @@ void write_image(const std::string& path, const Image& image, PixelType type, in
     fs::remove(tmp, ec);
     throw InputError(path + ": cannot write image" + (why.empty() ? "" : ": " + why));
   }
+  // Some writers (PNG through libpng) do not report a failed fwrite, so a full disk would leave a truncated file
+  // that the rename puts in place of the old one: the temporary file is read back before it replaces anything.
+  std::string unreadable;
+  {
+    auto in = OIIO::ImageInput::open(tmp.string());
+    std::vector<float> back(px.size());
+    if (!in) {
+      unreadable = one_line(OIIO::geterror());
+    } else {
+      const OIIO::ImageSpec& got = in->spec();
+      if (got.width != w || got.height != h || got.nchannels != channels ||
+          !in->read_image(0, 0, 0, channels, OIIO::TypeDesc::FLOAT, back.data()))
+        unreadable = one_line(in->geterror());
+      in->close();
+    }
+  }
   std::error_code ec;
+  if (!unreadable.empty()) {
+    fs::remove(tmp, ec);
+    throw InputError(path + ": cannot write image: the written file does not read back (disk full?): " + unreadable);
+  }
   fs::rename(tmp, target, ec);
   if (ec) {
     fs::remove(tmp, ec);
