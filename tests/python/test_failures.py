@@ -132,9 +132,9 @@ def test_evaluate_command_stops_on_ctrl_c_with_status_130_and_no_output(tmp_path
     out = tmp_path / "eval.json"
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path), OPENBLAS_NUM_THREADS="1")
     proc = subprocess.Popen([sys.executable, "-m", "drapelab.cli", "evaluate", "--preset", SHIPPED_PRESET,
-                             "--images", ASSET_IMAGE, "--samples", "200", "--threads", "1", "--json", str(out)],
+                             "--images", ASSET_IMAGE, "--samples", "40", "--threads", "1", "--json", str(out)],
                             env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    first = proc.stdout.readline()  # "sample 20/200": the evaluation is under way
+    first = proc.stdout.readline()  # "sample 4/40": the evaluation is under way
     proc.send_signal(2)
     stdout, stderr = proc.communicate(timeout=120)
     assert first.startswith("sample ")
