@@ -10,7 +10,7 @@ Time (fit --time-budget T covers the whole job: set-up, epochs, drape calibratio
     The calibration is given min(N_full e, max(N_min e, calibration_share x T)) (fit.json
     time_budget.calibration_share); the epochs get the rest. A budget below set-up + N_min e + the scale search
     + one epoch (the last two estimated from the measured drape, scaled by vertex count) is refused with those
-    figures. The epochs stop when the next would not finish in their share (predicted by the longest epoch so
+    figures and a suggested budget 10 % above that minimum (drape times vary by about that between runs). The epochs stop when the next would not finish in their share (predicted by the longest epoch so
     far); the node search stops when its next step and the calibration's remaining sets would not fit.
 Memory:
     A recorded rollout keeps one sparse Cholesky factor per step up to factor_memory_mb (sim.ClothModel.simulate);

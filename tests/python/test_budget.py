@@ -1,0 +1,190 @@
+"""Budgets (drapelab.budget): a fit's --time-budget covers the whole job, calibration included, and ends within the
+budget plus the method's granularity; jobs too large for the budget or for memory are refused up front."""
+import copy
+import json
+import os
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from drapelab import budget, cli, infer
+
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+ASSET_IMAGE = os.path.join(ROOT, "assets", "cusick", "fabric_02", "silhouettes", "sample_02_capture_1.jpg")
+SHIPPED_PRESET = os.path.join(ROOT, "assets", "presets", "fabric_02_cotton_blue_bdp.json")
+
+
+def small_config(**overrides):
+    cfg = copy.deepcopy(infer.load_config())
+    cfg["mesh_level"] = 1
+    cfg["calibration"]["mesh_level"] = None  # calibrate on the fit's mesh
+    cfg.update(overrides)
+    return cfg
+
+
+def this_run(preset):
+    """Seconds of every epoch (accepted) of the fit, and of every set of calibration drapes."""
+    epochs = [h["seconds"] for h in preset["training"]["history"] if "seconds" in h]
+    sets = [e["seconds"] for e in preset.get("calibration", {}).get("evaluated", [])]
+    return epochs, sets
+
+
+# ---------------------------------------------------------------- the split
+def test_calibration_set_counts_follow_the_settings():
+    cal = infer.load_config()["calibration"]
+    # 1 + 2 (mean and slope at the fit) + 2 secant steps + 2 (slope at the result); node search: 4 steps of 2,
+    # the refinement 2, the secant steps and the slope at the chosen stretching
+    assert budget.calibration_sets(cal) == (7, 21)
+    assert budget.calibration_sets(dict(cal, node_search=dict(cal["node_search"], enabled=False))) == (7, 7)
+    assert budget.calibration_sets(dict(cal, iterations=1, node_search=dict(cal["node_search"], refine=False))) == (6, 17)
+
+
+def test_the_plan_gives_the_calibration_its_share_within_its_minimum_and_maximum():
+    # set-up 2 s, a set of calibration drapes 8 s (7 to 21 sets), a fit-mesh drape 0.5 s, 11 scale-search drapes
+    plan = budget.FitPlan(300, 2, 8, 7, 21, 0.5, 0.5, 11, 1)
+    assert plan.calibration == 150 and plan.epochs == 148 and plan.setup + plan.epochs + plan.calibration == 300
+    assert budget.FitPlan(1000, 2, 8, 7, 21, 0.5, 0.5, 11, 1).calibration == 21 * 8  # no more than it can use
+    small = budget.FitPlan(70, 2, 8, 7, 21, 0.5, 0.5, 11, 1).check()
+    assert small.calibration == 56  # at least its minimum
+    assert small.minimum == pytest.approx(2 + 56 + 5.5 + 0.5 * budget.EPOCH_DRAPE_FACTOR)
+    with pytest.raises(infer.InputError, match=r"time_budget: 60 s is too small: the drape calibration alone needs "
+                                               r"about 56 s \(7 sets of drapes of 8.0 s measured\).*>= 71 s"):
+        budget.FitPlan(60, 2, 8, 7, 21, 0.5, 0.5, 11, 1).check()
+
+
+# ---------------------------------------------------------------- adherence
+def test_a_bdp_fit_with_calibration_ends_within_its_budget(tmp_path):
+    budget_s = 45.0
+    events = []
+    out = str(tmp_path / "p.json")
+    t0 = time.monotonic()
+    preset = infer.fit([ASSET_IMAGE], 0.192, model="bdp", time_budget=budget_s, config=small_config(), threads=2,
+                       out=out, plan_progress=lambda p: events.append("plan"),
+                       progress=lambda e: events.append("epoch"),
+                       calibration_progress=lambda c: events.append("calibration"))
+    wall = time.monotonic() - t0
+    b = preset["training"]["time_budget"]
+    epochs, sets = this_run(preset)
+    # The split was announced before any epoch, then epochs ran, then the calibration, with progress throughout.
+    assert events[0] == "plan" and events[1] == "epoch" and events[-1] == "calibration"
+    assert events.index("calibration") == events.count("epoch") + 1
+    assert b["total_s"] == budget_s and b["epochs_run"] == preset["training"]["epochs"] == len(epochs) >= 1
+    assert b["calibration_s"] >= b["calibration_sets"][0] * b["calibration_set_s"]
+    assert len(sets) <= b["calibration_sets"][1]
+    # Granularity of the method: an epoch starts only when the longest so far still fits, a node-search step only
+    # when it and the sets after it fit at the longest set so far; so the job overruns by less than an epoch and
+    # a set, plus the preset's writing.
+    ts = time.monotonic()
+    infer.write_preset(str(tmp_path / "again.json"), preset)
+    writing = time.monotonic() - ts
+    assert b["end_s"] <= budget_s + max(epochs) + max(sets)
+    assert wall <= budget_s + max(epochs) + max(sets) + 2 * writing + 0.05
+    # The epochs used their share: they stopped only when the next epoch would not have fitted.
+    assert b["epochs_end_s"] >= b["setup_s"] + b["epochs_s"] - max(epochs)
+    assert infer.load_preset(out)["training"]["time_budget"] == b
+    print(f"time budget {budget_s} s: ended at {b['end_s']:.1f} s (wall {wall:.1f} s), epochs "
+          f"{b['epochs_end_s']:.1f} s ({len(epochs)}), calibration {len(sets)} sets, plan {b}")
+
+
+def test_a_homo_fit_ends_within_its_budget_and_the_budget_counts_the_scale_search():
+    budget_s = 6.0
+    t0 = time.monotonic()
+    preset = infer.fit([ASSET_IMAGE], 0.192, model="homo", time_budget=budget_s, config=small_config(), threads=1)
+    wall = time.monotonic() - t0
+    b = preset["training"]["time_budget"]
+    epochs, _ = this_run(preset)
+    assert "calibration" not in preset and b["total_s"] == budget_s
+    assert b["end_s"] <= budget_s + max(epochs) and wall <= budget_s + max(epochs) + 0.05
+    assert b["epochs_end_s"] >= budget_s - max(epochs)
+
+
+def test_a_budget_too_small_for_the_calibration_is_refused_up_front_with_the_estimate(tmp_path):
+    epochs = []
+    t0 = time.monotonic()
+    with pytest.raises(infer.InputError, match=r"time_budget: 3 s is too small: the drape calibration alone needs "
+                                               r"about \d+ s .*use a time budget >= \d+ s.*--no-calibration"):
+        infer.fit([ASSET_IMAGE], 0.192, model="bdp", time_budget=3, config=small_config(), threads=2,
+                  out=str(tmp_path / "p.json"), progress=epochs.append)
+    assert epochs == [] and os.listdir(tmp_path) == []  # no epoch ran, nothing written
+
+
+def test_fit_command_prints_the_split_and_without_calibration_fits_a_small_budget(tmp_path, capsys):
+    config = tmp_path / "fit.json"
+    config.write_text(json.dumps(small_config()))
+    out = tmp_path / "p.json"
+    assert cli.main(["fit", "--images", ASSET_IMAGE, "--density", "0.192", "--time-budget", "3", "--config",
+                     str(config), "--out", str(out)]) == 2
+    assert "error: time_budget: 3 s is too small" in capsys.readouterr().err and not out.exists()
+    assert cli.main(["fit", "--images", ASSET_IMAGE, "--density", "0.192", "--time-budget", "4", "--no-calibration",
+                     "--config", str(config), "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    preset = infer.load_preset(str(out))
+    epochs, _ = this_run(preset)
+    assert "calibration" not in preset and "time budget 4 s: done in" in text
+    assert preset["training"]["time_budget"]["end_s"] <= 4 + max(epochs)
+
+
+def test_the_calibration_with_no_time_left_makes_only_its_fewest_sets():
+    job = infer.FitJob([ASSET_IMAGE], 0.192, model="bdp", config=small_config(), threads=2)
+    job.run(epochs=1)
+    cfg = small_config()
+    cfg["calibration"]["node_search"]["tolerance"] = 0.01  # the search wants a step unless the nodes match exactly
+    preset = infer.calibrate_preset(job.preset(), [ASSET_IMAGE], threads=2, config=cfg, time_budget=0)
+    c = preset["calibration"]
+    assert len(c["evaluated"]) <= budget.calibration_sets(cfg["calibration"])[0]
+    assert c["stretch_scale"] == 1.0 and c["time_budget_s"] == 0
+    assert c["node_search_stopped_by_time_budget"] or abs(c["nodes_predicted_before"] - c["nodes_observed"]) <= 0.01
+
+
+# ---------------------------------------------------------------- memory
+MEASURE_RSS = r"""
+import sys
+import numpy as np
+from drapelab import sim, tables
+
+def status(key):  # kB in /proc/self/status
+    return int(next(l for l in open("/proc/self/status") if l.startswith(key)).split()[1]) * 1024
+
+with open("/proc/self/clear_refs", "w") as f:
+    f.write("5")  # resets the peak (VmHWM) to the current resident size
+before = status("VmRSS:")
+m = sim.ClothModel(sim.cusick_specimen(int(sys.argv[1])), heterogeneous=True)
+p = m.parameters(material=tables.COTTON_BLUE)
+x = m.simulate(p)
+m.backward(np.ones_like(x))
+print(m.num_vertices, status("VmHWM:") - before)
+"""
+
+
+@pytest.mark.skipif(not os.path.exists("/proc/self/clear_refs"), reason="needs Linux's /proc/self/clear_refs")
+@pytest.mark.parametrize("level", [1, 3])
+def test_the_rollout_memory_estimate_bounds_the_measured_peak(level):
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path), OPENBLAS_NUM_THREADS="1")
+    r = subprocess.run([sys.executable, "-c", MEASURE_RSS, str(level)], env=env, capture_output=True, text=True,
+                       timeout=300)
+    vertices, measured = (int(v) for v in r.stdout.split())
+    estimate = budget.rollout_bytes(vertices, 100)
+    assert measured <= estimate <= 3 * measured, (measured, estimate)  # circle3: about 1030 MB measured, 1094 estimated
+
+
+def test_an_evaluation_too_large_for_memory_is_refused_with_the_estimate(monkeypatch):
+    monkeypatch.setattr(budget, "physical_memory_bytes", lambda: 24 * 2 ** 30)
+    with pytest.raises(infer.InputError, match=r"evaluate \(1000000 draws on circle1, 1 images of 256 x 256 px\) "
+                                               r"would need about \d+\.\d GB of memory, more than 80% of this "
+                                               r"machine's 24.0 GB; use fewer --samples"):
+        infer.evaluate(SHIPPED_PRESET, [ASSET_IMAGE], samples=1000000, mesh_level=1)
+
+
+def test_a_fit_too_large_for_memory_is_refused_before_its_first_drape(monkeypatch):
+    monkeypatch.setattr(budget, "physical_memory_bytes", lambda: 24 * 2 ** 30)
+    epochs = []
+    with pytest.raises(infer.InputError, match=r"this fit \(40 lanes on circle5, 40 images .*would need about "
+                                               r"\d+\.\d GB .*use fewer --threads"):
+        infer.fit([ASSET_IMAGE] * 40, 0.192, model="homo", epochs=1, threads=40, mesh_level=5,
+                  config=small_config(), progress=epochs.append)
+    assert epochs == []
+    assert budget.fit_memory_bytes(7496, 40, 100, 40, 256 * 256, 1) > 0.8 * 24 * 2 ** 30
+    assert budget.fit_memory_bytes(7496, 2, 100, 1, 256 * 256, 2) < 3 * 2 ** 30  # the default fit is far below
