@@ -8,7 +8,8 @@ Time (fit --time-budget T covers the whole job: set-up, epochs, drape calibratio
     coefficient and the slope at the fit, the secant steps, the slope at the result) and at most
     N_full = N_min + 2 per node-search step + 2 for the refinement + iterations + 2 (the node search).
     The calibration is given min(N_full e, max(N_min e, calibration_share x T)) (fit.json
-    time_budget.calibration_share); the epochs get the rest. A budget below set-up + N_min e + the scale search
+    time_budget.calibration_share); the epochs get the rest. A fit without calibration times one drape on its own
+    mesh instead (N_min = N_full = 0). A budget below set-up + N_min e + the scale search
     + one epoch (the last two estimated from the measured drape, scaled by vertex count) is refused with those
     figures and a suggested budget 10 % above that minimum (drape times vary by about that between runs). The epochs stop when the next would not finish in their share (predicted by the longest epoch so
     far); the node search stops when its next step and the calibration's remaining sets would not fit.
@@ -99,6 +100,7 @@ class FitPlan:
         self.set_seconds = float(set_seconds)  # one set of calibration drapes
         self.sets_min, self.sets_full = int(sets_min), int(sets_full)
         self.calibration_min = self.sets_min * self.set_seconds
+        self.drape_estimate = float(drape_estimate)
         self.scale_search = scale_drapes * drape_estimate
         self.first_epoch = epoch_drapes * drape_estimate * EPOCH_DRAPE_FACTOR
         self.minimum = self.setup + self.calibration_min + self.scale_search + self.first_epoch
@@ -107,14 +109,24 @@ class FitPlan:
         self.epochs = self.total - self.setup - self.calibration
 
     def check(self):
-        if self.total < self.minimum:
-            raise InputError(
+        """Raises InputError (with attribute minimum_s, the budget suggested) when the budget is below the minimum."""
+        if self.total >= self.minimum:
+            return self
+        suggested = math.ceil(self.minimum * 1.1)
+        if self.sets_min:
+            e = InputError(
                 f"time_budget: {self.total:g} s is too small: the drape calibration alone needs about "
                 f"{self.calibration_min:.0f} s ({self.sets_min} sets of drapes of {self.set_seconds:.1f} s measured), "
                 f"set-up {self.setup:.0f} s, the scale search and a first epoch about "
-                f"{self.scale_search + self.first_epoch:.0f} s; use a time budget >= {math.ceil(self.minimum * 1.1):d} s, "
+                f"{self.scale_search + self.first_epoch:.0f} s; use a time budget >= {suggested:d} s, "
                 f"or switch the calibration off (fit --no-calibration, fit.json calibration.enabled false)")
-        return self
+        else:
+            e = InputError(
+                f"time_budget: {self.total:g} s is too small: set-up {self.setup:.0f} s, the scale search and a first "
+                f"epoch about {self.scale_search + self.first_epoch:.0f} s (a drape measured at "
+                f"{self.drape_estimate:.2f} s); use a time budget >= {suggested:d} s")
+        e.minimum_s = suggested
+        raise e
 
     def as_dict(self):
         return {"total_s": self.total, "setup_s": self.setup, "epochs_s": self.epochs,

@@ -742,10 +742,21 @@ def _check_fit_memory(job):
                         "use fewer --threads, fewer or smaller images")
 
 
-def _plan_time_budget(job, total, t_start, template_dir=None):
-    """The split of a bdp fit's time budget between epochs and drape calibration (see drapelab.budget), from one
-    round of drapes on the calibration mesh timed now (the calibration's own lanes, forward and settings)."""
+def _plan_time_budget(job, total, t_start, calibrating, template_dir=None):
+    """The split of a fit's time budget between epochs and drape calibration (see drapelab.budget), from one round
+    of drapes on the calibration mesh timed now (the calibration's own lanes, forward and settings); without the
+    calibration, from one drape on the fit's mesh."""
     config = job.config
+    scale_drapes = len(config["init"].get("scale_search") or [])
+    epoch_drapes = math.ceil(job.samples * len(job.observations) / len(job.workers))
+    if not calibrating:
+        model = job.workers[0].model
+        bend = np.exp(job.log_bend0)
+        ts = time.monotonic()
+        model.simulate(model.parameters(stretch=job.stretch, bend=bend if job.kind == "homo" else np.broadcast_to(
+            bend, (job.num_edges,) + BEND_SHAPE)), mode="dynamic", record=False, **config["dynamic"])
+        drape = time.monotonic() - ts
+        return budget.FitPlan(total, time.monotonic() - t_start, 0.0, 0, 0, 0.0, drape, scale_drapes, epoch_drapes)
     cal = config.get("calibration") or {}
     draws = int(cal.get("draws", 8))
     lanes = max(1, min(job.threads, draws))
@@ -767,10 +778,9 @@ def _plan_time_budget(job, total, t_start, template_dir=None):
         raise SolverError(f"time budget: the starting table does not drape on circle{level}: {failed[0]}")
     sets_min, sets_full = budget.calibration_sets(cal)
     drape_fit = round_seconds * job.workers[0].model.num_vertices / models[0].num_vertices
-    epoch_drapes = math.ceil(job.samples * len(job.observations) / len(job.workers))
     share = float((config.get("time_budget") or {}).get("calibration_share", budget.DEFAULT_CALIBRATION_SHARE))
     return budget.FitPlan(total, time.monotonic() - t_start, math.ceil(draws / lanes) * round_seconds, sets_min,
-                          sets_full, share, drape_fit, len(config["init"].get("scale_search") or []), epoch_drapes)
+                          sets_full, share, drape_fit, scale_drapes, epoch_drapes)
 
 
 def fit(images, density, model="bdp", epochs=None, time_budget=None, seed=0, out=None, checkpoint=None,
@@ -780,7 +790,7 @@ def fit(images, density, model="bdp", epochs=None, time_budget=None, seed=0, out
     history entry, `calibration_progress` each drape-calibration evaluation (see calibrate_preset).
 
     `time_budget` (seconds) covers the whole call. A bdp fit with the drape calibration on first drapes one round
-    on the calibration mesh to time it, then splits the budget (drapelab.budget: the calibration gets what its
+    on the calibration mesh to time it (other fits: one drape on their mesh), then splits the budget (drapelab.budget: the calibration gets what its
     fewest sets of drapes need, up to fit.json time_budget.calibration_share of the budget or what its longest
     node search needs; the epochs the rest), refusing a budget too small for the calibration, the scale search
     and one epoch with those estimates; `plan_progress` receives the split (FitPlan.as_dict). The preset records
@@ -798,13 +808,10 @@ def fit(images, density, model="bdp", epochs=None, time_budget=None, seed=0, out
     plan = None
     epoch_budget = time_budget
     if time_budget is not None:
-        if calibrating:
-            plan = _plan_time_budget(job, time_budget, t_start, options.get("template_dir")).check()
-            if plan_progress:
-                plan_progress(plan.as_dict())
-            epoch_budget = plan.epochs - (time.monotonic() - t_start - plan.setup)
-        else:
-            epoch_budget = time_budget - (time.monotonic() - t_start)
+        plan = _plan_time_budget(job, time_budget, t_start, calibrating, options.get("template_dir")).check()
+        if plan_progress:
+            plan_progress(plan.as_dict())
+        epoch_budget = plan.epochs - (time.monotonic() - t_start - plan.setup)
     epochs_before = job.epoch
     job.run(epochs=epochs, time_budget=epoch_budget, progress=progress, cancel_event=cancel_event,
             checkpoint=checkpoint)
@@ -821,7 +828,7 @@ def fit(images, density, model="bdp", epochs=None, time_budget=None, seed=0, out
                                   config=job.config, cancel_event=cancel_event, progress=calibration_progress,
                                   time_budget=left)
     if time_budget is not None:
-        preset["training"]["time_budget"] = dict(plan.as_dict() if plan else {"total_s": time_budget},
+        preset["training"]["time_budget"] = dict(plan.as_dict(),
                                                  epochs_run=job.epoch - epochs_before, epochs_end_s=epochs_end,
                                                  end_s=time.monotonic() - t_start)
     if out:

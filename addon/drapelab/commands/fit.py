@@ -73,9 +73,11 @@ def run(args):
               f"{c['nodes']:.1f} (observed {c['nodes_observed']:.1f})  {c['seconds']:.1f} s", flush=True)
 
     def plan_progress(p):
-        print(f"time budget {p['total_s']:g} s: set-up {p['setup_s']:.1f} s, epochs {p['epochs_s']:.1f} s, drape "
-              f"calibration {p['calibration_s']:.1f} s ({p['calibration_sets'][0]}-{p['calibration_sets'][1]} sets "
-              f"of drapes of {p['calibration_set_s']:.1f} s)", flush=True)
+        line = f"time budget {p['total_s']:g} s: set-up {p['setup_s']:.1f} s, epochs {p['epochs_s']:.1f} s"
+        if p["calibration_sets"][1]:
+            line += (f", drape calibration {p['calibration_s']:.1f} s ({p['calibration_sets'][0]}-"
+                     f"{p['calibration_sets'][1]} sets of drapes of {p['calibration_set_s']:.1f} s)")
+        print(line, flush=True)
 
     try:
         preset = infer.fit(args.images, args.density, model=args.model, epochs=args.epochs,
