@@ -29,7 +29,7 @@ def register(subparsers):
     g.add_argument("--epochs", type=int, default=None, metavar="N")
     g.add_argument("--time-budget", type=float, default=None, metavar="SECONDS",
                    help="time for the whole fit (set-up, epochs, bdp drape calibration, writing). A bdp fit first "
-                        "times one round of calibration drapes, then gives the calibration what its fewest sets "
+                        "times one round of calibration drapes (other fits: one drape), then gives the calibration what its fewest sets "
                         "of drapes need, up to half the budget (fit.json time_budget.calibration_share) or what "
                         "its longest node search needs, and the epochs the rest; a budget too small for the "
                         "calibration, the scale search and one epoch is refused with these estimates")
