@@ -11,8 +11,12 @@ Time (fit --time-budget T covers the whole job: set-up, epochs, drape calibratio
     time_budget.calibration_share); the epochs get the rest. A fit without calibration times one drape on its own
     mesh instead (N_min = N_full = 0). A budget below set-up + N_min e + the scale search
     + one epoch (the last two estimated from the measured drape, scaled by vertex count) is refused with those
-    figures and a suggested budget 10 % above that minimum (drape times vary by about that between runs). The epochs stop when the next would not finish in their share (predicted by the longest epoch so
-    far); the node search stops when its next step and the calibration's remaining sets would not fit.
+    figures and a suggested budget 10 % above that minimum (drape times vary by about that between runs).
+    At run time only the calibration's first 3 sets are unconditional; every later set is made only if it and the
+    sets it needs after it still fit at the longest set so far (else the secant steps stop and the slope at the
+    fit's scale is reused), so drapes that get slower during the job (a shared machine) cost accuracy, not time.
+    The epochs stop when the next would not finish in their share (predicted by the longest epoch so far). The job
+    thus ends by max(T + the last epoch, end of epochs + the first 3 sets) + the last set.
 Memory:
     A recorded rollout keeps one sparse Cholesky factor per step up to factor_memory_mb (sim.ClothModel.simulate);
     FACTOR_BYTES_PER_VERTEX is an upper bound of a factor's size per vertex measured on circle1..5 (10.2 MB on

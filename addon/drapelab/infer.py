@@ -1043,9 +1043,12 @@ def calibrate_preset(preset, images, seed=0, threads=None, template_dir=None, co
     record (what was measured, every set of drapes in "evaluated", and the fit.json settings used in "settings").
     A preset that was calibrated before is first taken back to its fit (shift, stretching scale and mesh level
     undone): calibrating is idempotent.
-    `time_budget` (seconds, optional): steps 1 and 2 always run; a node-search step (and the refinement) is taken
-    only if it and the sets of drapes that must follow it fit in what is left, at the longest set measured so far
-    (record: "time_budget_s", "node_search_stopped_by_time_budget"; every evaluated entry has its "seconds")."""
+    `time_budget` (seconds, optional): the first three sets of drapes (the mean drape coefficient and the slope at
+    the fit's scale) always run; every later set only if it and the sets that must follow it fit in what is left,
+    at the longest set measured so far: a node-search step (and the refinement) needs its two sets and the secant
+    steps and slope after it, a secant step itself and a slope; a central slope that does not fit is replaced by
+    the one at the fit's scale (record: "time_budget_s", "node_search_stopped_by_time_budget",
+    "skipped_by_time_budget"; every evaluated entry has its "seconds")."""
     preset = validate_preset(json.loads(json.dumps(preset)))
     if preset["model"] != "bdp":
         raise InputError(f"calibrate: only a bdp posterior is calibrated (this preset is {preset['model']!r})")
@@ -1101,6 +1104,7 @@ def calibrate_preset(preset, images, seed=0, threads=None, template_dir=None, co
 
     set_seconds = {}  # (log2 stretch scale, log bending shift) -> seconds of that set of drapes
     stopped = []  # node-search steps not taken for lack of time
+    skipped = []  # other sets of drapes not made for lack of time (what was used instead)
 
     def affordable(sets):
         """Whether `sets` more sets of drapes fit in the time budget (at the longest set so far)."""
@@ -1138,6 +1142,9 @@ def calibrate_preset(preset, images, seed=0, threads=None, template_dir=None, co
         for _ in range(iterations):
             c_new = float(np.clip(c + (observed - dc) / local, c - 1.0, c + 1.0))
             if abs(c_new - c) < max(shift_tolerance, 1e-4):  # a step that would not move the drape coefficient
+                break
+            if not affordable(1 + 2):  # the step and a central slope after it
+                skipped.append(f"secant step at stretching x{2.0 ** s:g}")
                 break
             dc_new = measure_at(s, c_new)[0]
             if abs(dc_new - dc) > 1e-6 and (dc_new - dc) / (c_new - c) > 1e-3:
@@ -1208,6 +1215,9 @@ def calibrate_preset(preset, images, seed=0, threads=None, template_dir=None, co
                    and (v, a + step) in evaluated and (v, a - step) in evaluated]
         if centres:
             at = min(centres, key=lambda a: abs(a - at))
+        elif not affordable(2):  # out of time: the central difference at the fit's scale and stretching
+            skipped.append(f"slope at stretching x{2.0 ** v:g}, shift {at:+.3f} (the slope at the fit's scale used)")
+            return slope
         return (measure_at(v, at + step)[0] - measure_at(v, at - step)[0]) / (2 * step)
 
     # The drape scatter L is a log-bending sd at the fit's stretching (where drape_log_sd was measured): in drape
@@ -1236,6 +1246,7 @@ def calibrate_preset(preset, images, seed=0, threads=None, template_dir=None, co
                                    "dc_sd": v[1], "nodes": v[2], "seconds": set_seconds[key]}
                       for key, v in sorted(evaluated.items())],
         "time_budget_s": time_budget, "node_search_stopped_by_time_budget": bool(stopped),
+        "skipped_by_time_budget": skipped,
         "seconds": time.monotonic() - t0}
     return validate_preset(preset)
 
