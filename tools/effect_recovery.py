@@ -80,8 +80,8 @@ def main():
                     mesh_level=args.mesh_level, force=True)
         t0 = time.monotonic()
         base = evaluate(reference, images_of(folder), config, args)
-        refit, _ = diagnose._refit(reference, images_of(folder), name, args.mesh_level, args.seed + 3, config,
-                                   None, None, None, None, None)
+        refit, _ = diagnose.refit_with_effect(reference, images_of(folder), name, args.mesh_level, args.seed + 3,
+                                              config)
         fixed = evaluate(refit, images_of(folder), config, args)
         rec = refit["active_effects"][name][primary["name"]]
         row = {"effect": name, "parameter": primary["name"], "unit": primary["unit"], "truth": truth,

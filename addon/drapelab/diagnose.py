@@ -62,7 +62,7 @@ import numpy as np
 from . import fit_effects, infer, measure, render
 from ._native import Cancelled, InputError, SolverError
 
-__all__ = ["diagnose", "score_test", "write_report", "DEFAULT_SAMPLES", "ALPHA", "MAX_REFITS"]
+__all__ = ["diagnose", "score_test", "refit_with_effect", "write_report", "DEFAULT_SAMPLES", "ALPHA", "MAX_REFITS"]
 
 DEFAULT_SAMPLES = 16      # posterior-predictive draws (the score test's sample size)
 MIN_SAMPLES = 3           # a covariance over draws needs at least this many
@@ -379,8 +379,10 @@ def _joint_drapes(preset, observations, names, k, seed, config, threads, templat
     return pred, models, shapes, grads, time.monotonic() - t0, lanes
 
 
-def _refit(preset, images, name, level, seed, config, threads, template_dir, budget, cancel_event, progress):
-    """Short refit with `name` fitted from P's material (see the module doc); returns the refit preset."""
+def refit_with_effect(preset, images, name, level, seed, config, threads=None, template_dir=None, budget=None,
+                      cancel_event=None, progress=None):
+    """Short refit with `name` fitted from P's material (see the module doc); returns the refit preset and its
+    FitJob. Also the recovery table's refit (tools/effect_recovery.py)."""
     cfg = copy.deepcopy(config)
     log_std = float(np.mean(preset["posterior"]["bend"]["log_std"]))
     prior_sd = max(log_std, 1e-3)
@@ -548,8 +550,8 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
             _progress(progress, "refit", f"refit with {entry['effect']} "
                                          f"({'default epochs' if budget is None else f'{budget:.0f} s'})",
                       effect=entry["effect"])
-            refit, job = _refit(p, images, entry["effect"], pred.level, seed, config, threads, template_dir, budget,
-                                cancel_event, progress)
+            refit, job = refit_with_effect(p, images, entry["effect"], pred.level, seed, config, threads, template_dir,
+                                           budget, cancel_event, progress)
             rp = infer._Predictive(refit, observations[0].mask.shape, lanes, config, template_dir, pred.level, "dynamic")
             draws = infer.preset_bend_samples(refit, rp.num_edges, np.random.default_rng(seed), k)
             rshapes = rp.drape(draws, seed, cancel_event=cancel_event)
