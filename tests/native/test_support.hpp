@@ -5,9 +5,12 @@
 #include <cstdlib>
 #include <fstream>
 #include <random>
+#include <algorithm>
 #include <string>
+#include <vector>
 
 #include "geometry/cusick.hpp"
+#include "physics/effect.hpp"
 #include "physics/model.hpp"
 
 namespace drapelab::testing {
@@ -69,6 +72,28 @@ inline Eigen::VectorXd lognormal_element_parameters(const Model& model, double s
       p.segment(b.offset + e * b.entries_per_element, b.entries_per_element) *= std::exp(spread * n01(rng));
   }
   return p;
+}
+
+// Names of the registered effects, in registry order (the per-effect suites are instantiated over them).
+inline std::vector<std::string> registered_effect_names() {
+  std::vector<std::string> names;
+  for (const auto& e : effect_registry()) names.push_back(e.name);
+  return names;
+}
+
+// The effect at a random strength: every parameter between 0.5x and 1x its moderate value, signs random where
+// the bounds allow.
+inline EffectValues moderate_effect_values(const EffectSpec& spec, unsigned seed) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<double> u(0.5, 1.0);
+  std::bernoulli_distribution coin(0.5);
+  EffectValues v;
+  for (const auto& q : spec.parameters) {
+    double value = q.off + u(rng) * (q.moderate - q.off);
+    if (q.lower < q.off && coin(rng)) value = q.off - (value - q.off);
+    v[spec.name][q.name] = std::min(q.upper, std::max(q.lower, value));
+  }
+  return v;
 }
 
 }  // namespace drapelab::testing

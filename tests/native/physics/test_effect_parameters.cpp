@@ -19,26 +19,6 @@ using namespace drapelab::testing;
 
 namespace {
 
-std::vector<std::string> registered_names() {
-  std::vector<std::string> names;
-  for (const auto& e : effect_registry()) names.push_back(e.name);
-  return names;
-}
-
-// Every parameter between 0.5x and 1x its moderate value, signs random where the bounds allow.
-EffectValues moderate_values(const EffectSpec& spec, unsigned seed) {
-  std::mt19937 rng(seed);
-  std::uniform_real_distribution<double> u(0.5, 1.0);
-  std::bernoulli_distribution coin(0.5);
-  EffectValues v;
-  for (const auto& q : spec.parameters) {
-    double value = q.off + u(rng) * (q.moderate - q.off);
-    if (q.lower < q.off && coin(rng)) value = q.off - (value - q.off);
-    v[spec.name][q.name] = std::min(q.upper, std::max(q.lower, value));
-  }
-  return v;
-}
-
 double near_tolerance(double reference, double scale, double rel) { return rel * std::max(std::abs(reference), scale); }
 
 // lambda^T K(x; p) w with K assembled.
@@ -57,7 +37,7 @@ TEST_P(EffectParameters, EveryTermIsExactInPositionsAndEffectParameters) {
   const EffectSpec& spec = find_effect(std::get<0>(GetParam()));
   ModelOptions o;
   o.heterogeneous = std::get<1>(GetParam());
-  o.effects = moderate_values(spec, 41);
+  o.effects = moderate_effect_values(spec, 41);
   Model model(make_cusick_specimen(60), o);
   const Eigen::VectorXd p = o.heterogeneous ? jittered_parameters(model, 3) : model.default_parameters();
   // keep the effect's own values as set (jitter only the material)
@@ -151,7 +131,7 @@ TEST_P(EffectParameters, EveryTermIsExactInPositionsAndEffectParameters) {
 }
 
 INSTANTIATE_TEST_SUITE_P(Registry, EffectParameters,
-                         ::testing::Combine(::testing::ValuesIn(registered_names()), ::testing::Bool()),
+                         ::testing::Combine(::testing::ValuesIn(registered_effect_names()), ::testing::Bool()),
                          [](const ::testing::TestParamInfo<std::tuple<std::string, bool>>& info) {
                            return std::get<0>(info.param) + (std::get<1>(info.param) ? "_heterogeneous" : "_homogeneous");
                          });

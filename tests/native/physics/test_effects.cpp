@@ -19,26 +19,6 @@ using namespace drapelab::testing;
 
 namespace {
 
-std::vector<std::string> registered_names() {
-  std::vector<std::string> names;
-  for (const auto& e : effect_registry()) names.push_back(e.name);
-  return names;
-}
-
-// The effect at a random strength between 0.5x and 1x its moderate value (signs random where allowed).
-EffectValues moderate_values(const EffectSpec& spec, unsigned seed) {
-  std::mt19937 rng(seed);
-  std::uniform_real_distribution<double> u(0.5, 1.0);
-  std::bernoulli_distribution coin(0.5);
-  EffectValues v;
-  for (const auto& q : spec.parameters) {
-    double value = q.off + u(rng) * (q.moderate - q.off);
-    if (q.lower < q.off && coin(rng)) value = q.off - (value - q.off);
-    v[spec.name][q.name] = std::min(q.upper, std::max(q.lower, value));
-  }
-  return v;
-}
-
 double rel_err(double a, double b) { return std::abs(a - b) / std::max(1e-300, std::max(std::abs(a), std::abs(b))); }
 
 // Tolerance of a central difference fd of dL/dq_k against an adjoint g: 1e-4 relative to the larger of |fd| and
@@ -91,7 +71,7 @@ TEST_P(EffectSuite, OffValueIsTheBaseModelBitForBit) {
 TEST_P(EffectSuite, TermDerivativesMatchCentralDifferencesAtModerateStrength) {
   const EffectSpec& spec = find_effect(GetParam());
   ModelOptions o;
-  o.effects = moderate_values(spec, 17);
+  o.effects = moderate_effect_values(spec, 17);
   Model model(make_cusick_specimen(60), o);
   const Eigen::VectorXd p = model.default_parameters();
   const Eigen::VectorXd x = perturbed_positions(model, 2e-3, 5);
@@ -152,7 +132,7 @@ TEST_P(EffectSuite, TermDerivativesMatchCentralDifferencesAtModerateStrength) {
 TEST_P(EffectSuite, DrapeAdjointsMatchCentralDifferencesInTheEffectParameters) {
   const EffectSpec& spec = find_effect(GetParam());
   ModelOptions o;
-  o.effects = moderate_values(spec, 29);
+  o.effects = moderate_effect_values(spec, 29);
   Model model(load_cusick_template(1, template_dir()), o);
   const Eigen::VectorXd p = model.default_parameters();
   const Eigen::VectorXd w = random_vector(model.num_dofs(), 8);
@@ -200,7 +180,7 @@ TEST_P(EffectSuite, DrapeAdjointsMatchCentralDifferencesInTheEffectParameters) {
   }
 }
 
-INSTANTIATE_TEST_SUITE_P(Registry, EffectSuite, ::testing::ValuesIn(registered_names()),
+INSTANTIATE_TEST_SUITE_P(Registry, EffectSuite, ::testing::ValuesIn(registered_effect_names()),
                          [](const ::testing::TestParamInfo<std::string>& info) { return info.param; });
 
 TEST(EffectRegistry, SpecsAreComplete) {
