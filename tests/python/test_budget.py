@@ -1,28 +1,16 @@
 """Budgets (drapelab.budget): a fit's --time-budget covers the whole job, calibration included, and ends within the
 budget plus the method's granularity; jobs too large for the budget or for memory are refused up front."""
-import copy
 import json
 import os
 import subprocess
 import sys
 import time
 
-import numpy as np
 import pytest
 
 from drapelab import budget, cli, infer
 
-ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-ASSET_IMAGE = os.path.join(ROOT, "assets", "cusick", "fabric_02", "silhouettes", "sample_02_capture_1.jpg")
-SHIPPED_PRESET = os.path.join(ROOT, "assets", "presets", "fabric_02_cotton_blue_bdp.json")
-
-
-def small_config(**overrides):
-    cfg = copy.deepcopy(infer.load_config())
-    cfg["mesh_level"] = 1
-    cfg["calibration"]["mesh_level"] = None  # calibrate on the fit's mesh
-    cfg.update(overrides)
-    return cfg
+from fit_support import ASSET_IMAGE, SHIPPED_PRESET, small_config
 
 
 def smallest_budget(**fit_args):

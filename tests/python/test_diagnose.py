@@ -9,18 +9,10 @@ import pytest
 
 from drapelab import cli, diagnose, fit_effects, infer, measure, render, sim
 
-ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-PRESET = os.path.join(ROOT, "assets", "presets", "fabric_02_cotton_blue_bdp.json")
+from fit_support import SHIPPED_PRESET as PRESET, small_config
+
 BASE_KEYS = {"mse", "iou", "dc_error", "node_error", "amplitude_error", "loss"}
 RANKING_KEYS = {"effect", "statistic", "p_value", "refit", "gain", "explanation"}
-
-
-def small_config(**overrides):
-    cfg = copy.deepcopy(infer.load_config())
-    cfg["mesh_level"] = 1
-    cfg["calibration"]["mesh_level"] = None
-    cfg.update(overrides)
-    return cfg
 
 
 def drape_image(path, effects=None, seed=0):

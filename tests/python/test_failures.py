@@ -1,7 +1,6 @@
 """Failure semantics (README "Failure guarantees"): a diverging rollout stops with the state before it, writes are
 atomic even when the disk fills mid-write, cancelled jobs keep what is complete, out-of-range numbers are refused
 at the boundary naming the field."""
-import copy
 import json
 import os
 import subprocess
@@ -11,19 +10,9 @@ import threading
 import numpy as np
 import pytest
 
-from drapelab import cli, infer, measure, sim, tables
+from drapelab import cli, infer, sim, tables
 
-ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-ASSET_IMAGE = os.path.join(ROOT, "assets", "cusick", "fabric_02", "silhouettes", "sample_02_capture_1.jpg")
-SHIPPED_PRESET = os.path.join(ROOT, "assets", "presets", "fabric_02_cotton_blue_bdp.json")
-
-
-def small_config(**overrides):
-    cfg = copy.deepcopy(infer.load_config())
-    cfg["mesh_level"] = 1
-    cfg["calibration"]["mesh_level"] = None  # calibrate on the fit's mesh
-    cfg.update(overrides)
-    return cfg
+from fit_support import ASSET_IMAGE, SHIPPED_PRESET, small_config
 
 
 # ---------------------------------------------------------------- divergence

@@ -2,24 +2,13 @@
 them (schema 2, migration of 1), the predictive with effects, and a recovery round trip."""
 import copy
 import json
-import os
 
 import numpy as np
 import pytest
 
 from drapelab import fit_effects, infer, measure, render, sim, tables
 
-ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-ASSET_IMAGE = os.path.join(ROOT, "assets", "cusick", "fabric_02", "silhouettes", "sample_02_capture_1.jpg")
-PRESET = os.path.join(ROOT, "assets", "presets", "fabric_02_cotton_blue_bdp.json")
-
-
-def small_config(**overrides):
-    cfg = copy.deepcopy(infer.load_config())
-    cfg["mesh_level"] = 1
-    cfg["calibration"]["mesh_level"] = None
-    cfg.update(overrides)
-    return cfg
+from fit_support import ASSET_IMAGE, SHIPPED_PRESET as PRESET, small_config
 
 
 def registered(name):

@@ -13,16 +13,7 @@ import pytest
 
 from drapelab import infer, measure, paths, render, sim, tables
 
-ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-ASSET_IMAGE = os.path.join(ROOT, "assets", "cusick", "fabric_02", "silhouettes", "sample_02_capture_1.jpg")
-
-
-def small_config(**overrides):
-    cfg = copy.deepcopy(infer.load_config())
-    cfg["mesh_level"] = 1
-    cfg["calibration"]["mesh_level"] = None  # calibrate on the fit's mesh
-    cfg.update(overrides)
-    return cfg
+from fit_support import ROOT, ASSET_IMAGE, small_config
 
 
 def assert_same_to_roundoff(a, b, rel=1e-12, where="result"):
