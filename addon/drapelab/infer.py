@@ -492,6 +492,20 @@ class FitJob:
             out.append({"iou": measure.iou(hard, o.mask), "mse": measure.pixel_mse(hard, o.mask)})
         return {"iou": float(np.mean([m["iou"] for m in out])), "mse": float(np.mean([m["mse"] for m in out]))}
 
+    def _start_score(self, params, cancel_event=None):
+        """The start searches' score of one parameter vector: the data term of its drape's hard silhouette (the
+        dynamic rollout from flat, no placement noise), averaged over the training images; inf when the drape
+        fails."""
+        if cancel_event is not None and cancel_event.is_set():
+            raise Cancelled()
+        w = self.workers[0]
+        try:
+            x = w.model.simulate(params, mode="dynamic", record=False, **self.config["dynamic"])
+        except SolverError:
+            return np.inf
+        img = np.asarray(render.hard_silhouette(self.camera, x, w.faces), dtype=np.float64)
+        return float(np.mean([data_term(img, o, self.sigma_obs, self.sigma_dc)[0] for o in self.observations]))
+
     def scale_search(self, cancel_event=None):
         """Initialisation: the one-parameter family start_table * s (s from fit.json init.scale_search) drapes
         most like the training images; theta, and the prior mean, move to the best s. One silhouette pins the
@@ -500,21 +514,13 @@ class FitJob:
         factors = self.config["init"].get("scale_search") or []
         if not factors:
             return None
-        w = self.workers[0]
+        model = self.workers[0].model
         scores = []
         for f in factors:
-            if cancel_event is not None and cancel_event.is_set():
-                raise Cancelled()
             bend = np.exp(self.log_bend0) * float(f)
-            p = w.model.parameters(stretch=self.stretch, bend=bend if self.kind == "homo" else
-                                   np.broadcast_to(bend, (self.num_edges,) + BEND_SHAPE))
-            try:
-                x = w.model.simulate(p, mode="dynamic", record=False, **self.config["dynamic"])
-            except SolverError:
-                scores.append(np.inf)
-                continue
-            img = np.asarray(render.hard_silhouette(self.camera, x, w.faces), dtype=np.float64)
-            scores.append(float(np.mean([data_term(img, o, self.sigma_obs, self.sigma_dc)[0] for o in self.observations])))
+            scores.append(self._start_score(model.parameters(
+                stretch=self.stretch, bend=bend if self.kind == "homo" else
+                np.broadcast_to(bend, (self.num_edges,) + BEND_SHAPE)), cancel_event))
         best = float(factors[int(np.argmin(scores))])
         shift = np.log(best)
         self.log_bend0 = self.log_bend0 + shift
@@ -529,21 +535,11 @@ class FitJob:
         placement noise) fits the training images best; theta's effect means move there. At an off value some
         parameters have no gradient (a tilt's azimuth at zero angle), so the gradient epochs alone could not
         leave it."""
-        w = self.workers[0]
+        model = self.workers[0].model
         bend = sample_bend_tables(self.kind, self.theta, self.num_edges)
         candidates = self.plan.start_candidates(self.theta["effect_mu"])
-        scores = []
-        for c in candidates:
-            if cancel_event is not None and cancel_event.is_set():
-                raise Cancelled()
-            p = w.model.parameters(stretch=self.stretch, bend=bend, effects=self.plan.values(c))
-            try:
-                x = w.model.simulate(p, mode="dynamic", record=False, **self.config["dynamic"])
-            except SolverError:
-                scores.append(np.inf)
-                continue
-            img = np.asarray(render.hard_silhouette(self.camera, x, w.faces), dtype=np.float64)
-            scores.append(float(np.mean([data_term(img, o, self.sigma_obs, self.sigma_dc)[0] for o in self.observations])))
+        scores = [self._start_score(model.parameters(stretch=self.stretch, bend=bend, effects=self.plan.values(c)),
+                                    cancel_event) for c in candidates]
         best = int(np.argmin(scores))
         self.theta["effect_mu"] = candidates[best].copy()
         self.effect_start = {"parameters": self.plan.names, "candidates": [c.tolist() for c in candidates],
