@@ -210,7 +210,7 @@ class _Worker:
         self.renderer = render.SoftRenderer(camera, sigma=config["render_sigma_px"])
         self.faces = self.model.faces
 
-    def drape(self, bend, warm, key, velocities0=None, effects=None):
+    def drape(self, bend, warm, key, velocities0=None, effects=None, cancel_event=None):
         """Drape with these tables (and fitted effect values, a vector in the plan's order). Static mode
         warm-starts from warm[key] (the previous equilibrium of the same Monte Carlo slot, so results do not
         depend on which lane ran it) and stores the new one."""
@@ -219,30 +219,34 @@ class _Worker:
         cfg = self.config
         if cfg["forward"] == "static":
             if warm.get(key) is None:  # first solve: the paper's rollout from flat, then Newton to rest
-                warm[key] = self.model.simulate(p, mode="dynamic", record=False, **cfg["dynamic"])
+                warm[key] = self.model.simulate(p, mode="dynamic", record=False, cancel_event=cancel_event,
+                                                **cfg["dynamic"])
             try:
-                x = self.model.simulate(p, mode="static", positions0=warm[key], **cfg["static"])
+                x = self.model.simulate(p, mode="static", positions0=warm[key], cancel_event=cancel_event,
+                                        **cfg["static"])
             except SolverError:
                 # Folds rearranging: let the drape move for a while (rollout from the warm state), then retry
                 # with a larger iteration allowance; a second failure is reported.
-                start = self.model.simulate(p, mode="dynamic", record=False, positions0=warm[key], **cfg["dynamic"])
+                start = self.model.simulate(p, mode="dynamic", record=False, positions0=warm[key],
+                                            cancel_event=cancel_event, **cfg["dynamic"])
                 opts = dict(cfg["static"])
                 opts["max_iterations"] = 3 * int(opts["max_iterations"])
-                x = self.model.simulate(p, mode="static", positions0=start, **opts)
+                x = self.model.simulate(p, mode="static", positions0=start, cancel_event=cancel_event, **opts)
             warm[key] = x
         else:
-            x = self.model.simulate(p, mode="dynamic", record=True, velocities0=velocities0, **cfg["dynamic"])
+            x = self.model.simulate(p, mode="dynamic", record=True, velocities0=velocities0, cancel_event=cancel_event,
+                                    **cfg["dynamic"])
         return x
 
     def loss_and_gradient(self, bend, obs, sigma_obs, sigma_dc, warm, key, velocities0=None, effects=None,
-                          dc_bias=0.0):
+                          dc_bias=0.0, cancel_event=None):
         """Data term, dL/dB (shaped like bend), positions, image and dL/d(fitted effect parameters) (a vector in
         the plan's order) for one drape against one observation."""
-        x = self.drape(bend, warm, key, velocities0, effects)
+        x = self.drape(bend, warm, key, velocities0, effects, cancel_event)
         image = self.renderer.render(x, self.faces)
         data, g_image = data_term(image, obs, sigma_obs, sigma_dc, dc_bias)
         g_x = self.renderer.backward(g_image)
-        g = self.model.backward(g_x)
+        g = self.model.backward(g_x, cancel_event=cancel_event)
         return data, g["bend"], x, image, self.plan.gather(g)
 
 
@@ -380,7 +384,7 @@ class FitJob:
                 s, noise, o, v0, effect = jobs[i]
                 bend = sample_bend_tables(self.kind, theta, self.num_edges, noise)
                 results[i] = (w.loss_and_gradient(bend, o, self.sigma_obs, self.sigma_dc, self.warm, i, v0, effect[0],
-                                                  self.dc_bias or 0.0), bend, noise, effect)
+                                                  self.dc_bias or 0.0, cancel_event), bend, noise, effect)
 
         lanes = len(self.workers)
         assignments = [list(range(l, len(jobs), lanes)) for l in range(lanes)]
@@ -500,7 +504,8 @@ class FitJob:
             raise Cancelled()
         w = self.workers[0]
         try:
-            x = w.model.simulate(params, mode="dynamic", record=False, **self.config["dynamic"])
+            x = w.model.simulate(params, mode="dynamic", record=False, cancel_event=cancel_event,
+                                 **self.config["dynamic"])
         except SolverError:
             return np.inf
         img = np.asarray(render.hard_silhouette(self.camera, x, w.faces), dtype=np.float64)
@@ -546,7 +551,7 @@ class FitJob:
                              "loss": scores, "chosen": candidates[best].tolist()}
         return self.effect_start
 
-    def estimate_dc_bias(self):
+    def estimate_dc_bias(self, cancel_event=None):
         """The soft silhouette's drape coefficient minus the hard one's, on the mean drape at the start (after the
         start searches). The soft renderer's 1 px blur puts more coverage outside the boundary than it takes
         inside (measured: ~2 % of the area, +0.02 in drape coefficient on circle1), and the observations'
@@ -557,7 +562,7 @@ class FitJob:
         bend = sample_bend_tables(self.kind, self.theta, self.num_edges)
         effects = self.plan.values(self.theta["effect_mu"]) if self.plan.size else None
         x = w.model.simulate(w.model.parameters(stretch=self.stretch, bend=bend, effects=effects), mode="dynamic",
-                             record=False, **self.config["dynamic"])
+                             record=False, cancel_event=cancel_event, **self.config["dynamic"])
         px = self.observations[0].calibration["px_per_m"]
         soft = soft_drape_coefficient(w.renderer.render(x, w.faces), px)[0]
         hard = soft_drape_coefficient(np.asarray(render.hard_silhouette(self.camera, x, w.faces), dtype=float), px)[0]
@@ -586,7 +591,7 @@ class FitJob:
             self.elapsed += time.monotonic() - ts
         if self.dc_bias is None and self.sigma_dc:
             ts = time.monotonic()
-            self.estimate_dc_bias()
+            self.estimate_dc_bias(cancel_event)
             self.elapsed += time.monotonic() - ts
         while True:
             if epochs is not None and self.epoch >= int(epochs):
@@ -1303,8 +1308,8 @@ def _drape_draws(models, stretch, draws, fwd, mode_opts, placement, seed, camera
             p = m.parameters(stretch=stretch, bend=draws[i], effects=effects[i] if effects else None)
             v0 = placement_velocities(rest, np.random.default_rng([seed, i, 1]), amplitude, modes) if amplitude > 0 else None
             try:
-                x = m.simulate(p, mode=fwd, record=False, velocities0=v0, **mode_opts) if fwd == "dynamic" else \
-                    m.simulate(p, mode="static", **mode_opts)
+                x = m.simulate(p, mode=fwd, record=False, velocities0=v0, cancel_event=cancel_event, **mode_opts) \
+                    if fwd == "dynamic" else m.simulate(p, mode="static", cancel_event=cancel_event, **mode_opts)
             except SolverError as e:  # a draw whose drape fails is reported, not fatal
                 shapes[i] = {"error": str(e)}
                 continue
