@@ -335,17 +335,23 @@ def _joint_drapes(preset, observations, names, k, seed, config, threads, templat
             v0 = infer.placement_velocities(rest, np.random.default_rng([seed, i, 1]), amplitude, modes) \
                 if amplitude > 0 else None
             try:
-                x = m.simulate(p, mode="dynamic", record=True, velocities0=v0, **config["dynamic"])
+                x = m.simulate(p, mode="dynamic", record=True, velocities0=v0, cancel_event=cancel_event,
+                               **config["dynamic"])
             except SolverError as e:
                 shapes[i] = {"error": str(e)}
                 continue
+            except Cancelled:  # mid-rollout: this draw is dropped, the finished ones are kept
+                return
             hard = infer._hard_image(pred.camera, x, m.faces)
             nodes = measure.analyse_nodes(measure.r_theta(hard, pred.calibration))
             soft = r.render(x, m.faces)
             g_image = np.zeros_like(soft)
             for o in observations:
                 g_image += infer.data_term(soft, o, sigma_obs, SCORE_SIGMA_DC)[1] / len(observations)
-            g = m.backward(r.backward(g_image))
+            try:
+                g = m.backward(r.backward(g_image), cancel_event=cancel_event)
+            except Cancelled:
+                return
             shapes[i] = {"x": x, "image": hard, "dc": measure.drape_coefficient(hard, pred.calibration.px_per_m),
                          "nodes": nodes.count, "amplitude": nodes.amplitude_m}
             grads[i] = {key: float(g[key]) for key in keys}
@@ -355,12 +361,23 @@ def _joint_drapes(preset, observations, names, k, seed, config, threads, templat
                 mt = turned_models[lane]
                 pt = mt.parameters(stretch=pred.stretch, bend=draws[i],
                                    effects={**(base_effects[i] if base_effects else {}), **turned})
-                xt = mt.simulate(pt, mode="dynamic", record=True, velocities0=v0, **config["dynamic"])
+                try:
+                    xt = mt.simulate(pt, mode="dynamic", record=True, velocities0=v0, cancel_event=cancel_event,
+                                     **config["dynamic"])
+                except Cancelled:
+                    grads[i] = None
+                    shapes[i] = None
+                    return
                 soft_t = r.render(xt, mt.faces)
                 g_t = np.zeros_like(soft_t)
                 for o in observations:
                     g_t += infer.data_term(soft_t, o, sigma_obs, SCORE_SIGMA_DC)[1] / len(observations)
-                gt = mt.backward(r.backward(g_t))
+                try:
+                    gt = mt.backward(r.backward(g_t), cancel_event=cancel_event)
+                except Cancelled:
+                    grads[i] = None
+                    shapes[i] = None
+                    return
                 for n in turned:
                     primary = reg[n]["parameters"][0]["name"]
                     for q in SECOND_DIRECTIONS[n]:
