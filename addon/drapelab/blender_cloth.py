@@ -98,10 +98,10 @@ def mesh_statistics(positions, faces):
     edges, edge_faces, opposite = _edges(f)
     e = x[edges[:, 1]] - x[edges[:, 0]]
     length = np.linalg.norm(e, axis=1)
-    if np.any(length <= 0):
+    if np.any(length <= 1e-9 * length.mean()):
         raise InputError("mesh: degenerate edges of zero length")
     areas = 0.5 * np.linalg.norm(np.cross(x[f[:, 1]] - x[f[:, 0]], x[f[:, 2]] - x[f[:, 0]]), axis=1)
-    if np.any(areas <= 0):
+    if np.any(areas <= 1e-9 * areas.mean()):
         raise InputError("mesh: degenerate triangles of zero area")
     interior = edge_faces[:, 1] >= 0
     h = np.zeros((len(edges), 2))
@@ -139,6 +139,13 @@ def _hinge_bending(k_N_m, stats):
     hbar = 0.5 * (h1 + h2)
     # moment per radian: Blender (in SI) 1000 * 0.1 b L hbar / 3; drapelab k L / (2 (h1 + h2))
     return k_N_m * L / (2.0 * (h1 + h2)) / (ANGULAR_BEND_SCALE / 3.0 * L * hbar / BLENDER_FORCE_SCALE)
+
+
+def _bending_per_N_m(stats):
+    """Blender's one bending setting per N m of drapelab hinge stiffness on this mesh: the value whose hinge
+    moments sum to drapelab's (the moment-weighted mean of the per-hinge settings, which differ only by geometry)."""
+    weight = stats["hinge_length_m"] * stats["hinge_heights_m"].mean(axis=1)
+    return float(np.sum(_hinge_bending(1.0, stats) * weight) / np.sum(weight))
 
 
 def _preset_arg(preset):
@@ -190,11 +197,7 @@ def cloth_settings(preset, quality=DEFAULT_QUALITY, *, mesh, fps=24.0, curvature
 
     bend_table = np.exp(np.asarray(preset["posterior"]["bend"]["log_mean"], dtype=float))  # posterior median
     k_ref = float(_bend_at(bend_table, curvature))
-    hinge_b = _hinge_bending(k_ref, stats) * bend_calibration
-    # one scalar for the whole mesh: the value whose hinge moments sum to drapelab's (mean over hinges of the
-    # moment-weighted setting; hinges differ only by their geometry here)
-    weight = stats["hinge_length_m"] * stats["hinge_heights_m"].mean(axis=1)
-    bending = float(np.sum(hinge_b * weight) / np.sum(weight))
+    bending = k_ref * _bending_per_N_m(stats) * bend_calibration
     for name, value in (("tension_stiffness", tension), ("shear_stiffness", shear), ("bending_stiffness", bending)):
         if value > _BLENDER_SETTING_MAX:
             raise InputError(f"preset: {name} would be {value:.4g}, above Blender's maximum "
@@ -300,7 +303,9 @@ def vertex_group_weights(positions, faces, *, face_stretch_N_m=None, hinge_bend_
         if b.shape != (n,) or not np.all(np.isfinite(b)) or np.any(b <= 0):
             raise InputError(f"hinge_bend_N_m: expected positive finite (H, 3, 5) or (H,) with H = {n} interior "
                              f"edges, got shape {np.shape(hinge_bend_N_m)}")
-        target = _hinge_bending(b, stats) * _positive(bend_calibration, "bend_calibration")
+        # the material field only: the per-hinge geometric factor (1/h^2, mesh irregularity) cannot be carried
+        # by vertex weights shared between hinges, so every hinge uses the mesh's mean factor, as the scalar does
+        target = b * _bending_per_N_m(stats) * _positive(bend_calibration, "bend_calibration")
         out["bending"] = _fit_group(stats["hinge_edges"], target, len(x), STIFFNESS_GROUPS["bending"], iterations)
     if not out:
         raise InputError("vertex_group_weights: give face_stretch_N_m, hinge_bend_N_m or both")
