@@ -89,10 +89,14 @@ def fit_result(preset, image_path, overlay_png, rtheta_png, seed=0, draws=None, 
     cal = pred.calibration
     r_obs = np.asarray(measure.r_theta(obs.mask, cal))
     r_model = np.asarray(measure.r_theta(best["image"], cal))
+    rmse, _rotation = measure.r_theta_rmse(r_obs, r_model)
+    # the model curve turned by its best circular shift, as the rmse is taken (fold positions are random)
+    shift = int(np.argmin([np.mean((r_obs - np.roll(r_model, k)) ** 2) for k in range(len(r_model))]))
+    r_model = np.roll(r_model, shift)
     metrics = {"iou": float(measure.iou(best["image"], obs.mask)), "mse": float(min(mses)),
                "drape_coefficient": {"observed": obs.dc, "predicted": float(best["dc"])},
                "node_count": {"observed": obs.nodes, "predicted": int(best["nodes"])},
-               "r_theta_rmse_m": float(measure.r_theta_rmse(r_obs, r_model)), "draws": len(shapes),
+               "r_theta_rmse_m": float(rmse), "draws": len(shapes),
                "mesh_level": pred.level}
     name = (preset.get("fabric") or {}).get("name") or preset["model"]
     measure.write_overlay(overlay_png, obs.mask, best["image"], title=f"{name}: best of {len(shapes)} draws",
@@ -103,7 +107,7 @@ def fit_result(preset, image_path, overlay_png, rtheta_png, seed=0, draws=None, 
     ax = fig.add_axes([0.11, 0.16, 0.86, 0.72])
     theta = np.degrees(np.linspace(0.0, 2 * np.pi, len(r_obs), endpoint=False))
     ax.plot(theta, 100 * r_obs, color="#0072b2", lw=1.5, label="measured")
-    ax.plot(theta, 100 * r_model, color="#d55e00", lw=1.2, label="model (best draw)")
+    ax.plot(theta, 100 * r_model, color="#d55e00", lw=1.2, label="model (best draw, best rotation)")
     ax.axhline(100 * SUPPORT_RADIUS_M, color="0.6", ls=":", lw=0.8)
     ax.axhline(100 * SPECIMEN_RADIUS_M, color="0.6", ls="--", lw=0.8)
     ax.set_xlim(0, 360)
