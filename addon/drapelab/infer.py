@@ -821,7 +821,8 @@ def fit(images, density, model="bdp", epochs=None, time_budget=None, seed=0, out
                          f"{time.monotonic() - t_start:.1f} s spent on set-up and the scale search)")
     preset = job.preset(fabric=fabric, options={"model": model, "epochs": epochs, "time_budget": time_budget,
                                                 "seed": seed, "effects": job.plan.describe(),
-                                                **{k: v for k, v in options.items() if k not in ("config", "effects")}})
+                                                **{k: v for k, v in options.items()
+                                                   if k not in ("config", "effects", "calibration")}})
     epochs_end = time.monotonic() - t_start
     if calibrating:
         left = None if time_budget is None else time_budget - epochs_end
