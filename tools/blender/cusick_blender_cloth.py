@@ -41,7 +41,9 @@ def parse(argv):
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--preset", help="drapelab preset JSON (exported through drapelab.blender_cloth)")
     src.add_argument("--blender-preset", choices=blender_cloth.BLENDER_PRESETS, help="Blender's shipped cloth preset")
-    p.add_argument("--fabric", type=int, required=True, help="fabric number in the Cusick dataset (1-5, 11-20)")
+    p.add_argument("--fabric", required=True,
+                   help="fabric number in the Cusick dataset (1-5, 11-20), or several (1,2,3): the drape is compared "
+                        "with each (a Blender preset's drape does not depend on the fabric); the first is the main one")
     p.add_argument("--json", required=True, help="output JSON")
     p.add_argument("--level", type=int, default=3, help="template mesh circle1..5 (default 3, the dataset's)")
     p.add_argument("--frames", type=int, default=150, help="frames to bake (default 150)")
@@ -53,6 +55,10 @@ def parse(argv):
     a = p.parse_args(argv)
     if a.frames < 2 or a.level not in (1, 2, 3, 4, 5):
         p.error("--frames must be >= 2 and --level one of 1..5")
+    try:
+        a.fabrics = [int(v) for v in a.fabric.split(",")]
+    except ValueError:
+        p.error(f"--fabric: expected a fabric number or numbers separated by commas, got {a.fabric!r}")
     return a
 
 
@@ -138,12 +144,22 @@ def real_silhouettes(fabric):
     return out
 
 
+def compare(mask, reals):
+    """IoU, pixel MSE against each real silhouette, and the real drape coefficients."""
+    per = [{"sample": r["sample"], "iou": float(measure.iou(mask, real)), "mse": float(measure.pixel_mse(mask, real)),
+            "dc_real": float(measure.drape_coefficient(real))} for r, real in reals]
+    ious, mses, dcs = ([p[k] for p in per] for k in ("iou", "mse", "dc_real"))
+    return {"dc_real_mean": float(np.mean(dcs)), "dc_real_min": float(np.min(dcs)), "dc_real_max": float(np.max(dcs)),
+            "iou_mean": float(np.mean(ious)), "iou_best": float(np.max(ious)),
+            "mse_mean": float(np.mean(mses)), "mse_best": float(np.min(mses)), "per_sample": per}
+
+
 def main(argv):
     args = parse(argv)
     scene = bpy.context.scene
     for o in list(bpy.data.objects):
         bpy.data.objects.remove(o, do_unlink=True)
-    reals = real_silhouettes(args.fabric)
+    reals = {n: real_silhouettes(n) for n in args.fabrics}
     obj, rest, faces = build_specimen(args.level, args.seed)
     mod, exported = apply_settings(obj, args, rest, faces)
     scene.frame_start, scene.frame_end = 1, args.frames
@@ -151,15 +167,18 @@ def main(argv):
     camera = render.orthographic_camera()
     trace = []
     t0 = time.perf_counter()
+    t_last = t0
     for f in range(1, args.frames + 1):
         scene.frame_set(f)
         if f % TRACK_EVERY == 0 or f == args.frames:
+            t_now = time.perf_counter()
             x = positions_of(obj)
             if not np.all(np.isfinite(x)):
                 raise RuntimeError(f"Blender cloth produced NaN or infinity at frame {f}")
             mask = np.asarray(render.hard_silhouette(camera, x, faces), dtype=np.float64)
             trace.append({"frame": f, "dc": float(measure.drape_coefficient(mask)),
-                          "min_z_m": float(x[:, 2].min())})
+                          "min_z_m": float(x[:, 2].min()), "bake_seconds": t_now - t_last})
+            t_last = time.perf_counter()
     bake_s = time.perf_counter() - t0
     x = positions_of(obj)
     mask = np.asarray(render.hard_silhouette(camera, x, faces), dtype=np.float64)
@@ -171,34 +190,28 @@ def main(argv):
                 and all(abs(u["dc"] - dc) < 2 * SETTLED_DC_CHANGE for u in trace[i:]):
             settled = t["frame"]
             break
-    per = []
-    for r, real in reals:
-        per.append({"sample": r["sample"], "iou": float(measure.iou(mask, real)),
-                    "mse": float(measure.pixel_mse(mask, real)), "dc_real": float(measure.drape_coefficient(real))})
-    ious = [p["iou"] for p in per]
-    mses = [p["mse"] for p in per]
-    dcs = [p["dc_real"] for p in per]
+    fabrics = {str(n): compare(mask, reals[n]) for n in args.fabrics}
+    main_fabric = fabrics[str(args.fabrics[0])]
     nodes = measure.analyse_nodes(measure.r_theta(mask, measure.calibration()))
     result = {
         "source": {"preset": args.preset, "blender_preset": args.blender_preset},
-        "fabric": args.fabric, "level": args.level, "vertices": int(len(rest)), "frames": args.frames,
+        "fabric": args.fabrics[0], "level": args.level, "vertices": int(len(rest)), "frames": args.frames,
         "quality": int(mod.settings.quality), "seed": args.seed,
         "settings": exported,
         "bake_seconds": bake_s, "seconds_per_frame": bake_s / args.frames,
         "settled_frame": settled,
         "dc": dc, "nodes": int(nodes.count),
-        "dc_real_mean": float(np.mean(dcs)), "dc_real_min": float(np.min(dcs)), "dc_real_max": float(np.max(dcs)),
-        "dc_error": dc - float(np.mean(dcs)),
-        "iou_mean": float(np.mean(ious)), "iou_best": float(np.max(ious)),
-        "mse_mean": float(np.mean(mses)), "mse_best": float(np.min(mses)),
-        "per_sample": per, "trace": trace,
+        **{k: v for k, v in main_fabric.items() if k != "per_sample"},
+        "dc_error": dc - main_fabric["dc_real_mean"],
+        "per_sample": main_fabric["per_sample"], "fabrics": fabrics, "trace": trace,
     }
     if args.obj:
         sim.write_obj(args.obj, x, faces.astype(np.int32))
     measure.write_json(args.json, result)
-    print(f"fabric {args.fabric} {args.blender_preset or os.path.basename(args.preset)}: DC {dc:.3f} "
-          f"(real {np.mean(dcs):.3f}), IoU mean {np.mean(ious):.3f} best {np.max(ious):.3f}, MSE mean "
-          f"{np.mean(mses):.4f}, settled at frame {settled}, {bake_s / args.frames:.3f} s/frame")
+    for n, m in fabrics.items():
+        print(f"fabric {n} {args.blender_preset or os.path.basename(args.preset)}: DC {dc:.3f} "
+              f"(real {m['dc_real_mean']:.3f}), IoU mean {m['iou_mean']:.3f} best {m['iou_best']:.3f}, MSE mean "
+              f"{m['mse_mean']:.4f}, settled at frame {settled}, {bake_s / args.frames:.3f} s/frame")
 
 
 if __name__ == "__main__":
