@@ -125,6 +125,26 @@ def write_attributes(obj, attributes, bending_edges, vertex_map):
     return written
 
 
+def stored_material(obj):
+    """{"face_stretch_N_m": (F, 6, 4), "edge_bend_N_m": (E, 3, 5)} from the full-table attributes Apply Material
+    wrote (drapelab_stretch_00.._23 per face, drapelab_bend_00.._14 per mesh edge), or None when the mesh has
+    not all of them."""
+    me = obj.data
+    stretch_names = [f"drapelab_stretch_{k:02d}" for k in range(24)]
+    bend_names = [f"drapelab_bend_{k:02d}" for k in range(15)]
+    if not all(n in me.attributes for n in stretch_names + bend_names):
+        return None
+
+    def column(name, n):
+        out = np.empty(n, np.float32)
+        me.attributes[name].data.foreach_get("value", out)
+        return out.astype(np.float64)
+    nf, ne = len(me.polygons), len(me.edges)
+    stretch = np.stack([column(n, nf) for n in stretch_names], axis=1).reshape(nf, 6, 4)
+    bend = np.stack([column(n, ne) for n in bend_names], axis=1).reshape(ne, 3, 5)
+    return {"face_stretch_N_m": stretch, "edge_bend_N_m": bend}
+
+
 def colormap(values):
     """RGBA (N, 4) of values scaled to their min..max through viridis (constant values: the middle colour)."""
     v = np.asarray(values, dtype=np.float64)
@@ -141,13 +161,26 @@ def show_heat_map(context, obj, attribute):
     """Writes the face attribute through the colormap into the corner color attribute HEAT_ATTRIBUTE, makes it the
     active color and sets solid viewport shading to show attribute colours. Returns (min, max)."""
     me = obj.data
-    if attribute not in me.attributes or me.attributes[attribute].domain != 'FACE':
-        raise ValueError(f"heat map: {obj.name} has no face attribute {attribute!r} (Apply Material first)")
-    vals = np.empty(len(me.polygons), np.float32)
-    me.attributes[attribute].data.foreach_get("value", vals)
-    rgba = colormap(vals)
+    if attribute not in me.attributes or me.attributes[attribute].domain not in ('FACE', 'EDGE'):
+        raise ValueError(f"heat map: {obj.name} has no face or edge attribute {attribute!r} (Apply Material first)")
     totals = np.empty(len(me.polygons), np.int64)
     me.polygons.foreach_get("loop_total", totals)
+    if me.attributes[attribute].domain == 'FACE':
+        vals = np.empty(len(me.polygons), np.float32)
+        me.attributes[attribute].data.foreach_get("value", vals)
+    else:  # per bending edge: each face shows the mean of its interior edges (boundary edges hold 0)
+        edge_vals = np.empty(len(me.edges), np.float32)
+        me.attributes[attribute].data.foreach_get("value", edge_vals)
+        loop_edges = np.empty(len(me.loops), np.int64)
+        me.loops.foreach_get("edge_index", loop_edges)
+        face_of_loop = np.repeat(np.arange(len(me.polygons)), totals)
+        v = edge_vals[loop_edges]
+        used = v > 0
+        sums = np.bincount(face_of_loop, weights=np.where(used, v, 0.0), minlength=len(me.polygons))
+        counts = np.bincount(face_of_loop, weights=used.astype(float), minlength=len(me.polygons))
+        vals = np.where(counts > 0, sums / np.maximum(counts, 1), np.nan)
+        vals = np.where(np.isnan(vals), np.nanmean(vals) if np.isfinite(vals).any() else 0.0, vals)
+    rgba = colormap(vals)
     corner = np.repeat(rgba, totals, axis=0)
     if HEAT_ATTRIBUTE in me.color_attributes:
         me.color_attributes.remove(me.color_attributes[HEAT_ATTRIBUTE])

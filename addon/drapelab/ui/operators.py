@@ -152,7 +152,7 @@ class DRAPELAB_OT_import_images(bpy.types.Operator, ImportHelper):
                 png = os.path.join(out, "measurement_" + tasks.safe_name(os.path.basename(p), "image") + ".png")
                 m = figures.measurement_preview(p, png, cal)
             except ERRORS as e:
-                self.report({'ERROR'}, f"import_images: {p}: {e}")
+                self.report({'ERROR'}, f"import_images: {e}" if p in str(e) else f"import_images: {p}: {e}")
                 return {'CANCELLED'}
             measured.append((p, m, png))
         existing = {bpy.path.abspath(i.filepath) for i in s.images}
@@ -209,14 +209,14 @@ class DRAPELAB_OT_fit(_JobOperator, bpy.types.Operator):
     def make_work(self, context):
         s = settings(context)
         if self.epochs and self.time_budget:
-            raise InputError("fit: give epochs or time_budget, not both")
+            raise InputError("give epochs or time_budget, not both")
         epochs, budget = (self.epochs or None), (self.time_budget or None)
         if epochs is None and budget is None:
             epochs, budget = (s.epochs, None) if s.budget_mode == 'EPOCHS' else (None, s.time_budget)
         fabric = {"name": s.fabric_name} if s.fabric_name else {}
         if s.thickness_mm > 0:
             fabric["thickness_mm"] = s.thickness_mm
-        return tasks.fit_work(s.image_paths(), s.density, cache_dir(), model=s.model.lower(), epochs=epochs,
+        return tasks.fit_work(s.image_paths(), round(s.density, 6), cache_dir(), model=s.model.lower(), epochs=epochs,
                               time_budget=budget, seed=s.seed, fabric=fabric or None,
                               effects=s.enabled_effects() or None, calibration=s.calibration(),
                               mesh_level=s.mesh_level or None, calibrate=s.calibrate)
@@ -520,11 +520,14 @@ class DRAPELAB_OT_export_blender_cloth(bpy.types.Operator):
             return {'CANCELLED'}
         try:
             path = _preset_argument(context, self.preset)
-            module.apply_cloth_settings(obj, infer.load_preset(path))
+            from .garment_ops import stored_material
+            material = stored_material(obj)  # Apply Material's per-element field, when the mesh carries it
+            module.apply_cloth_settings(obj, infer.load_preset(path), material)
         except ERRORS as e:
             self.report({'ERROR'}, f"export_blender_cloth: {e}")
             return {'CANCELLED'}
-        self.report({'INFO'}, f"{obj.name}: Blender Cloth settings from {os.path.basename(path)}")
+        self.report({'INFO'}, f"{obj.name}: Blender Cloth settings from {os.path.basename(path)}" +
+                    (" with the per-element stiffness as vertex groups" if material else ""))
         return {'FINISHED'}
 
 

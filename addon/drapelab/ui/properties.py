@@ -70,8 +70,11 @@ def _heat_items(self, context):
     obj = self.garment
     if obj is not None and obj.type == 'MESH':
         for a in obj.data.attributes:
-            if a.name.startswith("drapelab_") and a.domain == 'FACE' and a.data_type == 'FLOAT':
-                items.append((a.name, a.name[len("drapelab_"):], f"face attribute {a.name}", len(items)))
+            # the summaries (stretch_weft, bend_warp, ...), not the full tables' entries (stretch_00, ...)
+            if a.name.startswith("drapelab_") and a.domain in ('FACE', 'EDGE') and a.data_type == 'FLOAT' \
+                    and not a.name[-2:].isdigit():
+                items.append((a.name, a.name[len("drapelab_"):], f"{a.domain.lower()} attribute {a.name}",
+                              len(items)))
     _heat_items_cache = items
     return _heat_items_cache
 
