@@ -111,7 +111,7 @@ class Body:
 def _smooth_profile(knots_s, knots_r, n):
     """n samples of a radius profile through the knots, smooth between them (cosine blend: a zero slope at
     each knot, so the waist and hip are true extrema)."""
-    s = np.linspace(knots_s[0], knots_s[-1], n)
+    s = np.union1d(np.linspace(knots_s[0], knots_s[-1], n), knots_s)   # the knots (waist, hip) are rows
     k = np.clip(np.searchsorted(knots_s, s, side="right") - 1, 0, len(knots_s) - 2)
     t = (s - knots_s[k]) / (knots_s[k + 1] - knots_s[k])
     w = 0.5 - 0.5 * np.cos(np.pi * t)
