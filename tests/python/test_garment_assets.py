@@ -346,6 +346,7 @@ def test_corner_uv_splitting_and_scale():
     cuv = np.array([[[0, 0], [1, 0], [0, 1]], [[1, 0], [1, 1], [0.5, 1.5]]], float)
     g = gmesh.garment_from_arrays(P, F, cuv, uv_scale_m=2.0)
     assert g.num_vertices == 5 and g.seams.tolist() == [[2, 3]]
+    assert g.source_vertices.tolist() == [0, 1, 2, 2, 3]                   # each vertex's input vertex
     assert np.array_equal(g.positions[2], g.positions[3])
     assert g.uv.max() == pytest.approx(3.0)                                # scaled by 2 m per uv unit
     auto = gmesh.garment_from_arrays(P, F, cuv)                            # area-matched scale

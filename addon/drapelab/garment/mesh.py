@@ -9,6 +9,8 @@ A ``Garment`` holds (all lengths in metres)
     waist_vertices   (W,) int32      vertices attached to the body
     hem_vertices     (H,) int32      the free bottom edge
     name             str
+    source_vertices  (V,) int32      the input vertex each vertex comes from (``garment_from_arrays`` splits
+                                     seam vertices: copies share their source; a Blender mesh's vertex index)
 
 The native cloth model reads the pattern as its rest state (native/src/geometry/mesh.hpp): stretching and
 bending tables are in the uv frame, so a garment whose +v is the grain line needs no rotation of the tables.
@@ -50,6 +52,7 @@ class Garment:
     waist_vertices: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))
     hem_vertices: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))
     name: str = "garment"
+    source_vertices: np.ndarray = None  # (V,) int32: the input vertex each vertex was split from (default: itself)
 
     def __post_init__(self):
         self.positions = np.ascontiguousarray(self.positions, dtype=np.float64)
@@ -59,6 +62,9 @@ class Garment:
         self.waist_vertices = np.ascontiguousarray(_int_indices(self.waist_vertices, "waist_vertices"))
         self.hem_vertices = np.ascontiguousarray(_int_indices(self.hem_vertices, "hem_vertices"))
         self.name = str(self.name)
+        if self.source_vertices is None:
+            self.source_vertices = np.arange(self.positions.shape[0], dtype=np.int32)
+        self.source_vertices = np.ascontiguousarray(self.source_vertices, dtype=np.int32).ravel()
 
     @property
     def num_vertices(self):
@@ -90,6 +96,8 @@ class Garment:
         _check_loose(f, p.shape[0])
         for name in ("seams", "waist_vertices", "hem_vertices"):
             _check_range(getattr(self, name), p.shape[0], name)
+        if self.source_vertices.shape != (p.shape[0],):
+            raise InputError(f"{self.name}: source_vertices must have shape ({p.shape[0]},), got {self.source_vertices.shape}")
         return self
 
     def to_native_mesh_arrays(self):
@@ -105,7 +113,7 @@ class Garment:
 
     def copy(self):
         return Garment(self.positions.copy(), self.uv.copy(), self.faces.copy(), self.seams.copy(),
-                       self.waist_vertices.copy(), self.hem_vertices.copy(), self.name)
+                       self.waist_vertices.copy(), self.hem_vertices.copy(), self.name, self.source_vertices.copy())
 
 
 # ---------------------------------------------------------------- checks
@@ -335,7 +343,8 @@ def garment_from_arrays(positions, faces, corner_uv=None, uv_scale_m=None, name=
         _check_range(v, p.shape[0], what)
         return np.flatnonzero(np.isin(original, v)).astype(np.int32)
     g = Garment(new_pos, new_uv, new_faces.astype(np.int32), seams.astype(np.int32),
-                mapped(waist_vertices, "waist_vertices"), mapped(hem_vertices, "hem_vertices"), name)
+                mapped(waist_vertices, "waist_vertices"), mapped(hem_vertices, "hem_vertices"), name,
+                original.astype(np.int32))
     return g.validate()
 
 
