@@ -142,6 +142,12 @@ def stored_material(obj):
     nf, ne = len(me.polygons), len(me.edges)
     stretch = np.stack([column(n, nf) for n in stretch_names], axis=1).reshape(nf, 6, 4)
     bend = np.stack([column(n, ne) for n in bend_names], axis=1).reshape(ne, 3, 5)
+    # Edges without a drapelab bending table (0): the mesh boundary, and the uv seams where the pattern is cut
+    # (the garment model joins its pieces there by seams, not bending). Blender's cloth bends across a welded
+    # seam, so they get the element-wise geometric mean of the tables drawn for the other edges.
+    missing = ~(bend > 0).all(axis=(1, 2))
+    if missing.any() and (~missing).any():
+        bend[missing] = np.exp(np.log(bend[~missing]).mean(axis=0))
     return {"face_stretch_N_m": stretch, "edge_bend_N_m": bend}
 
 
@@ -221,8 +227,8 @@ class DRAPELAB_OT_apply_material(bpy.types.Operator):
             self.report({'ERROR'}, "apply_material: no active object; select the garment mesh")
             return {'CANCELLED'}
         if obj.type != 'MESH':
-            self.report({'ERROR'}, f"apply_material: {obj.name} is a {obj.type.lower()}, not a mesh; select the "
-                                   "garment mesh")
+            self.report({'ERROR'}, f"apply_material: {obj.name} is not a mesh (its type is {obj.type}); select "
+                                   "the garment mesh")
             return {'CANCELLED'}
         try:
             preset = infer.load_preset(_preset_argument(context, self.preset))
@@ -253,7 +259,9 @@ class DRAPELAB_OT_apply_material(bpy.types.Operator):
         s = context.scene.drapelab
         s.garment = obj
         obj["drapelab_preset"] = (preset.get("fabric") or {}).get("name") or preset["model"]
-        self.report({'INFO'}, f"{obj.name}: wrote {', '.join(written)}")
+        summaries = [n for n in written if not n[-2:].isdigit()]
+        self.report({'INFO'}, f"{obj.name}: wrote {len(written)} attributes ({', '.join(summaries)} and the full "
+                              "tables drapelab_stretch_00.._23, drapelab_bend_00.._14)")
         return {'FINISHED'}
 
 
@@ -285,3 +293,22 @@ class DRAPELAB_OT_show_heat_map(bpy.types.Operator):
 
 
 CLASSES = (DRAPELAB_OT_apply_material, DRAPELAB_OT_show_heat_map)
+
+
+def attach_mesh_cache(obj, path, frame_start=1):
+    """Plays the PC2 file on `obj` (whose vertex order and count it must match) through a Mesh Cache modifier named
+    "drapelab cache" (created or re-pointed): sample k is shown at scene frame frame_start + k. The positions in
+    the file are the object's local coordinates."""
+    from ..garment import pc2
+    count = pc2.read_pc2_header(path)["num_points"]
+    if count != len(obj.data.vertices):
+        raise ValueError(f"{path}: the cache has {count} points, {obj.name} has {len(obj.data.vertices)} vertices")
+    mod = obj.modifiers.get("drapelab cache") or obj.modifiers.new("drapelab cache", 'MESH_CACHE')
+    mod.cache_format = 'PC2'
+    mod.filepath = path
+    mod.time_mode = 'FRAME'
+    mod.play_mode = 'SCENE'
+    mod.frame_start = float(frame_start)
+    mod.frame_scale = 1.0
+    mod.interpolation = 'LINEAR'
+    return mod
