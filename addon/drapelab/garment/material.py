@@ -105,7 +105,8 @@ def garment_bending_edges(garment):
 
 def sample_garment_material(preset, garment, seed=0, samples=1):
     """``samples`` GarmentMaterial draws for the garment from the preset's posterior (see the module docstring),
-    deterministic per seed: draw i of (seed, samples) is the same whatever ``samples`` is, as in evaluate."""
+    deterministic per (seed, samples): the same stream as ``evaluate --seed S --samples K`` (so draw i depends
+    on K too: the per-draw factor is drawn after all the per-element noise)."""
     from .. import infer
     if not isinstance(garment, Garment):
         raise InputError(f"garment: expected a Garment, got {type(garment).__name__}")
