@@ -4,7 +4,9 @@ import importlib
 import sys
 
 # One module per command under drapelab.commands, each with register(subparsers) -> sets func.
-COMMANDS = ["demo", "bench", "measure", "compare", "fit", "evaluate", "effects", "synth", "diagnose"]
+# Module names (install_addon registers the subcommand install-addon).
+COMMANDS = ["demo", "bench", "measure", "compare", "fit", "evaluate", "effects", "synth", "diagnose", "package",
+            "install_addon"]
 
 
 def main(argv=None):
