@@ -45,7 +45,9 @@ REFERENCE_CURVATURE_PER_M = 7.5
 BEND_CALIBRATION = 1.0              # empirical factor on the derived bending (docs/lab/blender-cloth.md)
 SPRING_DAMPING_RATIO = 0.1          # tension/compression/shear damping as a fraction of a spring's critical
 BEND_DAMPING_RATIO = 0.1            # bending damping as a fraction of a hinge's critical damping
-AIR_DRAG_PER_S = 1.0                # air drag rate (1/s): Blender's Cotton preset has 0.01 * 1 / 0.3 kg per frame
+# air drag rate (1/s): linearised air drag of a 0.2 kg/m^2 fabric moving at 0.3-1 m/s is 1-4 /s (Blender's Cotton
+# preset: 0.01 * 1 / 0.3 kg per time unit = 1.05 /s)
+AIR_DRAG_PER_S = 2.0
 PIN_GROUP = "drapelab_pin"
 STIFFNESS_GROUPS = {"tension": "drapelab_tension", "shear": "drapelab_shear", "bending": "drapelab_bending"}
 BLENDER_PRESETS = ("cotton", "denim", "leather", "rubber", "silk")
@@ -203,7 +205,7 @@ def cloth_settings(preset, quality=DEFAULT_QUALITY, *, mesh, fps=24.0, curvature
             raise InputError(f"preset: {name} would be {value:.4g}, above Blender's maximum "
                              f"{_BLENDER_SETTING_MAX:g} on this mesh (too stiff for its resolution)")
 
-    # damping, in Blender's frame time units (force per m/frame): critical c = 2 sqrt(k m)
+    # damping, in Blender's time unit (force per m per time unit): critical c = 2 sqrt(k m)
     k_spring = tension / a
     spring_damping = SPRING_DAMPING_RATIO * 2.0 * math.sqrt(k_spring * mass)
     hbar = float(np.mean(stats["hinge_heights_m"]))
@@ -211,7 +213,8 @@ def cloth_settings(preset, quality=DEFAULT_QUALITY, *, mesh, fps=24.0, curvature
     bend_damping = BEND_DAMPING_RATIO * 2.0 * math.sqrt(k_hinge * mass)
     time_scale = (1.0 / fps) / FRAME_SECONDS
     frame_s = FRAME_SECONDS * time_scale
-    air_damping = AIR_DRAG_PER_S * frame_s * mass / 0.01  # drag force = air_damping * 0.01 * velocity
+    # drag force = air_damping * 0.01 * velocity, in Blender's time unit (FRAME_SECONDS of physical time)
+    air_damping = AIR_DRAG_PER_S * FRAME_SECONDS * mass / 0.01
 
     if collision_distance_m is None:
         collision_distance_m = min(max(0.3 * a, 0.001), 0.015)

@@ -79,6 +79,11 @@ def test_units_follow_blender_springs_on_two_resolutions(preset, circle2):
     # uniform mesh: b = 0.0075 k / h^2 exactly
     assert s3["bending_stiffness"] == pytest.approx(0.0075 * d3["bend_stiffness_N_m"] / d3["mean_hinge_height_m"] ** 2,
                                                     rel=0.05)
+    # Blender's drag force air_damping * 0.01 * v (v per Blender time unit of sqrt(0.001) s): the physical rate
+    assert s2["air_damping"] * 0.01 / s2["mass"] / math.sqrt(1e-3) == pytest.approx(blender_cloth.AIR_DRAG_PER_S)
+    # spring damping: a fixed fraction of a structural spring's critical damping 2 sqrt(k m), k = tension / a
+    crit = 2 * math.sqrt(s2["tension_stiffness"] / d2["mean_edge_m"] * s2["mass"])
+    assert s2["tension_damping"] == pytest.approx(blender_cloth.SPRING_DAMPING_RATIO * crit)
     # one frame is sqrt(0.001) s at time_scale 1; time_scale makes it 1/fps
     assert s2["time_scale"] * math.sqrt(1e-3) == pytest.approx(1 / 24)
     assert blender_cloth.cloth_settings(preset, mesh=circle2, fps=48)["time_scale"] == pytest.approx(s2["time_scale"] / 2)
