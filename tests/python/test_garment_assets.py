@@ -93,7 +93,8 @@ def test_skirt_seams_coincide_and_lie_on_piece_edges(skirts, style):
     boundary = np.unique(uniq[counts == 1])
     assert np.isin(s, boundary).all()
     # one back seam (circle, flared) or two side seams (aline), one pair per row of vertices
-    n_rows = len(np.unique(np.round(g.positions[:, 2], 9)))
+    island = pieces(g)[0]
+    n_rows = len(np.unique(np.round(pattern_polar(g, island)[0], 9)))
     assert len(s) == n_rows * (2 if style == "aline" else 1)
     # welding the seams leaves one connected sewn garment whose only boundary is waist and hem
     point = g.point_index()
@@ -116,7 +117,8 @@ def test_skirt_grain_line_runs_down_the_centre_front(skirts, style):
     Ds = np.stack([p[f[:, 1]] - p[f[:, 0]], p[f[:, 2]] - p[f[:, 0]]], axis=2)[front]
     F = Ds @ np.linalg.inv(Dm)                          # columns: d x / d u (weft), d x / d v (warp)
     weft, warp = F[:, :, 0], F[:, :, 1]
-    assert np.abs(weft[:, 2]).max() < 0.1 and np.abs(weft[:, 0]).min() > 0.6   # weft runs around the body
+    tilt = 0.4 if style == "circle" else 0.1                                 # the circle skirt's folds tilt it
+    assert np.abs(weft[:, 2]).max() < tilt and np.abs(weft[:, 0]).min() > 0.6  # weft runs around the body
     assert (warp[:, 2] < -0.3).all()                                          # warp runs down the skirt
     assert np.abs(warp[:, 0]).max() < 0.2                                     # ... in the centre front plane
 
@@ -185,11 +187,34 @@ def test_skirt_does_not_intersect_the_body_at_rest(body, skirts, style):
 
 def test_rest_strain(skirts):
     """The 3D placement against the pattern: exact cones (aline, flared) but for the waistband's clearance
-    stretch; the circle skirt's folds shear it (documented bound)."""
-    for style, bound in (("aline", 0.06), ("flared", 0.06), ("circle", 0.3)):
-        e = gskirt.rest_strain(skirts[style])
-        assert np.abs(e).max() < bound, style
-    assert np.median(np.abs(gskirt.rest_strain(skirts["flared"]))) < 1e-3
+    stretch; the circle skirt's relaxed folds close to its pattern (documented bounds)."""
+    for style in gskirt.STYLES:
+        e = np.abs(gskirt.rest_strain(skirts[style]))
+        assert e.max() < (0.15 if style == "circle" else 0.06), style
+        assert np.median(e) < (0.01 if style == "circle" else 1e-3), style
+        assert np.percentile(e, 99) < 0.05, style
+
+
+@pytest.mark.parametrize("style", gskirt.STYLES)
+def test_skirt_has_no_self_intersection(body, style):
+    for vertices in (2000, 20000 if style == "circle" else 6000):   # the relaxed placement at both ends
+        g = gskirt.make_skirt(style, vertices=vertices, body=body)
+        assert len(gmesh.self_intersections(g.positions, g.faces, g.point_index())) == 0
+
+
+def test_self_intersections_finds_crossings():
+    P = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0.2, 0.2, -0.5], [0.3, 0.2, 0.5], [0.2, 0.3, 0.5]], float)
+    assert gmesh.self_intersections(P, np.array([[0, 1, 2], [3, 4, 5]])).tolist() == [[0, 1]]
+    lifted = P.copy()
+    lifted[3:, 2] += 0.6                                                     # the second triangle above the first
+    assert len(gmesh.self_intersections(lifted, np.array([[0, 1, 2], [3, 4, 5]]))) == 0
+    # a sheet folded through itself: a strip whose second half passes through the first
+    P, F = cylinder(n=12, m=6)
+    g = gmesh.garment_from_arrays(P, F, gmesh.default_uv(P, F))
+    assert len(gmesh.self_intersections(g.positions, g.faces, g.point_index())) == 0
+    squashed = g.positions.copy()
+    squashed[:, 0] *= np.where(squashed[:, 1] > 0, -1.0, 1.0)          # the back half mirrored through the front
+    assert len(gmesh.self_intersections(squashed, g.faces, g.point_index())) > 0
 
 
 def test_skirt_bad_arguments(body):

@@ -27,7 +27,7 @@ import numpy as np
 
 from . import InputError
 
-__all__ = ["Garment", "garment_from_arrays", "default_uv", "read_garment_obj", "write_garment_obj",
+__all__ = ["Garment", "garment_from_arrays", "default_uv", "read_garment_obj", "write_garment_obj", "self_intersections",
            "MIN_FACE_AREA_M2", "UV_MATCH_TOLERANCE_M"]
 
 MIN_FACE_AREA_M2 = 1e-12      # a face smaller than this (3D or pattern) is degenerate: 1 micrometre x 1 micrometre
@@ -540,3 +540,70 @@ def _points_of(vt_indices, faces, face_vt, path):
         return [vt_to_v[t] for t in vt_indices]
     except KeyError as e:
         raise InputError(f"{path}: drapelab-garment line names vertex {e.args[0]}, which no face uses") from None
+
+
+# ---------------------------------------------------------------- self-intersection
+def self_intersections(positions, faces, points=None, max_pairs=None):
+    """(K, 2) int64 pairs of faces (i < j, sharing no vertex) that intersect: an edge of one crosses the
+    other's interior. Broad phase: the faces' bounding boxes on a uniform grid (cell = the largest face's box);
+    exact phase: segment-triangle crossings with signed volumes. Coplanar touching is not counted. Meant for
+    checks (rest placements, final frames of a drape): O(F) memory, seconds for 100k faces.
+    points: (V,) the sewn point of each vertex (``Garment.point_index()``): faces meeting at a seam share
+    points, not vertices, and touch there without crossing. max_pairs: at most this many (None: all)."""
+    p = np.asarray(positions, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    fp = f if points is None else np.asarray(points, dtype=np.int64)[f]
+    lo, hi = p[f].min(axis=1), p[f].max(axis=1)
+    cell = max(float((hi - lo).max()), 1e-12)
+    origin = lo.min(axis=0)
+    clo = np.floor((lo - origin) / cell).astype(np.int64)
+    chi = np.floor((hi - origin) / cell).astype(np.int64)
+    # every face in every cell its box touches (at most 2 x 2 x 2 cells: the cell is the largest box)
+    ids, keys = [], []
+    dims = chi.max(axis=0) + 2
+    for dx in (0, 1):
+        for dy in (0, 1):
+            for dz in (0, 1):
+                c = clo + np.array([dx, dy, dz])
+                ok = (c <= chi).all(axis=1)
+                ids.append(np.flatnonzero(ok))
+                keys.append((c[ok, 0] * dims[1] + c[ok, 1]) * dims[2] + c[ok, 2])
+    ids, keys = np.concatenate(ids), np.concatenate(keys)
+    order = np.argsort(keys, kind="stable")
+    ids, keys = ids[order], keys[order]
+    starts = np.flatnonzero(np.r_[True, keys[1:] != keys[:-1]])
+    ends = np.r_[starts[1:], len(keys)]
+    pairs = []
+    for s, e in zip(starts, ends):
+        if e - s < 2:
+            continue
+        members = ids[s:e]
+        i, j = np.triu_indices(len(members), 1)
+        pairs.append(np.stack([members[i], members[j]], axis=1))
+    if not pairs:
+        return np.zeros((0, 2), np.int64)
+    pairs = np.unique(np.sort(np.vstack(pairs), axis=1), axis=0)
+    a, b = pairs[:, 0], pairs[:, 1]
+    overlap = ((lo[a] <= hi[b]) & (lo[b] <= hi[a])).all(axis=1)
+    shared = (fp[a][:, :, None] == fp[b][:, None, :]).any(axis=(1, 2))
+    pairs = pairs[overlap & ~shared]
+    hits = np.zeros(len(pairs), bool)
+    for first, second in ((0, 1), (1, 0)):
+        tri = p[f[pairs[:, second]]]                     # (K, 3, 3)
+        for k in range(3):
+            q0 = p[f[pairs[:, first], k]]
+            q1 = p[f[pairs[:, first], (k + 1) % 3]]
+            hits |= _segment_crosses_triangle(q0, q1, tri)
+    out = pairs[hits]
+    return out if max_pairs is None else out[:max_pairs]
+
+
+def _segment_crosses_triangle(q0, q1, tri):
+    def vol(a, b, c, d):
+        return np.einsum("ij,ij->i", b - a, np.cross(c - a, d - a))
+    a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
+    s0, s1 = vol(a, b, c, q0), vol(a, b, c, q1)
+    straddle = s0 * s1 < 0
+    e0, e1, e2 = vol(q0, q1, a, b), vol(q0, q1, b, c), vol(q0, q1, c, a)
+    inside = ((e0 > 0) & (e1 > 0) & (e2 > 0)) | ((e0 < 0) & (e1 < 0) & (e2 < 0))
+    return straddle & inside
