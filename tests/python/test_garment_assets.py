@@ -185,6 +185,15 @@ def test_skirt_does_not_intersect_the_body_at_rest(body, skirts, style):
     assert d > 0.004
 
 
+def test_check_clear_of_body(body, skirts):
+    g = skirts["aline"]
+    assert gbody.check_clear_of_body(g.positions, body) >= gskirt.DEFAULT_CLEARANCE_M - 1e-9
+    shrunk = g.positions * np.array([0.5, 0.5, 1.0])                        # pulled into the hips
+    with pytest.raises(InputError, match=r"skirt: \d+ vertices start inside the body.*deepest: vertex \d+, "
+                                         r"[\d.]+ mm inside"):
+        gbody.check_clear_of_body(shrunk, body, name="skirt")
+
+
 def test_rest_strain(skirts):
     """The 3D placement against the pattern: exact cones (aline, flared) but for the waistband's clearance
     stretch; the circle skirt's relaxed folds close to its pattern (documented bounds)."""
@@ -254,8 +263,9 @@ def test_native_model_accepts_every_skirt(body, style):
     assert np.isfinite(model.gradient(P, p)).all()
 
 
-def test_small_skirt_steps_with_the_waistband_held(body):
-    g = gskirt.make_skirt("flared", vertices=600, body=body)
+@pytest.mark.parametrize("style", ["circle", "flared"])  # one-piece patterns: the handle can hold the waistband
+def test_small_skirt_steps_with_the_waistband_held(body, style):
+    g = gskirt.make_skirt(style, vertices=600, body=body)
     model = held_waistband_model(g)
     x = model.simulate(model.parameters(), steps=5, time_step=1 / 48)
     assert np.isfinite(x).all()

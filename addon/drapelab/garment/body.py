@@ -28,7 +28,7 @@ import numpy as np
 
 from . import InputError
 
-__all__ = ["Body", "make_body", "body_frames", "pelvis_transforms", "max_vertex_speed", "MOTIONS",
+__all__ = ["Body", "make_body", "body_frames", "pelvis_transforms", "max_vertex_speed", "check_clear_of_body", "MOTIONS",
            "DEFAULT_HEIGHT_M", "waist_height", "PART_NAMES"]
 
 MOTIONS = ("static", "walk", "twirl", "jump")
@@ -334,3 +334,22 @@ def max_vertex_speed(frames_xyz, fps=24):
     if x.shape[0] < 2:
         return 0.0
     return float(np.linalg.norm(np.diff(x, axis=0), axis=2).max() * fps)
+
+
+def check_clear_of_body(positions, body, name="garment", clearance_m=0.0):
+    """Raises InputError when any of positions (V, 3) lies inside the body at its rest pose (or closer than
+    clearance_m to it), naming how many vertices, the first one and the deepest; returns the smallest
+    clearance (m) otherwise. A garment must start outside the body it is draped on."""
+    if not isinstance(body, Body):
+        raise InputError(f"body: expected a Body (make_body), got {type(body).__name__}")
+    x = np.asarray(positions, dtype=np.float64)
+    if x.ndim != 2 or x.shape[1] != 3 or not np.isfinite(x).all():
+        raise InputError(f"{name}: positions must be finite with shape (V, 3), got {x.shape}")
+    gap = body.clearance(x)
+    bad = gap < clearance_m
+    if bad.any():
+        first, deepest = int(np.argmax(bad)), int(np.argmin(gap))
+        raise InputError(f"{name}: {int(bad.sum())} vertices start inside the body or within {clearance_m * 1000:g} mm "
+                         f"of it (first: vertex {first}; deepest: vertex {deepest}, {-gap[deepest] * 1000:.1f} mm "
+                         f"inside); move or scale the garment so it starts outside the body")
+    return float(gap.min())
