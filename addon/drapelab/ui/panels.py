@@ -20,34 +20,57 @@ class _Panel:
     bl_category = "Drape"
 
 
-def _job_box(layout, kind):
+def _chars(context):
+    """About how many characters of label text fit on one line of the sidebar."""
+    region = getattr(context, "region", None)
+    width = region.width if region is not None else 300
+    return max(18, int(width / (7.0 * context.preferences.view.ui_scale)) - 3)
+
+
+def _image_scale(context):
+    """template_icon scale (units of 20 px) filling the sidebar's width."""
+    region = getattr(context, "region", None)
+    width = region.width if region is not None else 300
+    return max(6.0, (width - 40) / (20.0 * context.preferences.view.ui_scale))
+
+
+def _job_box(layout, kind, context=None):
     """Progress bar, message, live numbers and Cancel of the job of `kind` while it runs (or its last outcome)."""
     job = jobs.current(kind)
     if job is None:
         return False
+    context = context or bpy.context
+    width = _chars(context)
     snap = job.state.snapshot()
+    if snap["status"] not in (jobs.RUNNING, jobs.FAILED, jobs.CANCELLED):
+        return False
     box = layout.box()
     if snap["status"] == jobs.RUNNING:
-        label = f"{kind}: {100 * snap['fraction']:.0f} %  ({snap['elapsed']:.0f} s)"
+        label = f"{kind} running, {snap['elapsed']:.0f} s"
         if hasattr(box, "progress"):  # UILayout.progress exists from Blender 4.0
-            box.progress(factor=snap["fraction"], type='BAR', text=label)
+            box.progress(factor=snap["fraction"], type='BAR', text=f"{label}: {100 * snap['fraction']:.0f} %")
         else:
-            box.prop(bpy.context.window_manager, "drapelab_progress", text=label, slider=True) \
-                if hasattr(bpy.context.window_manager, "drapelab_progress") else box.label(text=label)
-        box.label(text=snap["message"][:90] or "starting")
+            box.prop(context.window_manager, "drapelab_progress", text=label, slider=True)
+        for line in _wrap(snap["message"] or "starting", width):
+            box.label(text=line)
         m = snap["metrics"]
         if "loss" in m:
-            box.label(text=f"loss {m['loss']:.4f}   IoU {m.get('iou', 0):.3f}   MSE {m.get('mse', 0):.4f}")
+            col = box.column(align=True)
+            col.label(text=f"loss {m['loss']:.4f}")
+            col.label(text=f"IoU {m.get('iou', 0):.3f}   MSE {m.get('mse', 0):.4f}")
         if len(snap["history"]) > 1:
             h = snap["history"]
-            box.label(text="loss: " + " ".join(f"{v:.3g}" for v in h[-6:]))
+            for line in _wrap("loss history: " + " ".join(f"{v:.3g}" for v in h[-8:]), width):
+                box.label(text=line)
         box.operator("drapelab.cancel", icon='CANCEL')
         box.label(text="Esc also cancels", icon='INFO')
         return True
     if snap["status"] == jobs.FAILED:
-        box.label(text=f"{kind} failed: {snap['error'][:80]}", icon='ERROR')
+        for i, line in enumerate(_wrap(f"{kind} failed: {snap['error']}", width)[:6]):
+            box.label(text=line, icon='ERROR' if i == 0 else 'NONE')
     elif snap["status"] == jobs.CANCELLED:
-        box.label(text=f"{kind} cancelled after {snap['elapsed']:.0f} s; earlier results kept", icon='CANCEL')
+        for i, line in enumerate(_wrap(f"{kind} cancelled after {snap['elapsed']:.0f} s; earlier results kept", width)):
+            box.label(text=line, icon='CANCEL' if i == 0 else 'NONE')
     return False
 
 
@@ -63,7 +86,7 @@ class DRAPELAB_PT_measurement(_Panel, bpy.types.Panel):
         row.template_list("DRAPELAB_UL_images", "", s, "images", s, "active_image", rows=2)
         row.operator("drapelab.remove_image", text="", icon='X')
         if s.measurement_image:
-            previews.draw_image(layout, s.measurement_image, 9.0)
+            previews.draw_image(layout, s.measurement_image, _image_scale(context))
             layout.operator("drapelab.show_image", icon='IMAGE').image = s.measurement_image
         col = layout.column(align=True)
         col.prop(s, "fabric_name")
@@ -101,7 +124,7 @@ class DRAPELAB_PT_fit(_Panel, bpy.types.Panel):
         row.prop(s, "mesh_level")
         if s.model == 'BDP':
             layout.prop(s, "calibrate")
-        running = _job_box(layout, "fit")
+        running = _job_box(layout, "fit", context)
         row = layout.row()
         row.enabled = not running and jobs.current() is None
         row.scale_y = 1.4
@@ -110,20 +133,25 @@ class DRAPELAB_PT_fit(_Panel, bpy.types.Panel):
         if data:
             m, t = data.get("metrics"), data.get("training") or {}
             box = layout.box()
-            box.label(text=f"Preset: {os.path.basename(s.preset_path)}", icon='FILE')
+            col = box.column(align=True)
+            col.label(text=os.path.basename(s.preset_path), icon='FILE')
             if t.get("epochs") is not None:
-                box.label(text=f"{t['epochs']} epochs, {t.get('seconds') or 0:.0f} s, final loss "
-                               f"{t.get('final_loss') or float('nan'):.4f}")
+                col.label(text=f"{t['epochs']} epochs in {t.get('seconds') or 0:.0f} s")
+                if t.get("final_loss") is not None:
+                    col.label(text=f"final loss {t['final_loss']:.4f}")
             if m:
-                box.label(text=f"IoU {m['iou']:.3f}   MSE {m['mse']:.4f}   r(θ) rmse {1000 * m['r_theta_rmse_m']:.1f} mm")
                 dc, nodes = m["drape_coefficient"], m["node_count"]
-                box.label(text=f"DC {dc['predicted']:.3f} (measured {dc['observed']:.3f}), nodes "
-                               f"{nodes['predicted']} ({nodes['observed']})")
+                col.label(text=f"IoU {m['iou']:.3f}   MSE {m['mse']:.4f}")
+                col.label(text=f"r(θ) rmse {1000 * m['r_theta_rmse_m']:.1f} mm")
+                col.label(text=f"DC {dc['predicted']:.3f} (measured {dc['observed']:.3f})")
+                col.label(text=f"nodes {nodes['predicted']} (measured {nodes['observed']})")
+        scale = _image_scale(context)
         if s.overlay_image:
-            previews.draw_image(layout, s.overlay_image, 10.0)
+            previews.draw_image(layout, s.overlay_image, scale)
             layout.operator("drapelab.show_image", text="Overlay in Image Editor", icon='IMAGE').image = s.overlay_image
         if s.rtheta_image:
-            previews.draw_image(layout, s.rtheta_image, 10.0)
+            previews.draw_image(layout, s.rtheta_image, scale)
+            layout.operator("drapelab.show_image", text="r(θ) in Image Editor", icon='IMAGE').image = s.rtheta_image
 
 
 class DRAPELAB_PT_diagnose(_Panel, bpy.types.Panel):
@@ -138,14 +166,14 @@ class DRAPELAB_PT_diagnose(_Panel, bpy.types.Panel):
         row = layout.row()
         row.prop(s, "diagnose_budget")
         row.prop(s, "diagnose_samples")
-        running = _job_box(layout, "diagnose")
+        running = _job_box(layout, "diagnose", context)
         row = layout.row()
         row.enabled = not running and jobs.current() is None and bool(s.preset_path)
         row.operator("drapelab.diagnose", icon='VIEWZOOM')
         d = diagnosis(s)
         if d:
             if d.get("verdict"):
-                for line in _wrap(d["verdict"], 60):
+                for line in _wrap(d["verdict"], _chars(context)):
                     layout.label(text=line)
             box = layout.box()
             box.label(text="Missing effects, most likely first")
@@ -162,7 +190,7 @@ class DRAPELAB_PT_diagnose(_Panel, bpy.types.Panel):
             row.operator("drapelab.fit", text="Refit", icon='FILE_REFRESH')
         if s.history_image:
             layout.label(text="Error across model versions")
-            previews.draw_image(layout, s.history_image, 10.0)
+            previews.draw_image(layout, s.history_image, _image_scale(context))
 
 
 def _wrap(text, width):
@@ -214,7 +242,7 @@ class DRAPELAB_PT_garment(_Panel, bpy.types.Panel):
         layout.operator("drapelab.apply_material", icon='MATERIAL')
         layout.prop(s, "heat_attribute")
         layout.operator("drapelab.show_heat_map", icon='COLOR')
-        _job_box(layout, "simulate")
+        _job_box(layout, "simulate", context)
         row = layout.row(align=True)
         row.prop(s, "frame_start")
         row.prop(s, "frame_end")
@@ -231,14 +259,14 @@ CLASSES = (DRAPELAB_UL_images, DRAPELAB_PT_measurement, DRAPELAB_PT_fit, DRAPELA
 def register():
     # a read-only slider for the progress bar (UILayout.progress arrives in Blender 4.0)
     bpy.types.WindowManager.drapelab_progress = bpy.props.FloatProperty(
-        name="Progress", min=0.0, max=1.0, subtype='FACTOR', get=_progress_value)
+        name="Progress", min=0.0, max=100.0, subtype='PERCENTAGE', precision=0, get=_progress_value)
     for c in CLASSES:
         bpy.utils.register_class(c)
 
 
 def _progress_value(self):
     job = jobs.current()
-    return job.state.fraction if job is not None else 0.0
+    return 100.0 * job.state.fraction if job is not None else 0.0
 
 
 def unregister():
