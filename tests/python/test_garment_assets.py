@@ -472,3 +472,41 @@ def test_obj_errors(tmp_path):
         gmesh.read_garment_obj(tmp_path / "missing.obj")
     with pytest.raises(OSError, match="does not exist"):
         gmesh.write_garment_obj(tmp_path / "no" / "x.obj", gskirt.make_skirt("flared", vertices=300))
+
+
+# ---------------------------------------------------------------- fuzzing the OBJ loader
+hypothesis = pytest.importorskip("hypothesis", reason="python3-hypothesis is not installed (./drapelab installs it)")
+from hypothesis import HealthCheck, given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+FUZZ = settings(max_examples=300, deadline=None, database=None,
+                suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
+NUMBER = st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.integers(-3, 3), st.sampled_from(["x", ""]))
+INDEX = st.one_of(st.integers(-6, 8), st.sampled_from(["", "a", "0"]))
+CORNER = st.one_of(st.tuples(INDEX).map(lambda t: f"{t[0]}"), st.tuples(INDEX, INDEX).map(lambda t: f"{t[0]}/{t[1]}"),
+                   st.tuples(INDEX, INDEX, INDEX).map(lambda t: f"{t[0]}/{t[1]}/{t[2]}"))
+LINE = st.one_of(
+    st.lists(NUMBER, min_size=0, max_size=4).map(lambda xs: "v " + " ".join(map(str, xs))),
+    st.lists(NUMBER, min_size=0, max_size=3).map(lambda xs: "vt " + " ".join(map(str, xs))),
+    st.lists(CORNER, min_size=0, max_size=5).map(lambda cs: "f " + " ".join(cs)),
+    st.sampled_from(["# drapelab-garment uv_unit_m 1", "# drapelab-garment uv_unit_m nan", "# drapelab-garment",
+                     "# drapelab-garment waist_vertices 0 1", "# drapelab-garment hem_vertices 99",
+                     "# drapelab-garment uv_unit_m -2", "o skirt", "g", "s off", "usemtl x"]),
+    st.text(max_size=30))
+VALID = ["v 0 0 0", "v 1 0 0", "v 0 1 0", "v 1 1 0", "vt 0 0", "vt 1 0", "vt 0 1", "vt 1 1", "f 1/1 2/2 3/3",
+         "f 2/2 4/4 3/3"]
+
+
+@FUZZ
+@given(st.lists(LINE, max_size=14), st.integers(0, 10))
+def test_fuzz_garment_obj(tmp_path, lines, at):
+    """Whatever the file holds, read_garment_obj returns a valid Garment or raises InputError naming the file."""
+    path = tmp_path / "fuzz.obj"
+    path.write_text("\n".join(VALID[:at] + lines + VALID[at:]) + "\n")
+    try:
+        g = gmesh.read_garment_obj(path)
+    except InputError as e:
+        assert str(path) in str(e)
+        return
+    g.validate()
+    assert np.isfinite(g.uv).all() and np.isfinite(g.positions).all()

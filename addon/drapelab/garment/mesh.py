@@ -33,6 +33,7 @@ __all__ = ["Garment", "garment_from_arrays", "default_uv", "read_garment_obj", "
 MIN_FACE_AREA_M2 = 1e-12      # a face smaller than this (3D or pattern) is degenerate: 1 micrometre x 1 micrometre
 UV_MATCH_TOLERANCE = 1e-9     # relative to the uv extent: corners of one vertex closer than this share a uv
 UV_MATCH_TOLERANCE_M = UV_MATCH_TOLERANCE
+MAX_COORDINATE = 1e6          # positions (m) and uvs beyond this are refused
 MAX_OBJ_BYTES = 1 << 30       # read_garment_obj refuses larger files before reading them
 OBJ_MARKER = "# drapelab-garment"
 
@@ -118,11 +119,17 @@ class Garment:
 
 # ---------------------------------------------------------------- checks
 def _check_finite(arr, name):
+    """Finite and within MAX_COORDINATE (larger coordinates are no garment, and would overflow areas)."""
     bad = ~np.isfinite(arr)
     if bad.any():
         index = [int(i) for i in np.argwhere(bad)[0]]
         raise InputError(f"{name}: non-finite value {arr[tuple(index)]} at index {index}"
                          + (f" (vertex {index[0]})" if name in ("positions", "uv") else ""))
+    big = np.abs(arr) > MAX_COORDINATE
+    if big.any():
+        index = [int(i) for i in np.argwhere(big)[0]]
+        raise InputError(f"{name}: value {arr[tuple(index)]:g} at index {index} is beyond +-{MAX_COORDINATE:g} (metres "
+                         "or uv units): not a garment")
 
 
 def _check_range(idx, n, name):
@@ -271,6 +278,8 @@ def garment_from_arrays(positions, faces, corner_uv=None, uv_scale_m=None, name=
             raise InputError(f"corner_uv: face {i} has {len(q)} corners but its uv has shape {c.shape}")
         if not np.isfinite(c).all():
             raise InputError(f"corner_uv: non-finite uv in face {i}: {c.tolist()}")
+        if np.abs(c).max() > MAX_COORDINATE:
+            raise InputError(f"corner_uv: uv beyond +-{MAX_COORDINATE:g} in face {i}: {c.tolist()}")
     ids = None
     if corner_uv_ids is not None:
         ids = [np.asarray(c, np.int64).ravel() for c in corner_uv_ids]
@@ -325,8 +334,8 @@ def garment_from_arrays(positions, faces, corner_uv=None, uv_scale_m=None, name=
             scale = float(uv_scale_m)
         except (TypeError, ValueError):
             raise InputError(f"uv_scale_m: expected a number of metres per uv unit, got {uv_scale_m!r}") from None
-        if not np.isfinite(scale) or scale <= 0:
-            raise InputError(f"uv_scale_m: must be a finite number > 0, got {uv_scale_m!r}")
+        if not np.isfinite(scale) or not 0 < scale <= 1e3:
+            raise InputError(f"uv_scale_m: must be a number in (0, 1000] metres per uv unit, got {uv_scale_m!r}")
     new_uv = new_uv * scale
     area_uv = area_uv_signed * scale * scale
     small = np.abs(area_uv) <= MIN_FACE_AREA_M2
