@@ -49,6 +49,7 @@ def test_values_finite_positive_and_stretch_is_the_presets(preset, draws):
         assert np.isfinite(m.bend).all() and (m.bend > 0).all()
         assert np.array_equal(m.stretch, np.broadcast_to(np.asarray(preset["stretch_N_m"]), m.stretch.shape))
         assert m.density == preset["density_kg_m2"] and m.preset_name == "fabric_05_wool_red_bdp"
+        assert m.effects == {}                                               # the shipped presets have none
 
 
 def test_deterministic_per_seed_and_samples_differ(garment, draws):

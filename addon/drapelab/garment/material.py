@@ -6,7 +6,9 @@ per-bending-edge bending tables exactly as ``infer.evaluate`` drapes a preset: t
 spread log_std, and its drape-calibrated per-draw factor global_log_std; a homo preset gives one table for every
 edge; a heter preset's per-element tables when the element count matches, else their mean), the stretching
 table is the preset's ``stretch_N_m`` on every face (presets fit bending only: stretching is a fixed table, so
-every face carries the same one), the density the preset's.
+every face carries the same one), the density the preset's. A preset's active effects (fitted on Cusick drapes)
+are carried as values in ``GarmentMaterial.effects`` for the simulator to apply or not; they do not change the
+tables.
 
 Orientation: the tables are in the pattern's (u, v) frame (u = weft, v = warp), which is the garment's uv, so no
 rotation is applied: a garment whose uv +v is the grain line gets warp and weft right on every triangle. A
@@ -64,6 +66,7 @@ class GarmentMaterial:
     preset_name: str = ""
     seed: int = 0
     sample: int = 0
+    effects: dict = field(default_factory=dict)  # the preset's active effects {name: {param: value}} (their means)
 
     def native_parameters(self, model):
         """The parameter vector of a heterogeneous ``sim.ClothModel`` of this garment (same faces and edges)."""
@@ -107,7 +110,7 @@ def sample_garment_material(preset, garment, seed=0, samples=1):
     """``samples`` GarmentMaterial draws for the garment from the preset's posterior (see the module docstring),
     deterministic per (seed, samples): the same stream as ``evaluate --seed S --samples K`` (so draw i depends
     on K too: the per-draw factor is drawn after all the per-element noise)."""
-    from .. import infer
+    from .. import fit_effects, infer
     if not isinstance(garment, Garment):
         raise InputError(f"garment: expected a Garment, got {type(garment).__name__}")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
@@ -128,7 +131,8 @@ def sample_garment_material(preset, garment, seed=0, samples=1):
             raise InputError(f"preset {name}: draw {i} has a non-finite or non-positive bending entry")
         fs, es = _summaries(s, b)
         out.append(GarmentMaterial(s, b, stencils[:, :2].copy(), float(preset["density_kg_m2"]), fs, es,
-                                   stencils.copy(), name, int(seed), i))
+                                   stencils.copy(), name, int(seed), i,
+                                   fit_effects.active_effect_values(preset.get("active_effects"))))
     return out
 
 
