@@ -75,8 +75,12 @@ def write_default_uv(obj, mesh_module):
 
 
 def original_vertex_map(garment, positions, faces):
-    """For each garment vertex, the Blender vertex it was split from (garment faces follow the Blender faces in
-    order; a split copy has exactly its original's position)."""
+    """For each garment vertex, the Blender vertex it was split from: Garment.source_vertices when the garment
+    carries it, else matched through the faces (garment faces follow the Blender faces in order; a split copy
+    has exactly its original's position)."""
+    source = getattr(garment, "source_vertices", None)
+    if source is not None and len(source) == garment.num_vertices:
+        return np.asarray(source, np.int64)
     orig = np.full(garment.num_vertices, -1, np.int64)
     gf = np.asarray(garment.faces)
     for c in range(3):

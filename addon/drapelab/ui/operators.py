@@ -264,6 +264,9 @@ class DRAPELAB_OT_diagnose(_JobOperator, bpy.types.Operator):
 
     time_budget: FloatProperty(name="Time budget (s)", default=0.0, min=0.0, description="0: the panel's setting")
     samples: IntProperty(name="Draws", default=0, min=0, description="posterior draws; 0: the panel's setting")
+    report_dir: StringProperty(name="Report folder", default="", subtype='DIR_PATH',
+                               description="where the report goes (index.html, figures, diagnosis.json, refit "
+                                           "presets); default: diagnosis/ in the add-on's cache folder")
 
     def make_work(self, context):
         s = settings(context)
@@ -272,7 +275,8 @@ class DRAPELAB_OT_diagnose(_JobOperator, bpy.types.Operator):
             raise InputError(f"samples: at least 3 posterior draws, got {samples}")
         return tasks.diagnose_work(bpy.path.abspath(s.preset_path) if s.preset_path else "", s.image_paths(),
                                    cache_dir(), time_budget=self.time_budget or s.diagnose_budget, samples=samples,
-                                   seed=s.seed, history=s.history())
+                                   seed=s.seed, history=s.history(),
+                                   report_dir=bpy.path.abspath(self.report_dir) if self.report_dir else None)
 
     def finish(self, context, result):
         s = settings(context)

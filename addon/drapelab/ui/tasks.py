@@ -99,8 +99,9 @@ def fit_work(images, density, out_dir, model="bdp", epochs=None, time_budget=Non
 
 
 def diagnose_work(preset, images, out_dir, time_budget=None, samples=None, seed=0, candidates=None,
-                  history=None):
-    """Work of a diagnose job: diagnose.diagnose writing its report into OUT_DIR/diagnosis, then the error-history
+                  history=None, report_dir=None):
+    """Work of a diagnose job: diagnose.diagnose writing its report into `report_dir` (default
+    OUT_DIR/diagnosis), then the error-history
     chart (the given `history` entries of earlier model versions, then the diagnosis's) as
     OUT_DIR/previews/history.png. Returns {"report": dir, "diagnosis": dict, "history_png": path}."""
     if not images:
@@ -112,7 +113,7 @@ def diagnose_work(preset, images, out_dir, time_budget=None, samples=None, seed=
         raise infer.InputError(f"time_budget: must be > 0 seconds, got {time_budget}")
     if samples is not None and int(samples) < diagnose_module.MIN_SAMPLES:
         raise infer.InputError(f"samples: at least {diagnose_module.MIN_SAMPLES}, got {samples}")
-    report = os.path.join(out_dir, "diagnosis")
+    report = report_dir or os.path.join(out_dir, "diagnosis")
     chart = os.path.join(out_dir, "previews", "history.png")
     k = int(samples or diagnose_module.DEFAULT_SAMPLES)
 
