@@ -54,7 +54,7 @@ def _job_box(layout, kind, context=None):
         for line in _wrap(snap["message"] or "starting", width):
             box.label(text=line)
         m = snap["metrics"]
-        if "loss" in m:
+        if "loss" in m and "loss" not in snap["message"]:
             col = box.column(align=True)
             col.label(text=f"loss {m['loss']:.4f}")
             col.label(text=f"IoU {m.get('iou', 0):.3f}   MSE {m.get('mse', 0):.4f}")
@@ -112,7 +112,7 @@ class DRAPELAB_PT_fit(_Panel, bpy.types.Panel):
         layout.prop(s, "model", expand=True)
         box = layout.box()
         box.label(text="Effects (fitted with the material)")
-        grid = box.grid_flow(columns=2, even_columns=True)
+        grid = box.column(align=True)
         for name in s.effects.bl_rna.properties.keys():
             if name not in ("rna_type", "name"):
                 grid.prop(s.effects, name)
