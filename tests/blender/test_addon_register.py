@@ -249,19 +249,38 @@ try:
 except ValueError as e:
     assert "6" in str(e) or "12" in str(e)
 
-# ---------------------------------------------------------------- unregister while a job runs stops the worker
-s.model, s.mesh_level = "HOMO", 2
-work = tasks.fit_work(s.image_paths(), 0.192, os.path.join(tmp, "job"), model="homo", epochs=200, mesh_level=2,
-                      calibrate=False)
-job = jobs.start("fit", work)
+# ---------------------------------------------------------------- jobs: cancel, a .blend saved mid-job, unregister
+def long_fit():
+    return tasks.fit_work(s.image_paths(), 0.192, os.path.join(tmp, "job"), model="homo", epochs=200, mesh_level=2,
+                          calibrate=False)
+
+
+job = jobs.start("fit", long_fit())
 time.sleep(1.0)
 assert job.alive
+expect_error(lambda: bpy.ops.drapelab.fit(epochs=1), "job is running")  # one long job at a time
+ok(bpy.ops.drapelab.cancel(), "cancel")
+assert job.join(2.0) and job.state.status == jobs.CANCELLED
+print(f"cancel: the worker stopped {1000 * (job.state.finished - job.state.cancel_requested_at):.0f} ms after "
+      "drapelab.cancel")
+
+job = jobs.start("fit", long_fit())
+time.sleep(1.0)
+mid_job = os.path.join(tmp, "saved_mid_job.blend")
+bpy.ops.wm.save_as_mainfile(filepath=mid_job, copy=True)
 t = time.monotonic()
 drapelab.unregister()
 stopped = time.monotonic() - t
 assert not job.alive and job.state.status == jobs.CANCELLED, job.state.status
 assert stopped < 2.0, stopped
 assert not hasattr(bpy.types.Scene, "drapelab")
+# the file saved while the fit ran reopens idle: its settings and results are there, no job runs, a fit can start
+drapelab.register()
+bpy.ops.wm.open_mainfile(filepath=mid_job)
+s = bpy.context.scene.drapelab
+assert s.preset_path == SHIPPED and len(s.images) == 1 and not jobs.running_jobs()
+assert bpy.ops.drapelab.fit.poll() and jobs.current("fit") is None or not jobs.current("fit").alive
+drapelab.unregister()
 shutil.rmtree(tmp, ignore_errors=True)
 print(f"PASS test_addon_register: garment attributes from the posterior, heat map, cloth export, PC2 playback, "
       f"unregister stopped a running fit in {1000 * stopped:.0f} ms")

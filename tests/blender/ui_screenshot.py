@@ -7,8 +7,8 @@ Sequence (window-manager timers, so the window draws in between): the splash is 
 the bundled image is imported; the sidebar is opened and turned to the "Drape" tab (Ctrl+wheel over it, the
 simulated events Blender's --enable-event-simulate allows: 3.4 has no Python setter for a sidebar's tab); the
 fit starts as the UI would start it (INVOKE_DEFAULT: worker thread + modal timer); once epochs report, the
-window is captured with screen.screenshot (OUT_DIR/addon_panel_fit_running.png); the fit is cancelled through
-drapelab.cancel; a 1-epoch fit then runs to the end and the sidebar, scrolled down to its overlay and r(theta)
+window is captured with screen.screenshot (OUT_DIR/addon_panel_fit_running.png); Esc (a simulated key press over
+the 3D view) cancels the fit through the modal operator; a 1-epoch fit then runs to the end and the sidebar, scrolled down to its overlay and r(theta)
 plot, is captured (OUT_DIR/addon_panel_fit_done.png); Blender quits. Prints "SCREENSHOT <path> ..." per picture
 and "UI DONE"; a failure prints "UI FAILED ..." and exits 1.
 """
@@ -102,8 +102,10 @@ def step():
         with bpy.context.temp_override(window=win, area=area):
             bpy.ops.screen.screenshot(filepath=RUNNING_PNG)
         print(f"SCREENSHOT {RUNNING_PNG} job={snap['status']} message={snap['message']}", flush=True)
-        with bpy.context.temp_override(window=win):
-            bpy.ops.drapelab.cancel()
+        # Esc, as a user would press it over the 3D view: the modal operator must cancel the job
+        win.event_simulate('MOUSEMOVE', 'NOTHING', x=area.x + area.width // 3, y=area.y + area.height // 2)
+        win.event_simulate('ESC', 'PRESS')
+        win.event_simulate('ESC', 'RELEASE')
         state["step"] = "stop"
         state["cancelled_at"] = time.monotonic()
         return 0.2
@@ -111,11 +113,11 @@ def step():
         job = jobs.current("fit")
         if job.alive:
             if time.monotonic() - state["cancelled_at"] > 5.0:
-                fail("the fit did not stop within 5 s of Cancel")
+                fail("the fit did not stop within 5 s of Esc")
             return 0.2
         st = job.state
         print(f"CANCELLED job={st.status}: the worker stopped {st.finished - st.cancel_requested_at:.3f} s after "
-              f"Cancel", flush=True)
+              f"Esc", flush=True)
         s.epochs = 1  # a short fit that finishes: the panel then shows its overlay, r(theta) plot and metrics
         with bpy.context.temp_override(window=win, area=area, region=regions['WINDOW']):
             result = bpy.ops.drapelab.fit('INVOKE_DEFAULT')

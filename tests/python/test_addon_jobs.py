@@ -184,3 +184,18 @@ def test_preset_files_save_import_resolve_delete(tmp_path):
         presets.delete(presets.resolve("fabric_05_wool_red_bdp", user), user)
     presets.delete(saved, user)
     assert not os.path.exists(saved) and os.path.exists(SHIPPED_PRESET)
+
+
+def test_cancel_stops_a_running_diagnosis_within_a_second(tmp_path):
+    """The shipped preset's draws on circle3 with backward (about a second each): cancelled mid-draw."""
+    work = tasks.diagnose_work(SHIPPED_PRESET, [ASSET_IMAGE], str(tmp_path), samples=8, time_budget=300)
+    job = jobs.start("diagnose", work)
+    time.sleep(4.0)
+    assert job.alive
+    t = time.monotonic()
+    job.cancel()
+    assert job.join(20)
+    delay = time.monotonic() - t
+    print(f"diagnose cancelled after 4 s: stopped in {1000 * delay:.0f} ms ({job.state.snapshot()['message']})")
+    assert delay < CANCEL_LIMIT_S
+    assert job.state.status == jobs.DONE and job.state.result["diagnosis"]["cancelled"]  # what was done is kept

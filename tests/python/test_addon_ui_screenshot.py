@@ -33,6 +33,7 @@ def test_drape_tab_in_a_real_window_during_and_after_a_fit():
     assert done.returncode == 0 and "UI DONE" in done.stdout, log[-4000:]
     assert "Traceback" not in log and "Error: Python" not in log and "UI FAILED" not in log, log[-4000:]
     assert "job=RUNNING" in done.stdout and "epoch" in done.stdout
+    assert "CANCELLED job=CANCELLED" in done.stdout  # Esc stopped the running fit
     shots = {}
     for name in ("addon_panel_fit_running.png", "addon_panel_fit_done.png"):
         img, _ = measure.read_image(os.path.join(ARTIFACTS, name))
