@@ -145,6 +145,42 @@ def test_skirt_resolution_range(body, style, target):
     assert np.degrees(gskirt.triangle_angles(g.uv, g.faces)).min() > 20
 
 
+@pytest.mark.parametrize("case", range(6))
+def test_skirts_fit_other_bodies(case):
+    """Random bodies and skirt measurements (seeded): every skirt is valid, clear of its body, well shaped, not
+    self-intersecting, close to its pattern, and near the requested resolution."""
+    rng = np.random.default_rng([2026, case])
+    hip = rng.uniform(0.85, 1.2)
+    waist = rng.uniform(0.6, min(hip, 1.0))
+    b = gbody.make_body(height_m=rng.uniform(1.5, 1.95), hip_circumference_m=hip, waist_circumference_m=waist)
+    style = gskirt.STYLES[case % 3]
+    n = int(rng.integers(1000, 3000))
+    g = gskirt.make_skirt(style, waist_circumference_m=waist * rng.uniform(0.97, 1.15), length_m=rng.uniform(0.2, 0.9),
+                          vertices=n, waistband_m=rng.uniform(0, 0.06), body=b)
+    assert abs(g.num_vertices - n) <= 0.15 * n
+    assert b.clearance(g.positions).min() >= gskirt.DEFAULT_CLEARANCE_M - 1e-6
+    assert np.degrees(gskirt.triangle_angles(g.positions, g.faces)).min() > 20
+    assert np.degrees(gskirt.triangle_angles(g.uv, g.faces)).min() > 20
+    assert len(gmesh.self_intersections(g.positions, g.faces, g.point_index())) == 0
+    e = np.abs(gskirt.rest_strain(g))
+    assert e.max() < 0.2 and np.median(e) < 0.01
+
+
+def test_thin_waistband_keeps_triangles_well_shaped(body):
+    g = gskirt.make_skirt("aline", vertices=2000, waistband_m=0.002, body=body)
+    assert np.degrees(gskirt.triangle_angles(g.uv, g.faces)).min() > 20
+    top = g.positions[:, 2].max()
+    assert np.allclose(g.positions[g.waist_vertices, 2], top)                # the band is the waist edge's row
+
+
+def test_aline_flares_more_for_wide_hips():
+    wide = gbody.make_body(hip_circumference_m=1.2, waist_circumference_m=0.66)
+    g = gskirt.make_skirt("aline", waist_circumference_m=0.66, body=wide, vertices=2000)
+    hem = g.positions[g.hem_vertices]
+    assert np.hypot(hem[:, 0], hem[:, 1]).mean() > 0.30                      # default hips: 0.276 m
+    assert np.median(np.abs(gskirt.rest_strain(g))) < 1e-3                   # still a cone (but at the waistband)
+
+
 def test_skirt_is_deterministic(body):
     a = gskirt.make_skirt("circle", vertices=3000, body=body)
     b = gskirt.make_skirt("circle", vertices=3000, body=body)
