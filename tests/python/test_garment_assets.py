@@ -240,6 +240,20 @@ def test_rest_strain(skirts):
         assert np.percentile(e, 99) < 0.05, style
 
 
+def test_rest_placement_has_no_creases(skirts):
+    """Dihedral angles across interior edges (the native model's bending edges) stay moderate: the relaxed circle
+    skirt's folds spread over several triangles."""
+    from drapelab.garment import material
+    for style, g in skirts.items():
+        st = material.garment_bending_edges(g)
+        a, b, c, d = (g.positions[st[:, k]] for k in range(4))
+        e = b - a
+        n1, n2 = np.cross(e, c - a), np.cross(d - a, e)
+        angle = np.degrees(np.abs(np.arctan2(np.einsum("ij,ij->i", np.cross(n1, n2), e) / np.linalg.norm(e, axis=1),
+                                             np.einsum("ij,ij->i", n1, n2))))
+        assert angle.max() < 60, style
+
+
 @pytest.mark.parametrize("style", gskirt.STYLES)
 def test_skirt_has_no_self_intersection(body, style):
     for vertices in (2000, 20000 if style == "circle" else 6000):   # the relaxed placement at both ends
