@@ -86,7 +86,7 @@ assert preset["model"] == "homo" and preset["training"]["epochs"] == 1 and prese
 metrics = json.loads(s.metrics_json)["metrics"]
 assert 0.5 < metrics["iou"] <= 1.0, metrics
 assert bpy.data.images[s.overlay_image].size[0] > 100 and bpy.data.images[s.rtheta_image].size[0] > 100
-assert len(s.history()) == 1
+assert len(s.history()) == 1 and bpy.data.images[s.history_image].size[0] > 100  # the chart redrawn after a fit
 assert jobs.current("fit").state.status == jobs.DONE
 
 # -- presets: export to a file, load it back, save as a user preset by name, refuse a bad file

@@ -9,7 +9,9 @@ simulated events Blender's --enable-event-simulate allows: 3.4 has no Python set
 fit starts as the UI would start it (INVOKE_DEFAULT: worker thread + modal timer); once epochs report, the
 window is captured with screen.screenshot (OUT_DIR/addon_panel_fit_running.png); Esc (a simulated key press over
 the 3D view) cancels the fit through the modal operator; a 1-epoch fit then runs to the end and the sidebar, scrolled down to its overlay and r(theta)
-plot, is captured (OUT_DIR/addon_panel_fit_done.png); Blender quits. Prints "SCREENSHOT <path> ..." per picture
+plot, is captured (OUT_DIR/addon_panel_fit_done.png); then a 3-draw diagnosis of that preset and Apply Material
+on a sphere with its heat map, with the Diagnose, Presets and Garment panels open, scrolled to the top
+(OUT_DIR/addon_panel_diagnose_garment.png); Blender quits. Prints "SCREENSHOT <path> ..." per picture
 and "UI DONE"; a failure prints "UI FAILED ..." and exits 1.
 """
 import os
@@ -24,6 +26,7 @@ sys.path[:0] = [os.path.join(root, "addon"), os.environ["DRAPELAB_NATIVE_DIR"]]
 OUT_DIR = sys.argv[sys.argv.index("--") + 1] if "--" in sys.argv else os.path.join(root, "build", "test-artifacts")
 RUNNING_PNG = os.path.join(OUT_DIR, "addon_panel_fit_running.png")
 DONE_PNG = os.path.join(OUT_DIR, "addon_panel_fit_done.png")
+SECTIONS_PNG = os.path.join(OUT_DIR, "addon_panel_diagnose_garment.png")
 SCROLL_STEPS = 22       # wheel steps that scroll the sidebar from the top down to the finished fit's pictures
 IMAGE = os.path.join(root, "assets", "cusick", "fabric_02", "silhouettes", "sample_02_capture_1.jpg")
 TABS_AFTER_ITEM = 3     # factory sidebar tabs: Item, Tool, View, then the add-on's Drape
@@ -142,6 +145,37 @@ def step():
         with bpy.context.temp_override(window=win, area=area):
             bpy.ops.screen.screenshot(filepath=DONE_PNG)
         print(f"SCREENSHOT {DONE_PNG} job={jobs.current('fit').state.status}", flush=True)
+        # the other sections drawn with content: a short diagnosis of the fitted preset (synchronous: execute), a
+        # garment with Apply Material's attributes; the closed-by-default panels re-registered open
+        cube = bpy.data.objects.get("Cube")
+        if cube is not None:
+            bpy.data.objects.remove(cube)
+        with bpy.context.temp_override(window=win, area=area, region=regions['WINDOW']):
+            assert bpy.ops.drapelab.diagnose(samples=3, time_budget=30.0) == {'FINISHED'}
+            bpy.ops.mesh.primitive_uv_sphere_add(segments=32, ring_count=16, radius=1.0)
+            assert bpy.ops.drapelab.apply_material(triangulate=True, preset="fabric_02_cotton_blue_bdp") == {'FINISHED'}
+            s.heat_attribute = "drapelab_bend_warp"
+            assert bpy.ops.drapelab.show_heat_map() == {'FINISHED'}
+        # Blender keeps a panel's open/closed state per panel id and 3.4 has no Python setter for it: the closed
+        # panels are registered again under new ids (same draw code), which open by default; Measurement and Fit
+        # are closed the same way so that the others come to the top
+        from drapelab.ui import panels
+        for cls in panels.CLASSES[1:]:
+            bpy.utils.unregister_class(cls)
+        for cls in panels.CLASSES[1:]:
+            shown = cls in (panels.DRAPELAB_PT_diagnose, panels.DRAPELAB_PT_presets, panels.DRAPELAB_PT_garment)
+            bpy.utils.register_class(type(cls.__name__ + "_shot", (cls,), {
+                "bl_idname": cls.bl_idname + "_shot", "bl_options": set() if shown else {'DEFAULT_CLOSED'}}))
+        ui = regions['UI']
+        x, y = ui.x + ui.width // 2, ui.y + ui.height // 2
+        for _ in range(3 * SCROLL_STEPS):  # back to the top of the sidebar
+            win.event_simulate('WHEELUPMOUSE', 'PRESS', x=x, y=y)
+        state["step"] = "shot_sections"
+        return 5.0  # the history chart's preview renders in the background
+    if state["step"] == "shot_sections":
+        with bpy.context.temp_override(window=win, area=area):
+            bpy.ops.screen.screenshot(filepath=SECTIONS_PNG)
+        print(f"SCREENSHOT {SECTIONS_PNG}", flush=True)
         print("UI DONE", flush=True)
         bpy.ops.wm.quit_blender()
         return None

@@ -35,12 +35,12 @@ def test_drape_tab_in_a_real_window_during_and_after_a_fit():
     assert "job=RUNNING" in done.stdout and "epoch" in done.stdout
     assert "CANCELLED job=CANCELLED" in done.stdout  # Esc stopped the running fit
     shots = {}
-    for name in ("addon_panel_fit_running.png", "addon_panel_fit_done.png"):
+    for name in ("addon_panel_fit_running.png", "addon_panel_fit_done.png", "addon_panel_diagnose_garment.png"):
         img, _ = measure.read_image(os.path.join(ARTIFACTS, name))
         img = np.asarray(img)
         assert img.shape == (SCREEN[1], SCREEN[0]), img.shape
         assert img.std() > 0.05, f"{name} looks blank"
         shots[name] = img
     # the 3D view's sidebar (right of the viewport, left of the outliner) differs between the two states
-    a, b = (shots[n][:, int(0.68 * SCREEN[0]):int(0.82 * SCREEN[0])] for n in shots)
+    a, b = (shots[n][:, int(0.68 * SCREEN[0]):int(0.82 * SCREEN[0])] for n in list(shots)[:2])
     assert np.abs(a - b).mean() > 0.01

@@ -189,10 +189,19 @@ class DRAPELAB_OT_remove_image(bpy.types.Operator):
 
 
 # ---------------------------------------------------------------- fit
-def _append_history(s, entry):
+HISTORY_MAX = 20  # model versions kept in the scene's error history
+
+
+def _append_history(s, entry, chart=True):
+    """Adds a model version's errors to the scene's history and redraws the history chart."""
     h = s.history()
     h.append(entry)
-    s.history_json = json.dumps(h[-20:])
+    s.history_json = json.dumps(h[-HISTORY_MAX:])
+    if chart:
+        png = os.path.join(cache_dir(), "previews", "history.png")
+        os.makedirs(os.path.dirname(png), exist_ok=True)
+        figures.history_chart(h[-HISTORY_MAX:], png)
+        s.history_image = previews.load(png, "history")
 
 
 class DRAPELAB_OT_fit(_JobOperator, bpy.types.Operator):
@@ -285,9 +294,10 @@ class DRAPELAB_OT_diagnose(_JobOperator, bpy.types.Operator):
             s.history_image = previews.load(result["history_png"], "history")
         d = result["diagnosis"]
         base = d.get("base")
-        if base:
+        if base:  # the chart the job drew already holds this diagnosis's models
             _append_history(s, {"model": f"{s.fabric_name or 'preset'} (diagnose base)", "mse": base["mse"],
-                                "iou": base.get("iou"), "dc_error": base.get("dc_error"), "source": "diagnose"})
+                                "iou": base.get("iou"), "dc_error": base.get("dc_error"), "source": "diagnose"},
+                            chart=False)
         return d.get("verdict") or "diagnosis written"
 
 

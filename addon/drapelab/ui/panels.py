@@ -164,8 +164,8 @@ class DRAPELAB_PT_diagnose(_Panel, bpy.types.Panel):
         s = context.scene.drapelab
         layout = self.layout
         row = layout.row()
-        row.prop(s, "diagnose_budget")
-        row.prop(s, "diagnose_samples")
+        row.prop(s, "diagnose_budget", text="Budget (s)")
+        row.prop(s, "diagnose_samples", text="Draws")
         running = _job_box(layout, "diagnose", context)
         row = layout.row()
         row.enabled = not running and jobs.current() is None and bool(s.preset_path)
@@ -176,15 +176,20 @@ class DRAPELAB_PT_diagnose(_Panel, bpy.types.Panel):
                 for line in _wrap(d["verdict"], _chars(context)):
                     layout.label(text=line)
             box = layout.box()
-            box.label(text="Missing effects, most likely first")
+            box.label(text="Missing effect? Likeliest first")
             for e in d.get("ranking", []):
-                r = box.row()
+                col = box.column(align=True)
+                col.label(text=e["effect"].replace("_", " "), icon='DOT')
+                r = col.row(align=True)
                 p = e.get("p_value")
-                r.label(text=f"{e['effect']}: p {p:.2g}" if p is not None else f"{e['effect']}: not tested")
-                if e.get("gain") is not None:
-                    r.label(text=f"gain {e['gain']:.3g}")
+                r.label(text=(f"p {p:.2g}" if p is not None else "not tested") +
+                        (f", gain {e['gain']:.3g}" if e.get("gain") is not None else ""))
                 op = r.operator("drapelab.add_effect", text="Add", icon='ADD')
                 op.effect = e["effect"]
+                refit = (e.get("refit") or {}).get("preset")
+                if refit:  # the diagnosis's refit with this effect, as a preset to use directly
+                    op = r.operator("drapelab.load_preset", text="Use refit", icon='IMPORT')
+                    op.filepath = os.path.join(os.path.dirname(bpy.path.abspath(s.diagnosis_path)), refit)
             row = layout.row()
             row.enabled = jobs.current() is None
             row.operator("drapelab.fit", text="Refit", icon='FILE_REFRESH')
