@@ -9,7 +9,7 @@ import re
 import time
 
 from .. import diagnose as diagnose_module
-from .. import infer, measure
+from .. import infer
 from . import figures
 
 __all__ = ["fit_work", "diagnose_work", "safe_name"]
