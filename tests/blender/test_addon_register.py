@@ -180,6 +180,25 @@ expect_error(lambda: bpy.ops.drapelab.apply_material(), "no UV map")
 ok(bpy.ops.drapelab.apply_material(default_uv=True), "apply_material default uv")
 assert garment_ops.DEFAULT_UV_NAME in bare.data.uv_layers
 
+# bad geometry is named before anything runs: three faces on one edge, a vertex in no face
+def flat(name, verts, faces):
+    me = bpy.data.meshes.new(name)
+    me.from_pydata(verts, [], faces)
+    layer = me.uv_layers.new(name="UVMap")
+    layer.data.foreach_set("uv", np.array([verts[i][:2] for f in faces for i in f], dtype=np.float64).ravel())
+    obj = bpy.data.objects.new(name, me)
+    bpy.context.scene.collection.objects.link(obj)
+    return obj
+
+
+fin = flat("fin", [(0, 0, 0), (1, 0, 0), (0.5, 1, 0), (0.5, -1, 0), (0.5, 0.2, 1)], [(0, 1, 2), (1, 0, 3), (0, 1, 4)])
+activate(fin)
+expect_error(lambda: bpy.ops.drapelab.apply_material(), "non-manifold edge")
+loose = flat("loose", [(0, 0, 0), (1, 0, 0), (0, 1, 0), (3, 3, 0)], [(0, 1, 2)])
+activate(loose)
+expect_error(lambda: bpy.ops.drapelab.apply_material(), "loose vertex 3")
+assert not [a for a in fin.data.attributes if a.name.startswith("drapelab_")]
+
 skirt = tube("skirt")
 activate(skirt)
 ok(bpy.ops.drapelab.apply_material(preset="fabric_02_cotton_blue_bdp", seed=3), "apply_material")

@@ -3,6 +3,7 @@
 files (drapelab.ui.presets). None of them may import bpy."""
 import json
 import os
+import shutil
 import subprocess
 import sys
 import threading
@@ -199,3 +200,44 @@ def test_cancel_stops_a_running_diagnosis_within_a_second(tmp_path):
     print(f"diagnose cancelled after 4 s: stopped in {1000 * delay:.0f} ms ({job.state.snapshot()['message']})")
     assert delay < CANCEL_LIMIT_S
     assert job.state.status == jobs.DONE and job.state.result["diagnosis"]["cancelled"]  # what was done is kept
+
+
+BLENDER_EXIT_SCRIPT = r'''
+import os, sys, time
+sys.path[:0] = [os.path.join(os.environ["DRAPELAB_ROOT"], "addon"), os.environ["DRAPELAB_NATIVE_DIR"]]
+import bpy, drapelab
+drapelab.register()
+from drapelab.ui import jobs, tasks
+image = os.path.join(os.environ["DRAPELAB_ROOT"], "assets", "cusick", "fabric_02", "silhouettes", "sample_02_capture_1.jpg")
+work = tasks.fit_work([image], 0.192, sys.argv[-1], model="homo", epochs=500, mesh_level=2, calibrate=False)
+
+def logged(state):
+    try:
+        return work(state)
+    finally:
+        print(f"WORKER ENDED cancel={state.cancel.is_set()} at {time.time():.3f}", flush=True)
+
+job = jobs.start("fit", logged)
+time.sleep(2.0)
+assert job.alive
+print(f"QUITTING at {time.time():.3f}", flush=True)
+bpy.ops.wm.quit_blender()
+'''
+
+
+@pytest.mark.skipif(not shutil.which("blender"), reason="needs Blender")
+def test_quitting_blender_stops_a_running_job(tmp_path):
+    script = tmp_path / "quit.py"
+    script.write_text(BLENDER_EXIT_SCRIPT)
+    env = dict(os.environ, DRAPELAB_ROOT=ROOT, DRAPELAB_NATIVE_DIR=os.path.join(ROOT, "build", "python"))
+    t = time.monotonic()
+    done = subprocess.run(["blender", "--background", "--factory-startup", "--python", str(script), "--",
+                           str(tmp_path)], env=env, capture_output=True, text=True, timeout=120)
+    elapsed = time.monotonic() - t
+    out = done.stdout
+    assert "QUITTING" in out and "WORKER ENDED cancel=True" in out, out[-2000:] + done.stderr[-2000:]
+    quit_at = float(out.split("QUITTING at ")[1].split()[0])
+    ended_at = float(out.split("WORKER ENDED cancel=True at ")[1].split()[0])
+    print(f"Blender quit mid-fit: the worker ended {1000 * (ended_at - quit_at):.0f} ms after the quit; "
+          f"whole run {elapsed:.1f} s")
+    assert ended_at - quit_at < 2.0
