@@ -168,6 +168,12 @@ def _sign_flip_p(z):
     return float(np.mean(a >= observed * (1 - 1e-9)))
 
 
+def _is_switch(entry):
+    """An effect whose primary parameter is structural (disk_contact's clamp radius): no score test at its off
+    value (CONVENTIONS.md: a genuine switch is judged by its refit alone, and the report says so)."""
+    return bool(entry["parameters"][0].get("structural"))
+
+
 def _check_inputs(preset, images, meshes, candidates, time_budget, samples):
     if not images:
         raise InputError("images: give at least one measured silhouette")
@@ -464,13 +470,20 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
     alpha = float(alpha)
     if not 0 < alpha <= 1:
         raise InputError(f"alpha: a significance level in (0, 1], got {alpha}")
-    threshold = alpha / max(1, len(names))
+    switches = [n for n in names if _is_switch(reg[n])]
+    named = {str(c).strip() for c in (candidates.split(",") if isinstance(candidates, str) else (candidates or []))}
+
+    def explicit_switch(n):
+        return n in named
+    tested_names = [n for n in names if n not in switches]
+    threshold = alpha / max(1, len(tested_names))
     label = (p.get("fabric") or {}).get("name") or (os.path.basename(preset_path) if preset_path else "preset")
     result = {"preset": preset_path, "model": p["model"], "images": list(images), "samples": k, "seed": int(seed),
               "candidates": names, "base": None, "ranking": [], "recommended": None, "threshold": threshold,
-              "threshold_rule": f"alpha {alpha:g} Bonferroni-corrected over the {len(names)} candidates tested "
-                                f"({alpha:g} / {len(names)}): the family-wise chance of naming an effect on data "
+              "threshold_rule": f"alpha {alpha:g} Bonferroni-corrected over the {len(tested_names)} candidates tested "
+                                f"({alpha:g} / {len(tested_names)}): the family-wise chance of naming an effect on data "
                                 f"without one stays below {alpha:g}",
+              "switches": switches,
               "test": "Hotelling T^2 of the per-draw score (pixel data term gradient at the off value, the bending "
                       "scale's part projected out, norms capped), p from sign flips of the draws; p_value_f: "
                       "Hotelling's F(q, K - 1 - q), p_value_chi2: the asymptotic chi2(q)",
@@ -523,8 +536,14 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                 keys.append(f"{keys[0]}@{q}")
                 scales.append(params[0]["prior_scale"])
             entry = {"effect": n, "parameters": keys, "statistic": None, "p_value": None, "refit": None,
-                     "gain": None, "explanation": None}
-            if len(g_done) >= MIN_SAMPLES:
+                     "gain": None, "explanation": None, "switch": n in switches}
+            if n in switches:
+                entry["explanation"] = (f"{reg[n]['explanation']}. Predicts {reg[n]['signature']}. A switch: its "
+                                        f"primary parameter ({params[0]['name']}) chooses the model's structure, so "
+                                        "it has no score at its off value; judged by its refit alone"
+                                        + ("." if explicit_switch(n) else
+                                           " (refitted only when named: --candidates " + n + ")."))
+            elif len(g_done) >= MIN_SAMPLES:
                 st = score_test([[g[key] for key in keys] for g in g_done], scales,
                                 clip=(config.get("gradient_clip") or {}).get("factor"),
                                 nuisance=[g["bend.log_scale"] for g in g_done])
@@ -550,6 +569,7 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
 
         # 2. refits of the most promising candidates
         promising = [e for e in result["ranking"] if e["p_value"] is not None and e["p_value"] < threshold][:MAX_REFITS]
+        promising += [e for e in result["ranking"] if e["switch"] and explicit_switch(e["effect"])]
         if promising:
             result["material_prior"] = ("the preset's posterior (log_mean, per-entry log_std, global_log_std), held "
                                         "fixed in the refit (material learning rates x "
@@ -596,14 +616,15 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
         result["cancelled"] = True
         _progress(progress, "cancelled", "cancelled: writing what is done")
 
-    gaining = [e for e in result["ranking"] if e["p_value"] is not None and e["p_value"] < threshold
-               and e["gain"] is not None and e["gain"] > 0]
+    gaining = [e for e in result["ranking"] if ((e["p_value"] is not None and e["p_value"] < threshold)
+                                                 or e["switch"]) and e["gain"] is not None and e["gain"] > 0]
     if gaining:
         best = max(gaining, key=lambda e: e["gain"])
         result["recommended"] = best["effect"]
-        result["verdict"] = (f"{best['effect']} is significant (p = {best['p_value']:.2g} < {threshold:.2g}) and its "
-                             f"refit lowers the loss by {best['gain']:.4g} per added parameter: "
-                             f"fit --effects {best['effect']}")
+        why = ("a switch judged by its refit alone" if best["switch"] else
+               f"significant (p = {best['p_value']:.2g} < {threshold:.2g})")
+        result["verdict"] = (f"{best['effect']} is {why} and its refit lowers the loss by {best['gain']:.4g} per "
+                             f"added parameter: fit --effects {best['effect']}")
     else:
         tested = [e for e in result["ranking"] if e["p_value"] is not None]
         significant = [e for e in tested if e["p_value"] < threshold]

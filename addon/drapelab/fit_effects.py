@@ -61,6 +61,10 @@ class EffectPlan:
             values = {}
             for p in entry["parameters"]:
                 value = given.get(p["name"], p["off"] if not fit_all else None)
+                if value is None and p.get("structural"):
+                    # A structural parameter (disk_contact's clamp radius) chooses the model's structure and has
+                    # no gradient: held at the value given, or at its registry strength when the effect is fitted.
+                    value = p["moderate"]
                 if value is None:
                     self.free.append((name, p))
                     value = p["off"]

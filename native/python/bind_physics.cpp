@@ -107,6 +107,7 @@ py::list effect_list() {
       d["upper"] = q.upper;
       d["prior_scale"] = q.prior_scale;
       d["moderate"] = q.moderate;
+      d["structural"] = q.structural;
       d["description"] = q.description;
       params.append(d);
     }
@@ -126,7 +127,7 @@ void bind_physics(py::module_& m) {
   m.def(
       "effects", effect_list,
       "The effect registry (physics/effect.hpp): a list of {name, explanation, signature, parameters: [{name, "
-      "unit, off, lower, upper, prior_scale, moderate, description}]}, in registration order.");
+      "unit, off, lower, upper, prior_scale, moderate, description, structural}]}, in registration order.");
 
   py::class_<PyProgress, std::shared_ptr<PyProgress>>(
       m, "Progress",

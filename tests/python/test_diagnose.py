@@ -116,7 +116,12 @@ def test_tilted_drape_ranks_tilt_first_and_the_control_is_clean(images, tmp_path
     control = diagnose.diagnose(PRESET, [images["control"]], samples=16, seed=0, config=cfg, mesh_level=1,
                                 time_budget=1.0)
     assert control["recommended"] is None
-    assert min(e["p_value"] for e in control["ranking"]) >= control["threshold"], control["ranking"]
+    assert min(e["p_value"] for e in control["ranking"] if not e["switch"]) >= control["threshold"], control["ranking"]
+    # disk_contact is a switch: listed without a score test, not refitted unless named
+    switch = next(e for e in tilt["ranking"] if e["effect"] == "disk_contact")
+    assert switch["switch"] and switch["p_value"] is None and switch["refit"] is None
+    assert "judged by its refit alone" in switch["explanation"] and "--candidates disk_contact" in switch["explanation"]
+    assert tilt["switches"] == ["disk_contact"]
     assert control["verdict"].startswith("Nothing significant")
     print("tilt", [(e["effect"], e["statistic"], e["p_value"], e["refit"], e["gain"]) for e in tilt["ranking"]],
           tilt["seconds"], "control", [(e["effect"], e["statistic"], e["p_value"]) for e in control["ranking"]],

@@ -59,6 +59,9 @@ struct EnergyModulation {
 struct BaseTermChanges {
   RestScaling stretch_rest;
   EnergyModulation bend;
+  // The handle holds the vertices whose rest radius is below this [m] instead of the model's support radius
+  // (disk_contact: a small centre clamp; the rest of the specimen lies on the support disk). NaN: unchanged.
+  double handle_radius = std::nan("");
 };
 
 }  // namespace drapelab

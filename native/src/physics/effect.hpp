@@ -38,6 +38,10 @@ struct EffectParameter {
   double prior_scale = 1;  // prior standard deviation when fitted, in the unit
   double moderate = 0;     // a moderate strength (synth data and tests), in the unit
   std::string description;
+  // Structural: the value chooses the model's structure (which vertices a clamp holds), so it is read from
+  // ModelOptions::effects when the model is built; a parameter vector must carry that same value, and fits hold
+  // it fixed (a genuine switch for the diagnosis: CONVENTIONS.md).
+  bool structural = false;
 };
 
 // What an effect's factory may read of the model being built (rest state, topology, the layout with the

@@ -70,6 +70,17 @@ Model::Model(const TriangleMesh& mesh, const ModelOptions& options) : mesh_(mesh
     const EffectSpec& spec = find_effect(name);
     if (spec.change_base_terms) spec.change_base_terms(context, changes);
   }
+  if (!std::isnan(changes.handle_radius)) {  // a smaller clamp (disk_contact): the effects' terms see the new set
+    handle_vertices_.clear();
+    anchors.clear();
+    for (int i = 0; i < nv; ++i)
+      if (mesh_.uv.row(i).norm() < changes.handle_radius) {
+        handle_vertices_.push_back(i);
+        anchors.push_back(mesh_.positions.row(i).transpose());
+      }
+    if (handle_vertices_.empty())
+      throw InputError("model: no vertex lies inside the clamp (rest radius < clamp radius); use a larger clamp");
+  }
   terms_.push_back(std::make_unique<StretchTerm>(mesh_, stretch_off, shared, changes.stretch_rest));
   terms_.push_back(std::make_unique<BendTerm>(mesh_, edges_, bend_off, shared, changes.bend));
   terms_.push_back(std::make_unique<GravityTerm>(area_weights_, density_off, options.gravity));
@@ -137,6 +148,14 @@ void Model::validate_parameters(const Eigen::VectorXd& p) const {
       } catch (const InputError& e) {
         throw InputError(std::string("parameters: ") + e.what());
       }
+      const std::string effect = b.name.substr(0, dot), param = b.name.substr(dot + 1);
+      for (const auto& q : find_effect(effect).parameters)
+        if (q.name == param && q.structural && p[b.offset] != defaults_[b.offset]) {
+          std::ostringstream s;
+          s << "parameters: " << b.name << " = " << p[b.offset] << " differs from the model's " << defaults_[b.offset]
+            << ": it is structural (it chooses which vertices the model holds); build the model with the value";
+          throw InputError(s.str());
+        }
       continue;
     }
     for (int k = 0; k < b.size; ++k) {

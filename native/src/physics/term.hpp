@@ -62,6 +62,21 @@ class Term {
                                            const Eigen::VectorXd& lambda, const Eigen::VectorXd& w, double scale,
                                            Eigen::VectorXd& gx, Eigen::VectorXd& gp) const = 0;
 
+  // Contact terms (contact/, physics effects disk_contact and self_contact) carry a barrier that is infinite
+  // where surfaces touch; solvers then take nonlinear steps (solver/implicit_euler.hpp, static_solve.hpp)
+  // bounded by max_step. Defaults: not a contact term, any step allowed, nothing lagged.
+  virtual bool is_contact() const { return false; }
+  // Largest fraction alpha in (0, 1] of the step dx from x such that every contact pair stays apart along
+  // x + t dx for t in [0, alpha] (continuous collision detection, conservative).
+  virtual double max_step(const Eigen::VectorXd& /*x*/, const Eigen::VectorXd& /*dx*/,
+                          const Eigen::VectorXd& /*p*/) const {
+    return 1.0;
+  }
+  // Called by a time stepper with the state at the start of each step (time step h [s]): lagged quantities
+  // (friction's normal forces and tangent frames, IPC's lagged friction) are taken from it. h = 0: a
+  // static solve (no friction: the static equilibrium is the frictionless one).
+  virtual void begin_step(const Eigen::VectorXd& /*x*/, const Eigen::VectorXd& /*p*/, double /*h*/) {}
+
   // Optional, for speed (defaults are correct for every term):
   // out += scale * K(x; p) dir without assembling K. Returns false if the term does not provide it (the
   // caller then assembles K).

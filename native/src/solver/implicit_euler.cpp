@@ -1,8 +1,11 @@
 #include "solver/implicit_euler.hpp"
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <sstream>
+#include <cstdio>
+#include <cstdlib>
 
 #include "util/error.hpp"
 
@@ -57,7 +60,16 @@ Eigen::VectorXd ImplicitEuler::forward(const Eigen::VectorXd& p, const RolloutOp
   timing_ = {};
   Eigen::VectorXd A, b;
   double kept_bytes = 0;
+  const bool contact = has_contact();
   for (int step = 0; step < options.steps; ++step) {
+    if (contact) {
+      Eigen::VectorXd v_next = contact_step(p, options, step);
+      if (options.record) tape_.push_back({x_, v_, v_next - v_, CholmodSolver::Factor(), true});
+      x_ = x_ + h_ * v_next;
+      v_ = std::move(v_next);
+      if (progress) progress->step(step + 1, options.steps);
+      continue;
+    }
     auto t0 = std::chrono::steady_clock::now();
     step_system(x_, v_, p, h_, A, b);
     timing_.assemble += seconds_since(t0);
@@ -117,6 +129,11 @@ RolloutGradient ImplicitEuler::backward(const Eigen::VectorXd& dL_dx, const Eige
   const int T = static_cast<int>(tape_.size());
   for (int t = T - 1; t >= 0; --t) {
     const StepRecord& r = tape_[t];
+    if (r.contact) {
+      contact_step_adjoint(r, gx, gv, gp);
+      if (progress) progress->step(T - t, T);
+      continue;
+    }
     // x' = x + h v', v' = v + y
     const Eigen::VectorXd gv_total = gv + h * gx;
     Eigen::VectorXd lambda;
@@ -148,6 +165,192 @@ RolloutGradient ImplicitEuler::backward(const Eigen::VectorXd& dL_dx, const Eige
     if (progress) progress->step(T - t, T);
   }
   return {gp, gx, gv};
+}
+
+bool ImplicitEuler::has_contact() const {
+  for (const auto& t : model_.terms())
+    if (t->is_contact()) return true;
+  return false;
+}
+
+namespace {
+constexpr double kStandardGravity = 9.8;  // m/s^2: residual forces are measured in vertex weights
+constexpr double kArmijo = 1e-4;          // sufficient decrease of the incremental potential
+constexpr double kMinStep = 1e-6;         // smallest line-search step tried
+// A Newton move this small (m) ends the iterations: the incremental potential no longer resolves it in double
+// precision (a 10 cm specimen's potential changes by ~1e-16 relative), and the state is then as converged as
+// the residual test can see.
+constexpr double kNegligibleMove = 1e-9;
+}  // namespace
+
+Eigen::VectorXd ImplicitEuler::contact_step(const Eigen::VectorXd& p, const RolloutOptions& options, int step) {
+  const int n = model_.num_dofs(), nv = model_.num_vertices();
+  const SparsePattern& pattern = model_.pattern();
+  const double h = h_, inv_h2 = 1.0 / (h * h);
+  const Eigen::VectorXd m = model_.masses(p);
+  for (const auto& t : model_.terms()) t->begin_step(x_, p, h);
+  const Eigen::VectorXd x_hat = x_ + h * v_;
+  auto potential = [&](const Eigen::VectorXd& x) {
+    double inertia = 0;
+    for (int i = 0; i < nv; ++i) inertia += m[i] * (x.segment<3>(3 * i) - x_hat.segment<3>(3 * i)).squaredNorm();
+    return 0.5 * inv_h2 * inertia + model_.energy(x, p);
+  };
+  auto gradient = [&](const Eigen::VectorXd& x, Eigen::VectorXd& g) {
+    g.setZero(n);
+    model_.add_gradient(x, p, g);
+    for (int i = 0; i < nv; ++i) g.segment<3>(3 * i) += inv_h2 * m[i] * (x.segment<3>(3 * i) - x_hat.segment<3>(3 * i));
+  };
+  auto residual = [&](const Eigen::VectorXd& g) {
+    double r = 0;
+    for (int i = 0; i < nv; ++i) r = std::max(r, g.segment<3>(3 * i).norm() / (m[i] * kStandardGravity));
+    return r;
+  };
+  Eigen::VectorXd x = x_, g, A, dx, xn;
+  double Phi = potential(x);
+  if (!std::isfinite(Phi)) {
+    std::ostringstream s;
+    s << "rollout: step " << step << " starts in contact (a vertex touches an obstacle or the cloth itself)";
+    throw SolverError(s.str());
+  }
+  // Start from the inertial prediction x_hat as far as collision detection allows (x_t if that is no better):
+  // away from first impacts it is within a Newton step or two of the minimiser.
+  {
+    dx = x_hat - x;
+    double alpha = 1.0;
+    for (const auto& t : model_.terms()) alpha = std::min(alpha, t->max_step(x, dx, p));
+    xn = x + alpha * dx;
+    const double Pn = potential(xn);
+    if (std::isfinite(Pn) && Pn < Phi) {
+      x = xn;
+      Phi = Pn;
+    }
+  }
+  gradient(x, g);
+  int exact_fails = 0;  // the exact Hessian is tried again only after it factorised (or every 4th iteration)
+  for (int it = 0; it < options.contact_max_iterations; ++it) {
+    const double r = residual(g);
+    if (r < options.contact_force_tolerance) break;
+    auto t0 = std::chrono::steady_clock::now();
+    // Newton matrix: the static solve's (exact stretch with its compression softening, Gauss-Newton bending;
+    // StaticSolver) plus the contact terms' exact Hessians (over the rounded rim the barrier's Hessian is
+    // indefinite sideways; the inertia M/h^2 usually holds the sum definite, and projecting it per vertex
+    // made convergence linear); failing that, their PSD projections; failing that, the PSD step matrix K
+    // (K alone drops the membrane's compression softening and crawls: 10-50 iterations per step).
+    auto assemble = [&](int kind) {
+      A.setZero(pattern.nnz());
+      for (const auto& t : model_.terms()) {
+        if (kind == 3) t->add_step_matrix(x, p, 1.0, A);
+        else if (kind == 0 || (t->is_contact() && kind == 1)) t->add_hessian(x, p, 1.0, A);
+        else if (t->is_contact()) t->add_projected_hessian(x, p, 1.0, A);
+        else t->add_static_newton_matrix(x, p, 1.0, A);
+      }
+      for (int i = 0; i < nv; ++i)
+        for (int k = 0; k < 3; ++k) A[pattern.diagonal(3 * i + k)] += inv_h2 * m[i];
+    };
+    bool factorised = false;
+    for (int kind = (exact_fails % 4 == 0 ? 0 : 1); kind < 4 && !factorised; ++kind) {
+      assemble(kind);
+      factorised = solver_.factorize(A);
+      ++timing_.factorizations;
+      if (kind == 0) exact_fails = factorised ? 0 : exact_fails + 1;
+      else if (kind == 1 && exact_fails > 0) ++exact_fails;
+    }
+    if (!factorised) {
+      std::ostringstream s;
+      s << "rollout: step " << step << " contact Newton matrix is not positive definite";
+      throw SolverError(s.str());
+    }
+    timing_.factorize += seconds_since(t0);
+    t0 = std::chrono::steady_clock::now();
+    dx = -solver_.solve(g);
+    timing_.solve += seconds_since(t0);
+    ++timing_.newton_iterations;
+    if (dx.lpNorm<Eigen::Infinity>() < kNegligibleMove) {  // below what the potential resolves: converged
+      xn = x + dx;
+      if (std::isfinite(potential(xn))) x = xn;
+      break;
+    }
+    double alpha = 1.0;
+    for (const auto& t : model_.terms()) alpha = std::min(alpha, t->max_step(x, dx, p));
+    const double slope = g.dot(dx);
+    bool accepted = false;
+    for (; alpha > kMinStep; alpha *= 0.5) {
+      xn = x + alpha * dx;
+      const double Pn = potential(xn);
+      if (std::isfinite(Pn) && Pn <= Phi + kArmijo * alpha * slope) {
+        x = xn;
+        Phi = Pn;
+        accepted = true;
+        break;
+      }
+    }
+    if (std::getenv("DRAPELAB_DEBUG_CONTACT"))
+      std::fprintf(stderr, "step %d it %d residual %.3g cap %.3g alpha %.3g |dx| %.3g\n", step, it, r,
+                   [&] { double c = 1; for (const auto& t : model_.terms()) c = std::min(c, t->max_step(x, dx, p)); return c; }(),
+                   accepted ? alpha : 0.0, dx.lpNorm<Eigen::Infinity>());
+    if (!accepted) {
+      // Round-off: the potential no longer resolves the decrease; accept a step that lowers the residual.
+      xn = x + dx * std::min(1.0, alpha * 2);
+      Eigen::VectorXd gn;
+      gradient(xn, gn);
+      if (std::isfinite(potential(xn)) && residual(gn) < r) {
+        x = xn;
+        Phi = potential(x);
+        g = gn;
+        continue;
+      }
+      break;  // the last collision-free iterate is kept
+    }
+    gradient(x, g);
+  }
+  Eigen::VectorXd v_next = (x - x_) / h;
+  double max_speed = 0;
+  for (int i = 0; i < nv; ++i) max_speed = std::max(max_speed, v_next.segment<3>(3 * i).norm());
+  if (!v_next.allFinite() || max_speed > options.max_speed) {
+    std::ostringstream s;
+    s << "rollout: step " << step << " diverged (max vertex speed " << max_speed << " m/s > " << options.max_speed
+      << " m/s); reduce the time step or check the parameters";
+    throw SolverError(s.str());
+  }
+  return v_next;
+}
+
+void ImplicitEuler::contact_step_adjoint(const StepRecord& r, Eigen::VectorXd& gx, Eigen::VectorXd& gv,
+                                         Eigen::VectorXd& gp) {
+  // Forward: x' = argmin Phi(x; x_hat, p), x_hat = x + h v, v' = (x' - x)/h. With gbar = dL/dx' + dL/dv' / h and
+  // H lambda = gbar (H = M/h^2 + Hess E at x'): dL/dx_hat = M lambda / h^2, dL/dp = -lambda . d(grad Phi)/dp.
+  const int nv = model_.num_vertices();
+  const SparsePattern& pattern = model_.pattern();
+  const double h = h_, inv_h2 = 1.0 / (h * h);
+  const Eigen::VectorXd m = model_.masses(p_);
+  const Eigen::VectorXd v_next = r.v + r.y;
+  const Eigen::VectorXd x_next = r.x + h * v_next, x_hat = r.x + h * r.v;
+  // The lagged friction state of this step, as the forward had it.
+  for (const auto& t : model_.terms()) t->begin_step(r.x, p_, h);
+  const Eigen::VectorXd gbar = gx + gv / h;
+  Eigen::VectorXd H = Eigen::VectorXd::Zero(pattern.nnz());
+  for (const auto& t : model_.terms()) t->add_hessian(x_next, p_, 1.0, H);
+  for (int i = 0; i < nv; ++i)
+    for (int k = 0; k < 3; ++k) H[pattern.diagonal(3 * i + k)] += inv_h2 * m[i];
+  if (!solver_.factorize(H)) {
+    H.setZero();
+    for (const auto& t : model_.terms()) t->add_static_newton_matrix(x_next, p_, 1.0, H);
+    for (int i = 0; i < nv; ++i)
+      for (int k = 0; k < 3; ++k) H[pattern.diagonal(3 * i + k)] += inv_h2 * m[i];
+    if (!solver_.factorize(H)) throw SolverError("backward: the contact step's Hessian is not positive definite");
+  }
+  const Eigen::VectorXd lambda = solver_.solve(gbar);
+  for (const auto& t : model_.terms()) t->add_gradient_parameter_product(x_next, p_, lambda, -1.0, gp);
+  const auto& density_block = model_.layout().block("density");
+  const Eigen::VectorXd& w = model_.area_weights();
+  double gdensity = 0;
+  for (int i = 0; i < nv; ++i)
+    gdensity -= inv_h2 * w[i] * lambda.segment<3>(3 * i).dot(x_next.segment<3>(3 * i) - x_hat.segment<3>(3 * i));
+  gp[density_block.offset] += gdensity;
+  Eigen::VectorXd Ml(lambda.size());
+  for (int i = 0; i < nv; ++i) Ml.segment<3>(3 * i) = m[i] * lambda.segment<3>(3 * i);
+  gx = inv_h2 * Ml - gv / h;
+  gv = Ml / h;
 }
 
 }  // namespace drapelab

@@ -4,7 +4,16 @@
 // Step t: A = M + h^2 K(x_t),  b = h F(x_t) - h^2 K(x_t) v_t,  A y = b,  v_{t+1} = v_t + y,
 //         x_{t+1} = x_t + h v_{t+1};  F = -dE/dx, K = the terms' PSD step matrix, M = lumped masses.
 // The adjoint differentiates exactly this map (including dK/dx and dK/dp) and solves A^T lambda = ...
-// with the forward factorisation kept for each step while the kept factors fit in
+// With a contact term active (Term::is_contact: disk_contact, self_contact) a step is instead the minimiser of
+// IPC's incremental potential (Li et al. 2020, sec. 3):
+//   x_{t+1} = argmin_x  1/(2h^2) (x - x_hat)^T M (x - x_hat) + E(x),   x_hat = x_t + h v_t,  v_{t+1} = (x_{t+1} - x_t)/h,
+// found by Newton iterations on the step matrix M/h^2 + K whose every step is first bounded by the terms'
+// continuous collision detection (Term::max_step) and then by an Armijo line search on the potential, so no
+// iterate ever crosses a contact; converged when every vertex's residual force is below
+// RolloutOptions::contact_force_tolerance of its weight. Its adjoint is the implicit function theorem at the
+// minimiser (exact Hessian of the potential, lagged friction quantities held constant). Without contact terms
+// the rollout is the linearised step above, bit for bit.
+// The linearised adjoint keeps the forward factorisation for each step while the kept factors fit in
 // RolloutOptions::factor_memory_mb (memory grows by (x_t, v_t, y_t, factor_t) per step); later steps keep
 // (x_t, v_t, y_t) only and the backward refactorises their matrix (same values, same result).
 #pragma once
@@ -24,6 +33,10 @@ struct RolloutOptions {
   double max_speed = 50.0;  // m/s: a step producing a faster vertex is reported as diverged
   bool record = true;       // keep what the adjoint needs
   double factor_memory_mb = 1024.0;  // budget for the factors kept for the adjoint (beyond it: refactorised)
+  // Contact steps (IPC): Newton iterations end when every residual force is below this fraction of the vertex's
+  // weight, or after contact_max_iterations (then the last collision-free iterate is kept).
+  double contact_force_tolerance = 1e-6;
+  int contact_max_iterations = 50;
 };
 
 struct RolloutGradient {
@@ -47,7 +60,7 @@ class ImplicitEuler {
   const Eigen::VectorXd& positions() const { return x_; }
   const Eigen::VectorXd& velocities() const { return v_; }
   // Timing split of the last forward (seconds): assembly, factorisation, solves.
-  struct Timing { double assemble = 0, factorize = 0, solve = 0; };
+  struct Timing { double assemble = 0, factorize = 0, solve = 0; int newton_iterations = 0, factorizations = 0; };
   const Timing& timing() const { return timing_; }
   CholmodSolver& linear_solver() { return solver_; }
   // A = M + h^2 K(x) (upper-triangle values) and b for one step; exposed for tests and benchmarks.
@@ -56,9 +69,15 @@ class ImplicitEuler {
 
  private:
   struct StepRecord {
-    Eigen::VectorXd x, v, y;
+    Eigen::VectorXd x, v, y;  // contact steps: y = v_{t+1} - v_t as well
     CholmodSolver::Factor factor;
+    bool contact = false;
   };
+  bool has_contact() const;
+  // One IPC step from (x_, v_): returns v_{t+1}. Throws SolverError naming the step if no descent is found.
+  Eigen::VectorXd contact_step(const Eigen::VectorXd& p, const RolloutOptions& options, int step);
+  // The adjoint of one IPC step (see the header): updates gx, gv (dL/dx_t, dL/dv_t) and gp.
+  void contact_step_adjoint(const StepRecord& r, Eigen::VectorXd& gx, Eigen::VectorXd& gv, Eigen::VectorXd& gp);
   const Model& model_;
   CholmodSolver solver_;
   std::vector<StepRecord> tape_;  // declared after solver_: factors freed before the solver

@@ -70,11 +70,25 @@ StaticResult StaticSolver::solve(const Eigen::VectorXd& p, const StaticOptions& 
   // Armijo backtracking along dx from the full step; an accepted full step is extended (x2 up to
   // kMaxExtension) while E keeps falling. Where E no longer resolves the decrease (round-off near the
   // minimum), a decrease of the residual instead. Moves x and returns the step length, 0 if none.
+  bool contact = false;
+  for (const auto& t : model_.terms()) {
+    contact = contact || t->is_contact();
+    t->begin_step(x, p, 0.0);  // a static drape: no friction
+  }
+  // Contact: the longest step (in units of dx, up to kMaxExtension) that continuous collision detection allows.
+  auto step_cap = [&]() {
+    if (!contact) return kMaxExtension;
+    const Eigen::VectorXd longest = kMaxExtension * dx;
+    double f = 1.0;
+    for (const auto& t : model_.terms()) f = std::min(f, t->max_step(x, longest, p));
+    return f * kMaxExtension;
+  };
   auto line_search = [&](double residual_now) {
     const double slope = g.dot(dx);
     if (!(slope < 0)) return 0.0;
+    const double cap = step_cap();
     double alpha = 0.0, E_best = E;
-    for (double a = 1.0; a > kMinStep && alpha == 0.0; a *= 0.5) {
+    for (double a = std::min(1.0, cap); a > kMinStep && alpha == 0.0; a *= 0.5) {
       xn = x + a * dx;
       const double En = model_.energy(xn, p);
       if (!std::isfinite(En)) continue;
@@ -90,7 +104,7 @@ StaticResult StaticSolver::solve(const Eigen::VectorXd& p, const StaticOptions& 
       }
     }
     if (alpha == 1.0)
-      for (double a = 2.0; a <= kMaxExtension; a *= 2) {
+      for (double a = 2.0; a <= std::min(kMaxExtension, cap); a *= 2) {
         xn = x + a * dx;
         const double En = model_.energy(xn, p);
         if (!(std::isfinite(En) && En < E_best)) break;
