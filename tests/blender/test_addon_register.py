@@ -75,6 +75,30 @@ assert s.fabric_name == "Cotton Blue" and abs(s.density - 0.192) < 1e-6
 img = bpy.data.images[s.measurement_image]
 assert img.size[0] > 100 and img.size[1] > 100
 
+# -- the picture follows the selected image; calibration from a flat disk (a draped one is refused)
+ok(bpy.ops.drapelab.import_images(filepath=os.path.join(root, "assets", "cusick", "fabric_05", "silhouettes",
+                                                        "sample_01_capture_1.jpg")), "import a second image")
+assert len(s.images) == 2 and "sample_01" in bpy.data.images[s.measurement_image].filepath
+s.active_image = 0
+assert "sample_02" in bpy.data.images[s.measurement_image].filepath
+ok(bpy.ops.drapelab.remove_image(), "remove_image")
+assert len(s.images) == 1 and "sample_01" in s.images[0].filepath
+s.active_image = 0
+ok(bpy.ops.drapelab.remove_image(), "remove_image")
+ok(bpy.ops.drapelab.import_images(filepath=IMAGE), "import_images again")
+assert len(s.images) == 1 and s.fabric_name == "Cotton Blue"
+expect_error(lambda: bpy.ops.drapelab.calibrate_from_disk(filepath=IMAGE), "not a flat disk")
+from drapelab import measure  # noqa: E402
+
+disk_px_per_m, disk_centre = 800.0, (150.0, 140.0)
+yy, xx = np.mgrid[0:300, 0:320] + 0.5
+flat_disk = np.where(np.hypot(xx - disk_centre[0], yy - disk_centre[1]) <= 0.15 * disk_px_per_m, 0.1, 0.95)
+measure.write_image(os.path.join(tmp, "flat.png"), flat_disk)
+ok(bpy.ops.drapelab.calibrate_from_disk(filepath=os.path.join(tmp, "flat.png")), "calibrate_from_disk")
+assert abs(s.px_per_m - disk_px_per_m) < 0.01 * disk_px_per_m and not s.centre_auto, s.px_per_m
+assert abs(s.centre_x - disk_centre[0]) < 1.0 and abs(s.centre_y - disk_centre[1]) < 1.0, (s.centre_x, s.centre_y)
+s.px_per_m, s.centre_auto = 720.0, True
+
 # -- fit: arguments checked, then a 1-epoch homo fit on circle1 writes a preset and the previews
 expect_error(lambda: bpy.ops.drapelab.fit(epochs=1, time_budget=5.0), "not both")
 s.model, s.mesh_level, s.seed = "HOMO", 1, 0

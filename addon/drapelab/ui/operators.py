@@ -144,12 +144,11 @@ class DRAPELAB_OT_import_images(bpy.types.Operator, ImportHelper):
             self.report({'ERROR'}, "import_images: no image selected (filepath, or directory and files)")
             return {'CANCELLED'}
         cal = s.calibration()
-        out = os.path.join(cache_dir(), "previews")
         measured = []
         for p in paths_in:  # every image is checked before any is added
             try:
-                os.makedirs(out, exist_ok=True)
-                png = os.path.join(out, "measurement_" + tasks.safe_name(os.path.basename(p), "image") + ".png")
+                png = tasks.measurement_png(cache_dir(), p)
+                os.makedirs(os.path.dirname(png), exist_ok=True)
                 m = figures.measurement_preview(p, png, cal)
             except ERRORS as e:
                 self.report({'ERROR'}, f"import_images: {e}" if p in str(e) else f"import_images: {p}: {e}")
@@ -169,6 +168,30 @@ class DRAPELAB_OT_import_images(bpy.types.Operator, ImportHelper):
             self.report({'INFO'}, f"{s.fabric_name}: density and thickness from the dataset manifest")
         self.report({'INFO'}, f"imported {len(measured)} image(s): DC "
                               + ", ".join(f"{m['drape_coefficient']:.3f}" for _, m, _ in measured))
+        return {'FINISHED'}
+
+
+class DRAPELAB_OT_calibrate_from_disk(bpy.types.Operator, ImportHelper):
+    """Set the scale and centre from a photo of the undraped specimen (a flat disk of known diameter)"""
+    bl_idname = "drapelab.calibrate_from_disk"
+    bl_label = "Calibrate from Flat Disk"
+    bl_options = {'REGISTER', 'UNDO'}
+
+    filter_glob: StringProperty(default="*.jpg;*.jpeg;*.png;*.tif;*.tiff;*.bmp;*.exr", options={'HIDDEN'})
+    diameter_mm: FloatProperty(name="Specimen diameter (mm)", default=300.0, min=1.0,
+                               description="diameter of the flat specimen (the Cusick test's is 300 mm)")
+
+    def execute(self, context):
+        s = settings(context)
+        path = bpy.path.abspath(self.filepath)
+        try:
+            cal = measure.calibrate_from_disk(path, diameter_m=self.diameter_mm / 1000.0)
+        except ERRORS as e:
+            self.report({'ERROR'}, f"calibrate_from_disk: {e}")
+            return {'CANCELLED'}
+        s.px_per_m, s.centre_x, s.centre_y, s.centre_auto = cal.px_per_m, cal.cx, cal.cy, False
+        self.report({'INFO'}, f"calibration from {os.path.basename(path)}: {cal.px_per_m:.1f} px/m, centre "
+                              f"({cal.cx:.1f}, {cal.cy:.1f}) px")
         return {'FINISHED'}
 
 
@@ -545,7 +568,7 @@ class DRAPELAB_OT_export_blender_cloth(bpy.types.Operator):
         return {'FINISHED'}
 
 
-CLASSES = (DRAPELAB_OT_import_images, DRAPELAB_OT_remove_image, DRAPELAB_OT_fit, DRAPELAB_OT_cancel,
+CLASSES = (DRAPELAB_OT_import_images, DRAPELAB_OT_calibrate_from_disk, DRAPELAB_OT_remove_image, DRAPELAB_OT_fit, DRAPELAB_OT_cancel,
            DRAPELAB_OT_diagnose, DRAPELAB_OT_add_effect, DRAPELAB_OT_save_preset, DRAPELAB_OT_load_preset,
            DRAPELAB_OT_load_preset_choice, DRAPELAB_OT_delete_preset, DRAPELAB_OT_import_preset,
            DRAPELAB_OT_show_image, DRAPELAB_OT_simulate_garment, DRAPELAB_OT_export_blender_cloth)

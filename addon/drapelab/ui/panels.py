@@ -95,6 +95,7 @@ class DRAPELAB_PT_measurement(_Panel, bpy.types.Panel):
         box = layout.box()
         box.label(text="Calibration")
         box.prop(s, "px_per_m")
+        box.operator("drapelab.calibrate_from_disk", icon='PIVOT_BOUNDBOX')
         box.prop(s, "centre_auto")
         if not s.centre_auto:
             r = box.row(align=True)

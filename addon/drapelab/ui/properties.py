@@ -44,6 +44,23 @@ def _effect_group():
     return type("DRAPELAB_PG_effects", (bpy.types.PropertyGroup,), {"__annotations__": annotations})
 
 
+def _show_active_image(settings):
+    """The measurement picture follows the image selected in the list (redrawn at the current calibration)."""
+    if not 0 <= settings.active_image < len(settings.images):
+        return
+    from . import figures, previews
+    from .tasks import measurement_png
+    path = bpy.path.abspath(settings.images[settings.active_image].filepath)
+    png = measurement_png(cache_dir(), path)
+    try:
+        os.makedirs(os.path.dirname(png), exist_ok=True)
+        figures.measurement_preview(path, png, settings.calibration())
+    except (ValueError, OSError) as e:  # the file changed or vanished since it was imported
+        print(f"drapelab: {path}: {e}")
+        return
+    settings.measurement_image = previews.load(png, "measurement")
+
+
 _preset_items_cache = []  # Blender keeps only pointers to enum item strings: hold them here
 
 
@@ -82,7 +99,7 @@ def _heat_items(self, context):
 class DRAPELAB_PG_settings(bpy.types.PropertyGroup):
     # Measurement
     images: CollectionProperty(type=DRAPELAB_PG_image)
-    active_image: IntProperty(name="Active image", default=0)
+    active_image: IntProperty(name="Active image", default=0, update=lambda self, context: _show_active_image(self))
     fabric_name: StringProperty(name="Fabric", default="", description="fabric name recorded in the preset")
     density: FloatProperty(name="Area density", default=0.2, min=0.0, soft_min=0.01, soft_max=1.0, precision=3,
                            description="area density of the fabric in kg/m^2 (required by the fit)")

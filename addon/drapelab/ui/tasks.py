@@ -12,13 +12,21 @@ from .. import diagnose as diagnose_module
 from .. import infer
 from . import figures
 
-__all__ = ["fit_work", "diagnose_work", "safe_name"]
+__all__ = ["fit_work", "diagnose_work", "safe_name", "measurement_png"]
 
 
 def safe_name(text, fallback="fit"):
     """A file-name-safe version of a fabric or preset name."""
     name = re.sub(r"[^A-Za-z0-9_.-]+", "_", str(text or "")).strip("._")
     return name[:60] or fallback
+
+
+def measurement_png(out_dir, image_path):
+    """The measurement picture's file for an image: its name plus a hash of its full path (two folders may hold
+    images of the same name)."""
+    import hashlib
+    key = hashlib.sha1(os.path.abspath(image_path).encode()).hexdigest()[:8]
+    return os.path.join(out_dir, "previews", f"measurement_{safe_name(os.path.basename(image_path), 'image')}_{key}.png")
 
 
 def _fit_config(mesh_level, calibrate):
