@@ -325,5 +325,6 @@ assert s.preset_path == SHIPPED and len(s.images) == 1 and not jobs.running_jobs
 assert bpy.ops.drapelab.fit.poll() and jobs.current("fit") is None or not jobs.current("fit").alive
 drapelab.unregister()
 shutil.rmtree(tmp, ignore_errors=True)
+shutil.rmtree(operators.cache_dir(), ignore_errors=True)  # the unsaved file's cache in the temp folder
 print(f"PASS test_addon_register: garment attributes from the posterior, heat map, cloth export, PC2 playback, "
       f"unregister stopped a running fit in {1000 * stopped:.0f} ms")

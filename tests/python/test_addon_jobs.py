@@ -174,6 +174,9 @@ def test_preset_files_save_import_resolve_delete(tmp_path):
     assert presets.resolve("fabric_05_wool_red_bdp", user).endswith("fabric_05_wool_red_bdp.json")
     with pytest.raises(infer.InputError, match="known"):
         presets.resolve("no such preset", user)
+    assert presets.resolve("fabric_05", user).endswith("fabric_05_wool_red_bdp.json")  # a unique prefix
+    with pytest.raises(infer.InputError, match="start of several"):
+        presets.resolve("fabric_1", user)
     bad = tmp_path / "bad.json"
     bad.write_text(json.dumps({"kind": "drapelab-material-preset", "schema_version": 99}))
     with pytest.raises(infer.InputError, match="newer"):
@@ -229,7 +232,8 @@ bpy.ops.wm.quit_blender()
 def test_quitting_blender_stops_a_running_job(tmp_path):
     script = tmp_path / "quit.py"
     script.write_text(BLENDER_EXIT_SCRIPT)
-    env = dict(os.environ, DRAPELAB_ROOT=ROOT, DRAPELAB_NATIVE_DIR=os.path.join(ROOT, "build", "python"))
+    env = dict(os.environ, DRAPELAB_ROOT=ROOT, DRAPELAB_NATIVE_DIR=os.path.join(ROOT, "build", "python"),
+               TMPDIR=str(tmp_path))
     t = time.monotonic()
     done = subprocess.run(["blender", "--background", "--factory-startup", "--python", str(script), "--",
                            str(tmp_path)], env=env, capture_output=True, text=True, timeout=120)

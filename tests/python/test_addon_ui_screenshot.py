@@ -20,10 +20,10 @@ SCREEN = (1920, 1200)
 ARTIFACTS = os.path.join(ROOT, "build", "test-artifacts")
 
 
-def test_drape_tab_in_a_real_window_during_and_after_a_fit():
+def test_drape_tab_in_a_real_window_during_and_after_a_fit(tmp_path):
     os.makedirs(ARTIFACTS, exist_ok=True)
     env = dict(os.environ, DRAPELAB_ROOT=ROOT, DRAPELAB_NATIVE_DIR=os.path.join(ROOT, "build", "python"),
-               OPENBLAS_NUM_THREADS="1")
+               OPENBLAS_NUM_THREADS="1", TMPDIR=str(tmp_path))  # the add-on's cache of the unsaved file
     done = subprocess.run([XVFB, "-a", "-s", f"-screen 0 {SCREEN[0]}x{SCREEN[1]}x24", BLENDER, "--factory-startup",
                            "--enable-event-simulate", "--python", os.path.join(ROOT, "tests", "blender", "ui_screenshot.py"),
                            "--", ARTIFACTS], env=env, capture_output=True, text=True, timeout=400)

@@ -17,9 +17,11 @@ BLENDER = shutil.which("blender")
 pytestmark = pytest.mark.skipif(BLENDER is None, reason="needs Blender (Debian package blender)")
 
 
-def blender(script, *args, timeout=300):
+def blender(script, *args, tmp=None, timeout=300):
     env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH",)}
     env.update(OPENBLAS_NUM_THREADS="1")
+    if tmp is not None:  # the add-on's cache of an unsaved file goes to the temp folder: keep it in the test's
+        env["TMPDIR"] = str(tmp)
     return subprocess.run([BLENDER, "--background", "--factory-startup", "--python-exit-code", "1", "--python",
                            os.path.join(ROOT, "tools", "blender", script), "--", *args], env=env, capture_output=True,
                           text=True, timeout=timeout)
@@ -28,14 +30,14 @@ def blender(script, *args, timeout=300):
 def test_fit_then_diagnose_headless(tmp_path):
     preset = str(tmp_path / "cotton.json")
     done = blender("fit_image.py", "--images", ASSET_IMAGE, "--out", preset, "--model", "homo", "--epochs", "1",
-                   "--mesh-level", "1")
+                   "--mesh-level", "1", tmp=tmp_path)
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
     assert "fit_image: wrote" in done.stdout
     p = infer.load_preset(preset)
     assert p["model"] == "homo" and p["fabric"]["name"] == "Cotton Blue" and p["density_kg_m2"] == pytest.approx(0.192)
     report = str(tmp_path / "report")
     done = blender("diagnose.py", "--preset", preset, "--images", ASSET_IMAGE, "--report", report, "--samples", "3",
-                   "--time-budget", "40")
+                   "--time-budget", "40", tmp=tmp_path)
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
     with open(os.path.join(report, "diagnosis.json")) as f:
         d = json.load(f)
@@ -47,14 +49,15 @@ def test_a_failing_operator_fails_the_script(tmp_path):
     bad = tmp_path / "bad.jpg"
     bad.write_bytes(b"not an image")
     done = blender("fit_image.py", "--images", str(bad), "--out", str(tmp_path / "x.json"), "--density", "0.2",
-                   "--epochs", "1")
+                   "--epochs", "1", tmp=tmp_path)
     assert done.returncode != 0 and "bad.jpg" in done.stdout + done.stderr
     assert not (tmp_path / "x.json").exists()
 
 
 def test_drape_skirt_renders_the_heat_map(tmp_path):
     out = str(tmp_path / "skirt.png")
-    done = blender("drape_skirt.py", "--out", out, "--vertices", "1500", "--samples", "4", "--size", "240x240")
+    done = blender("drape_skirt.py", "--out", out, "--vertices", "1500", "--samples", "4", "--size", "240x240",
+                   tmp=tmp_path)
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
     img = np.asarray(measure.read_image(out)[0])
     assert img.shape == (240, 240)

@@ -35,7 +35,8 @@ def list_presets(user_dir):
 
 def resolve(name_or_path, user_dir):
     """A preset path from a path (existing file) or a preset name (user presets first, then shipped; a name may
-    carry .json). InputError listing the known names when nothing matches."""
+    carry .json; a unique prefix such as "fabric_05" will do). InputError listing the known names when nothing
+    or more than one matches."""
     text = os.fspath(name_or_path or "")
     if not text:
         raise infer.InputError("preset: give a preset name or a path to a preset JSON file")
@@ -47,8 +48,12 @@ def resolve(name_or_path, user_dir):
         for e in entries:
             if e["source"] == source and e["name"] == stem:
                 return e["path"]
+    prefixed = {e["name"]: e["path"] for e in entries if e["name"].startswith(stem)}
+    if len(prefixed) == 1:  # a unique prefix, such as "fabric_05"
+        return next(iter(prefixed.values()))
     names = ", ".join(sorted({e["name"] for e in entries}))
-    raise infer.InputError(f"preset: no preset file or name {text!r} (known: {names})")
+    what = f"{text!r} is the start of several" if prefixed else f"no preset file or name {text!r}"
+    raise infer.InputError(f"preset: {what} (known: {names})")
 
 
 def save(preset, folder, name):
