@@ -167,6 +167,20 @@ RolloutGradient ImplicitEuler::backward(const Eigen::VectorXd& dL_dx, const Eige
   return {gp, gx, gv};
 }
 
+void ImplicitEuler::contact_matrix(int kind, const Eigen::VectorXd& x, const Eigen::VectorXd& p, double inv_h2,
+                                   const Eigen::VectorXd& m, Eigen::VectorXd& A) const {
+  const SparsePattern& pattern = model_.pattern();
+  A.setZero(pattern.nnz());
+  for (const auto& t : model_.terms()) {
+    if (kind == 3) t->add_step_matrix(x, p, 1.0, A);
+    else if (kind == 0 || (t->is_contact() && kind == 1)) t->add_hessian(x, p, 1.0, A);
+    else if (t->is_contact()) t->add_projected_hessian(x, p, 1.0, A);
+    else t->add_static_newton_matrix(x, p, 1.0, A);
+  }
+  for (int i = 0; i < model_.num_vertices(); ++i)
+    for (int k = 0; k < 3; ++k) A[pattern.diagonal(3 * i + k)] += inv_h2 * m[i];
+}
+
 bool ImplicitEuler::has_contact() const {
   for (const auto& t : model_.terms())
     if (t->is_contact()) return true;
@@ -185,7 +199,6 @@ constexpr double kNegligibleMove = 1e-9;
 
 Eigen::VectorXd ImplicitEuler::contact_step(const Eigen::VectorXd& p, const RolloutOptions& options, int step) {
   const int n = model_.num_dofs(), nv = model_.num_vertices();
-  const SparsePattern& pattern = model_.pattern();
   const double h = h_, inv_h2 = 1.0 / (h * h);
   const Eigen::VectorXd m = model_.masses(p);
   for (const auto& t : model_.terms()) t->begin_step(x_, p, h);
@@ -236,20 +249,9 @@ Eigen::VectorXd ImplicitEuler::contact_step(const Eigen::VectorXd& p, const Roll
     // indefinite sideways; the inertia M/h^2 usually holds the sum definite, and projecting it per vertex
     // made convergence linear); failing that, their PSD projections; failing that, the PSD step matrix K
     // (K alone drops the membrane's compression softening and crawls: 10-50 iterations per step).
-    auto assemble = [&](int kind) {
-      A.setZero(pattern.nnz());
-      for (const auto& t : model_.terms()) {
-        if (kind == 3) t->add_step_matrix(x, p, 1.0, A);
-        else if (kind == 0 || (t->is_contact() && kind == 1)) t->add_hessian(x, p, 1.0, A);
-        else if (t->is_contact()) t->add_projected_hessian(x, p, 1.0, A);
-        else t->add_static_newton_matrix(x, p, 1.0, A);
-      }
-      for (int i = 0; i < nv; ++i)
-        for (int k = 0; k < 3; ++k) A[pattern.diagonal(3 * i + k)] += inv_h2 * m[i];
-    };
     bool factorised = false;
     for (int kind = (exact_fails % 4 == 0 ? 0 : 1); kind < 4 && !factorised; ++kind) {
-      assemble(kind);
+      contact_matrix(kind, x, p, inv_h2, m, A);
       factorised = solver_.factorize(A);
       ++timing_.factorizations;
       if (kind == 0) exact_fails = factorised ? 0 : exact_fails + 1;
@@ -320,7 +322,6 @@ void ImplicitEuler::contact_step_adjoint(const StepRecord& r, Eigen::VectorXd& g
   // Forward: x' = argmin Phi(x; x_hat, p), x_hat = x + h v, v' = (x' - x)/h. With gbar = dL/dx' + dL/dv' / h and
   // H lambda = gbar (H = M/h^2 + Hess E at x'): dL/dx_hat = M lambda / h^2, dL/dp = -lambda . d(grad Phi)/dp.
   const int nv = model_.num_vertices();
-  const SparsePattern& pattern = model_.pattern();
   const double h = h_, inv_h2 = 1.0 / (h * h);
   const Eigen::VectorXd m = model_.masses(p_);
   const Eigen::VectorXd v_next = r.v + r.y;
@@ -328,17 +329,17 @@ void ImplicitEuler::contact_step_adjoint(const StepRecord& r, Eigen::VectorXd& g
   // The lagged friction state of this step, as the forward had it.
   for (const auto& t : model_.terms()) t->begin_step(r.x, p_, h);
   const Eigen::VectorXd gbar = gx + gv / h;
-  Eigen::VectorXd H = Eigen::VectorXd::Zero(pattern.nnz());
-  for (const auto& t : model_.terms()) t->add_hessian(x_next, p_, 1.0, H);
-  for (int i = 0; i < nv; ++i)
-    for (int k = 0; k < 3; ++k) H[pattern.diagonal(3 * i + k)] += inv_h2 * m[i];
-  if (!solver_.factorize(H)) {
-    H.setZero();
-    for (const auto& t : model_.terms()) t->add_static_newton_matrix(x_next, p_, 1.0, H);
-    for (int i = 0; i < nv; ++i)
-      for (int k = 0; k < 3; ++k) H[pattern.diagonal(3 * i + k)] += inv_h2 * m[i];
-    if (!solver_.factorize(H)) throw SolverError("backward: the contact step's Hessian is not positive definite");
+  // The exact Hessian of the potential; where the minimiser is only a saddle of its quadratic model (the
+  // Newton iterations then ran on a definite substitute, see contact_step), the same substitutes in turn: the
+  // gradient is then that of the substitute's linearisation (counted in timing().inexact_adjoint_steps).
+  Eigen::VectorXd H;
+  bool factorised = false;
+  for (int kind = 0; kind < 4 && !factorised; ++kind) {
+    contact_matrix(kind, x_next, p_, inv_h2, m, H);
+    factorised = solver_.factorize(H);
+    if (factorised && kind > 0) ++timing_.inexact_adjoint_steps;
   }
+  if (!factorised) throw SolverError("backward: no definite matrix for a contact step's adjoint");
   const Eigen::VectorXd lambda = solver_.solve(gbar);
   for (const auto& t : model_.terms()) t->add_gradient_parameter_product(x_next, p_, lambda, -1.0, gp);
   const auto& density_block = model_.layout().block("density");

@@ -60,7 +60,11 @@ class ImplicitEuler {
   const Eigen::VectorXd& positions() const { return x_; }
   const Eigen::VectorXd& velocities() const { return v_; }
   // Timing split of the last forward (seconds): assembly, factorisation, solves.
-  struct Timing { double assemble = 0, factorize = 0, solve = 0; int newton_iterations = 0, factorizations = 0; };
+  struct Timing {
+    double assemble = 0, factorize = 0, solve = 0;
+    int newton_iterations = 0, factorizations = 0;  // contact steps (IPC)
+    int inexact_adjoint_steps = 0;  // contact steps whose adjoint used a definite substitute of the Hessian
+  };
   const Timing& timing() const { return timing_; }
   CholmodSolver& linear_solver() { return solver_; }
   // A = M + h^2 K(x) (upper-triangle values) and b for one step; exposed for tests and benchmarks.
@@ -74,6 +78,11 @@ class ImplicitEuler {
     bool contact = false;
   };
   bool has_contact() const;
+  // The Newton matrix of a contact step, kind 0..3: M/h^2 + the exact Hessian; + exact contact Hessians and the
+  // static solve's matrix for the rest; + projected contact Hessians and the static solve's matrix; + the PSD
+  // step matrix K (each definite where the one before is not).
+  void contact_matrix(int kind, const Eigen::VectorXd& x, const Eigen::VectorXd& p, double inv_h2,
+                      const Eigen::VectorXd& m, Eigen::VectorXd& A) const;
   // One IPC step from (x_, v_): returns v_{t+1}. Throws SolverError naming the step if no descent is found.
   Eigen::VectorXd contact_step(const Eigen::VectorXd& p, const RolloutOptions& options, int step);
   // The adjoint of one IPC step (see the header): updates gx, gv (dL/dx_t, dL/dv_t) and gp.
