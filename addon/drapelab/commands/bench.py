@@ -24,6 +24,13 @@ on circle3 (or, when --meshes leaves it out, the first mesh listed), every param
 strength (the registry's value):
   effects: forward_ms_per_step, backward_ms_per_step   as above (steady state, after one recorded rollout +
                                                        backward), and the effect's values
+Contact (issue 19), on the effect rows' mesh, in its own subprocess: --contact-draws drapes (default 20; 0 skips) from
+random placements (fit.json's placement velocities, seeds 0..N-1) with the contact effects on at their registry
+values (disk_contact: 2 cm clamp) beside the same placements without contact, forward + backward timed per step:
+  contact: draws, effects, forward_ratio, backward_ratio (contact / contact-free, means over the draws, one run),
+           forward_ms_per_step, backward_ms_per_step, base_forward_ms_per_step, base_backward_ms_per_step,
+           min_signed_distance_m (the smallest clearance of a free vertex over the disk),
+           vertices_below_disk_max, intersecting_pairs_max (null until self-contact diagnostics are bound)
 Also the soft renderer's forward and backward (ms, 256 x 256, Gaussian profile, sigma 1 px, median of 10)
 on the circle3 drape, and the paper's GPU figures (seconds per step, NVIDIA TITAN Xp) for comparison.
 With --fit (or --meshes none --fit), also one whole BDP fit as a user runs it (`fit` with its defaults: fit.json's
@@ -73,6 +80,8 @@ def register(subparsers):
     p.add_argument("--no-static", action="store_true", help="skip the static solve and its adjoint")
     p.add_argument("--no-effects", action="store_true",
                    help="skip the rows with each registered effect on (circle3, moderate strength)")
+    p.add_argument("--contact-draws", type=int, default=20, metavar="N",
+                   help="drapes with contact on (and off) for the contact block (default 20; 0 skips it)")
     p.add_argument("--fit", action="store_true",
                    help="also time one whole BDP fit of the bundled Cotton Blue silhouette (about 3-4 minutes)")
     p.add_argument("--fit-epochs", type=int, default=None, metavar="N",
@@ -160,6 +169,17 @@ def run(args):
     if levels and not args.no_effects:
         effects, effect_failures = run_effect_rows(EFFECT_LEVEL if EFFECT_LEVEL in levels else levels[0], args.steps, env)
         failed += effect_failures
+    contact = None
+    if levels and args.contact_draws > 0:
+        level = EFFECT_LEVEL if EFFECT_LEVEL in levels else levels[0]
+        t0 = time.perf_counter()
+        print(f"  contact on circle{level} ({args.contact_draws} draws) ...", end="", flush=True)
+        contact = run_child({"task": "contact", "level": level, "steps": args.steps, "draws": args.contact_draws}, env)
+        if "error" in contact:
+            failed += 1
+            print(f" error: {contact['error']}", flush=True)
+        else:
+            print(f" {time.perf_counter() - t0:.0f} s", flush=True)
     fit = None
     if args.fit:
         t0 = time.perf_counter()
@@ -184,6 +204,8 @@ def run(args):
     }
     if effects is not None:
         report["effects"] = effects
+    if contact is not None:
+        report["contact"] = contact
     if fit is not None:
         report["fit"] = fit
     measure.write_json(args.json, report)
@@ -425,6 +447,75 @@ def child_effect(task):
             "forward_ms_per_step": 1000 * (t1 - t0) / steps, "backward_ms_per_step": 1000 * (t2 - t1) / steps}
 
 
+# The support disk as disk_contact builds it (native/src/effects/disk_contact.cpp, contact/distance.hpp): radius
+# the support radius, top face 0.5 mm below the flat rest plane, rim rounded with the effect's rim radius.
+DISK_TOP_M = -5e-4
+
+
+def disk_clearance(positions, rest_radius, clamp, rim, radius=0.09):
+    """Clearance (m) of each vertex that may touch the disk (rest radius in [clamp, radius)) above its surface."""
+    import numpy as np
+
+    x = np.asarray(positions, dtype=float)
+    on = (rest_radius >= clamp) & (rest_radius < radius)
+    inner, zc = radius - rim, DISK_TOP_M - rim
+    r = np.hypot(x[on, 0], x[on, 1])
+    dz = x[on, 2] - zc
+    flat = np.where(dz >= 0, x[on, 2] - DISK_TOP_M, zc - rim - x[on, 2])
+    rounded = np.hypot(r - inner, dz) - rim
+    return np.where(r <= inner, flat, rounded)
+
+
+def child_contact(task):
+    """Contact drapes against contact-free ones from the same placements (see the module doc)."""
+    import numpy as np
+
+    from .. import infer, sim, tables
+
+    level, steps, draws = task["level"], task["steps"], task["draws"]
+    contact_names = [e["name"] for e in sim.effects() if e["name"] in ("disk_contact", "self_contact")]
+    effects = {n: {q["name"]: q["moderate"] for q in next(e for e in sim.effects() if e["name"] == n)["parameters"]
+                   if q.get("structural")} for n in contact_names}
+    mesh = sim.cusick_specimen(level)
+    base = sim.ClothModel(mesh, density=tables.COTTON_BLUE.density)
+    model = sim.ClothModel(mesh, density=tables.COTTON_BLUE.density, effects=effects)
+    pb, pc = base.parameters(material=tables.COTTON_BLUE), model.parameters(material=tables.COTTON_BLUE)
+    cfg = infer.load_config()
+    placement = cfg.get("placement_noise") or {}
+    rest = base.rest_positions
+    rest_radius = np.hypot(rest[:, 0], rest[:, 1])
+    clamp = effects.get("disk_contact", {}).get("clamp_radius_m", 0.09)
+    rim = next(q["off"] for e in sim.effects() if e["name"] == "disk_contact" for q in e["parameters"]
+               if q["name"] == "rim_radius_m")
+    weights = np.random.default_rng(0).standard_normal((base.num_vertices, 3))
+    times = {"base_f": 0.0, "base_b": 0.0, "f": 0.0, "b": 0.0}
+    clearances, below = [], []
+    for seed in range(draws):
+        v0 = infer.placement_velocities(rest, np.random.default_rng([seed, 7]), float(placement.get("velocity_m_s", 0.0)),
+                                        int(placement.get("angular_modes", 0)))
+        for key, m, p in (("base_", base, pb), ("", model, pc)):
+            t0 = time.perf_counter()
+            x = m.simulate(p, steps=steps, velocities0=v0)
+            t1 = time.perf_counter()
+            m.backward(weights)
+            t2 = time.perf_counter()
+            times[key + "f"] += t1 - t0
+            times[key + "b"] += t2 - t1
+        if "disk_contact" in effects:
+            c = disk_clearance(x, rest_radius, clamp, rim)
+            clearances.append(float(c.min()))
+            below.append(int((c <= 0).sum()))
+    n = draws * steps
+    return {"mesh": f"circle{level}", "draws": draws, "steps": steps, "effects": effects,
+            "forward_ratio": times["f"] / times["base_f"], "backward_ratio": times["b"] / times["base_b"],
+            "forward_ms_per_step": 1000 * times["f"] / n, "backward_ms_per_step": 1000 * times["b"] / n,
+            "base_forward_ms_per_step": 1000 * times["base_f"] / n,
+            "base_backward_ms_per_step": 1000 * times["base_b"] / n,
+            "min_signed_distance_m": min(clearances) if clearances else None,
+            "vertices_below_disk_max": max(below) if below else None,
+            "intersecting_pairs_max": None}
+
+
 def child_render(task):
     from .. import sim
     mesh = sim.cusick_specimen(task["level"])
@@ -464,7 +555,8 @@ def child_fit(task):
 
 def child_main(argv):
     task = json.loads(argv[argv.index("--child") + 1])
-    kinds = {"mesh": child_mesh, "render": child_render, "fit": child_fit, "effect": child_effect}
+    kinds = {"mesh": child_mesh, "render": child_render, "fit": child_fit, "effect": child_effect,
+             "contact": child_contact}
     result = kinds[task["task"]](task)
     print(json.dumps(result), flush=True)
     return 0
