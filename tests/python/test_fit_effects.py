@@ -37,6 +37,25 @@ def test_plan_fits_bare_effects_and_fixes_given_values():
     assert clipped[0] == tilt["parameters"][0]["upper"] and list(inside) == [False, True]
 
 
+def test_structural_parameters_are_held_and_the_model_rejects_a_mismatch():
+    # disk_contact's clamp radius chooses which vertices the model holds: never fitted (no gradient), held at the
+    # given value or, when the effect is fitted bare, at its registry strength (the 2 cm clamp).
+    disk = registered("disk_contact")
+    clamp = disk["parameters"][0]
+    assert clamp["name"] == "clamp_radius_m" and clamp["structural"] and clamp["moderate"] == 0.02
+    plan = fit_effects.EffectPlan({"disk_contact": None})
+    assert plan.names == ["disk_contact.friction", "disk_contact.rim_radius_m"]
+    assert plan.values(plan.off)["disk_contact"]["clamp_radius_m"] == 0.02
+    held = fit_effects.EffectPlan({"disk_contact": {"clamp_radius_m": 0.03, "friction": None}})
+    assert held.names == ["disk_contact.friction"] and held.values([0.5])["disk_contact"]["clamp_radius_m"] == 0.03
+    model = sim.ClothModel(sim.cusick_specimen(1), effects={"disk_contact": {"clamp_radius_m": 0.03}})
+    params = model.parameters(material=tables.COTTON_BLUE)
+    with pytest.raises(sim.InputError, match="structural"):
+        model.parameters(material=tables.COTTON_BLUE, effects={"disk_contact": {"clamp_radius_m": 0.04}})
+    x = model.simulate(params, steps=5)
+    assert np.isfinite(x).all()
+
+
 @pytest.mark.parametrize("spec, message", [
     ({"no_such_effect": None}, "unknown effect 'no_such_effect'"),
     ({"tilt": {"no_such_param": 1.0}}, "tilt.no_such_param"),
