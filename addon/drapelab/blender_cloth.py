@@ -15,8 +15,9 @@ mass-spring model in its own units; the derivation of every number below is in d
   0.1 b L h / 3 per radian (force k = 0.1 b L along the face normals, a third on each opposite vertex);
   drapelab's hinge has the moment k_w L / (2 (h1 + h2)). Equal moments give b = 0.015 k_w / (h (h1 + h2)),
   so Blender's bending parameter depends on the mesh's resolution (as 1/h^2), unlike drapelab's tables.
-  k_w is the table at a representative curvature (REFERENCE_CURVATURE_PER_M, the drape's energy-weighted
-  curvature measure), then one empirical factor (BEND_CALIBRATION) measured on real Cusick drapes.
+  Blender's hinge is linear, drapelab's tables depend on curvature: k_w is the energy-matched (secant)
+  stiffness of the table on the preset's own Cusick drape (or the table at a given curvature), then one
+  empirical factor (BEND_CALIBRATION) measured on real Cusick drapes.
 - Damping: Blender's damping forces do not scale with mass, so they are set as fractions of critical damping
   (springs) and as a drag rate (air), from the vertex mass, not copied from Blender's presets.
 
@@ -31,7 +32,8 @@ import numpy as np
 from . import infer, tables
 from ._native import InputError
 
-__all__ = ["cloth_settings", "vertex_group_weights", "mesh_statistics", "blender_preset", "BLENDER_PRESETS",
+__all__ = ["cloth_settings", "vertex_group_weights", "mesh_statistics", "secant_bending", "blender_preset",
+           "BLENDER_PRESETS",
            "REFERENCE_CURVATURE_PER_M", "BEND_CALIBRATION", "DEFAULT_QUALITY"]
 
 BLENDER_FORCE_SCALE = 1e-3          # cloth_calc_force: gravity x 0.001 (forces in mN for masses in kg)
@@ -39,10 +41,13 @@ ANGULAR_BEND_SCALE = 0.1            # cloth_calc_spring_force: k = bending * res
 LATTICE_SPRING_FACTOR = math.sqrt(3.0) / 2.0   # spring constant / (2D modulus x edge) of a triangle lattice
 FRAME_SECONDS = math.sqrt(BLENDER_FORCE_SCALE)  # physical seconds of one Blender cloth frame at time_scale 1
 DEFAULT_QUALITY = 5                 # Blender's default steps per frame
-# Table curvature (the tables' measure alpha = |sin(theta/2)| / (h1 + h2), 1/m) at which the bending table
-# is read: the energy-weighted alpha of a Cotton Blue drape on circle3 is 8.5 1/m (docs/lab/blender-cloth.md).
+# Table curvature (the tables' measure alpha = |sin(theta/2)| / (h1 + h2), 1/m) at which the bending table is
+# read when a fixed curvature is asked for (curvature=...): column 3, near the energy-weighted alpha of the
+# shipped presets' drapes (7.8-12.8 1/m, fabric 3 25.6). The default is the energy-matched (secant) stiffness
+# of the preset's own Cusick drape (secant_bending), docs/lab/blender-cloth.md.
 REFERENCE_CURVATURE_PER_M = 7.5
-BEND_CALIBRATION = 1.0              # empirical factor on the derived bending (docs/lab/blender-cloth.md)
+SECANT_MESH_LEVEL = 3               # the Cusick template the secant drape runs on (the presets' mesh)
+BEND_CALIBRATION = 0.75             # empirical factor on the derived bending, fitted on fabrics 1-5 (docs/lab/blender-cloth.md)
 SPRING_DAMPING_RATIO = 0.1          # tension/compression/shear damping as a fraction of a spring's critical
 BEND_DAMPING_RATIO = 0.1            # bending damping as a fraction of a hinge's critical damping
 # air drag rate (1/s): linearised air drag of a 0.2 kg/m^2 fabric moving at 0.3-1 m/s is 1-4 /s (Blender's Cotton
@@ -134,6 +139,45 @@ def _bend_at(table, curvature):
     return ((1 - s) * t[..., i0] + s * t[..., i0 + 1]).mean(axis=-1)
 
 
+_SECANT_CACHE = {}
+
+
+def secant_bending(preset, level=None):
+    """The energy-matched stiffness of the preset's bending table on its own Cusick drape: drapelab drapes the
+    preset's posterior median on circle{level} (100 steps of 0.05 s, a few seconds), and returns
+    (k_secant (N m), alpha_w (1/m)) with k_secant = sum_w k_w(alpha_w) E1_w / sum_w E1_w, E1_w = the hinge energy
+    at unit stiffness (L / (2 (h1 + h2)) theta^2 / 2): the linear hinge stiffness that stores the drape's bending
+    energy, and alpha_w the energy-weighted curvature measure. Cached per table, stretching, density and level."""
+    from . import sim
+    preset = _preset_arg(preset)
+    level = SECANT_MESH_LEVEL if level is None else level
+    bend = np.exp(np.asarray(preset["posterior"]["bend"]["log_mean"], dtype=float))
+    stretch = np.asarray(preset["stretch_N_m"], dtype=float)
+    density = float(preset["density_kg_m2"])
+    key = (bend.tobytes(), stretch.tobytes(), density, int(level))
+    if key not in _SECANT_CACHE:
+        model = sim.ClothModel(sim.cusick_specimen(level), density=density)
+        x = np.asarray(model.simulate(model.parameters(stretch=stretch, bend=bend)))
+        rest = np.asarray(model.rest_positions)
+        a, b, c, d = np.asarray(model.bending_edges).T
+        e = rest[b] - rest[a]
+        length = np.linalg.norm(e, axis=1)
+        h1 = np.linalg.norm(np.cross(e, rest[c] - rest[a]), axis=1) / length
+        h2 = np.linalg.norm(np.cross(e, rest[d] - rest[a]), axis=1) / length
+        e = x[b] - x[a]
+        n1, n2 = np.cross(e, x[c] - x[a]), np.cross(x[d] - x[a], e)
+        cos = np.sum(n1 * n2, axis=1) / (np.linalg.norm(n1, axis=1) * np.linalg.norm(n2, axis=1))
+        theta = np.arccos(np.clip(cos, -1.0, 1.0))
+        alpha = np.abs(np.sin(theta / 2)) / (h1 + h2)
+        unit_energy = length / (2 * (h1 + h2)) * theta ** 2 / 2
+        k = np.array([_bend_at(bend, v) for v in alpha])
+        total = float(unit_energy.sum())
+        if not np.isfinite(total) or total <= 0:
+            raise InputError("preset: its Cusick drape does not bend (no bending energy): cannot read its table")
+        _SECANT_CACHE[key] = (float(np.sum(k * unit_energy) / total), float(np.sum(alpha * unit_energy) / total))
+    return _SECANT_CACHE[key]
+
+
 def _hinge_bending(k_N_m, stats):
     """Blender's bending setting per hinge for drapelab's hinge stiffness k (N m) (module docstring)."""
     L = stats["hinge_length_m"]
@@ -165,7 +209,7 @@ def _positive(value, name, unit=""):
     return float(value)
 
 
-def cloth_settings(preset, quality=DEFAULT_QUALITY, *, mesh, fps=24.0, curvature=REFERENCE_CURVATURE_PER_M,
+def cloth_settings(preset, quality=DEFAULT_QUALITY, *, mesh, fps=24.0, curvature=None,
                    bend_calibration=BEND_CALIBRATION, collision_distance_m=None, pin_group=PIN_GROUP):
     """Blender 3.4 cloth settings for `preset` (dict or path) on `mesh` = (rest positions (V, 3) m, faces (F, 3)).
 
@@ -174,13 +218,15 @@ def cloth_settings(preset, quality=DEFAULT_QUALITY, *, mesh, fps=24.0, curvature
     plus "collision_settings" (ClothCollisionSettings attribute -> value) and "derivation" (the SI numbers
     they came from: not Blender settings). quality: Blender's steps per frame (integer >= 1); fps: the scene
     frame rate that time_scale makes physical; curvature: the table curvature measure (1/m) the bending is
-    read at; collision_distance_m: cloth/body and self-collision distance (default: 0.3 mean edges, 1-15 mm).
+    read at (None: the energy-matched stiffness of the preset's own Cusick drape, ``secant_bending``, which
+    drapes it once: a few seconds, cached); collision_distance_m: cloth/body and self-collision distance (default: 0.3 mean edges, 1-15 mm).
     """
     preset = _preset_arg(preset)
     if isinstance(quality, bool) or not isinstance(quality, (int, np.integer)) or quality < 1:
         raise InputError(f"quality: expected an integer >= 1 (Blender's steps per frame), got {quality!r}")
     fps = _positive(fps, "fps", " (frames per second)")
-    curvature = _positive(curvature, "curvature", " (1/m)")
+    if curvature is not None:
+        curvature = _positive(curvature, "curvature", " (1/m)")
     bend_calibration = _positive(bend_calibration, "bend_calibration")
     if not isinstance(mesh, (tuple, list)) or len(mesh) != 2:
         raise InputError("mesh: expected (positions (V, 3), faces (F, 3)) of the mesh the cloth runs on")
@@ -197,8 +243,13 @@ def cloth_settings(preset, quality=DEFAULT_QUALITY, *, mesh, fps=24.0, curvature
     # a quad's diagonal springs carry shear: with the same lattice reading, G = c33 and edge a sqrt(2)
     shear = c33 * a * math.sqrt(2.0) * BLENDER_FORCE_SCALE
 
-    bend_table = np.exp(np.asarray(preset["posterior"]["bend"]["log_mean"], dtype=float))  # posterior median
-    k_ref = float(_bend_at(bend_table, curvature))
+    if curvature is None:
+        k_ref, curvature = secant_bending(preset)
+        reading = "secant"
+    else:
+        bend_table = np.exp(np.asarray(preset["posterior"]["bend"]["log_mean"], dtype=float))  # posterior median
+        k_ref = float(_bend_at(bend_table, curvature))
+        reading = "curvature"
     bending = k_ref * _bending_per_N_m(stats) * bend_calibration
     for name, value in (("tension_stiffness", tension), ("shear_stiffness", shear), ("bending_stiffness", bending)):
         if value > _BLENDER_SETTING_MAX:
@@ -254,6 +305,7 @@ def cloth_settings(preset, quality=DEFAULT_QUALITY, *, mesh, fps=24.0, curvature
             "membrane_modulus_N_m": modulus,
             "shear_modulus_N_m": c33,
             "poisson_coupling_N_m": c12,
+            "bend_reading": reading,
             "bend_curvature_per_m": curvature,
             "bend_stiffness_N_m": k_ref,
             "bend_calibration": bend_calibration,

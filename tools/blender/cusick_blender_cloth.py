@@ -50,7 +50,8 @@ def parse(argv):
     p.add_argument("--quality", type=int, default=None, help="steps per frame (default: preset's / Blender's 5)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--bend-calibration", type=float, default=blender_cloth.BEND_CALIBRATION)
-    p.add_argument("--curvature", type=float, default=blender_cloth.REFERENCE_CURVATURE_PER_M)
+    p.add_argument("--curvature", type=float, default=None,
+                   help="read the bending table at this curvature measure (1/m); default: the secant stiffness")
     p.add_argument("--obj", help="also write the final drape as OBJ")
     a = p.parse_args(argv)
     if a.frames < 2 or a.level not in (1, 2, 3, 4, 5):

@@ -67,7 +67,7 @@ def _hinge_values(obj, x, tri, edge_values):
 
 
 def apply_cloth_settings(obj, preset, material=None, *, quality=blender_cloth.DEFAULT_QUALITY, pin_group=None,
-                         self_collision=None):
+                         self_collision=None, **mapping):
     """Adds (or updates) the Cloth modifier of mesh object `obj` with the settings of `preset` (a preset dict or
     a path) on this mesh, and returns the modifier.
 
@@ -76,6 +76,8 @@ def apply_cloth_settings(obj, preset, material=None, *, quality=blender_cloth.DE
     ignored)}; each given field becomes a vertex group (drapelab_tension, drapelab_bending) with the
     modifier's base and *_stiffness_max values as its range. pin_group: the vertex group pinned (kept: the
     modifier's current one when None). self_collision: turn Blender's self collision on/off (None: unchanged).
+    mapping: further options of ``blender_cloth.cloth_settings`` (curvature, bend_calibration,
+    collision_distance_m).
     """
     x, tri, all_triangles = mesh_arrays(obj)
     mod = _cloth_modifier(obj)
@@ -84,7 +86,7 @@ def apply_cloth_settings(obj, preset, material=None, *, quality=blender_cloth.DE
     if pin and pin not in obj.vertex_groups:
         raise InputError(f"{obj.name}: no vertex group {pin!r} to pin")
     values = blender_cloth.cloth_settings(preset, quality, mesh=(x, tri), fps=bpy.context.scene.render.fps,
-                                          pin_group=pin)
+                                          pin_group=pin, **mapping)
     groups = {}
     if material is not None:
         if not isinstance(material, dict) or not set(material) <= {"face_stretch_N_m", "edge_bend_N_m"}:
@@ -95,7 +97,8 @@ def apply_cloth_settings(obj, preset, material=None, *, quality=blender_cloth.DE
         bend = material.get("edge_bend_N_m")
         groups = blender_cloth.vertex_group_weights(
             x, tri, face_stretch_N_m=stretch,
-            hinge_bend_N_m=None if bend is None else _hinge_values(obj, x, tri, bend))
+            hinge_bend_N_m=None if bend is None else _hinge_values(obj, x, tri, bend),
+            **{k: v for k, v in mapping.items() if k in ("curvature", "bend_calibration") and v is not None})
     s = mod.settings
     for key, value in values.items():
         if key not in ("collision_settings", "derivation"):
