@@ -159,6 +159,15 @@ def step():
         # Blender keeps a panel's open/closed state per panel id and 3.4 has no Python setter for it: the closed
         # panels are registered again under new ids (same draw code), which open by default; Measurement and Fit
         # are closed the same way so that the others come to the top
+        # Show in Image Editor: the factory Layout screen has none, so the overlay opens in a new window
+        windows = len(bpy.context.window_manager.windows)
+        with bpy.context.temp_override(window=win, area=area, region=regions['WINDOW']):
+            assert bpy.ops.drapelab.show_image(image=s.overlay_image) == {'FINISHED'}
+        shown = [a.spaces.active.image.name for w in bpy.context.window_manager.windows for a in w.screen.areas
+                 if a.type == 'IMAGE_EDITOR' and a.spaces.active.image is not None]
+        if len(bpy.context.window_manager.windows) != windows + 1 or s.overlay_image not in shown:
+            fail(f"Show in Image Editor did not open the overlay in a new window ({shown})")
+        print(f"IMAGE EDITOR shows {shown}", flush=True)
         from drapelab.ui import panels
         for cls in panels.CLASSES[1:]:
             bpy.utils.unregister_class(cls)

@@ -481,8 +481,11 @@ class DRAPELAB_OT_show_image(bpy.types.Operator):
     image: StringProperty(name="Image")
 
     def execute(self, context):
-        if not previews.show_in_image_editor(context, self.image):
-            self.report({'WARNING'}, "open an Image Editor area to view the picture at full size")
+        if bpy.data.images.get(self.image) is None:
+            self.report({'ERROR'}, f"show_image: no image {self.image!r}")
+            return {'CANCELLED'}
+        if previews.show_in_image_editor(context, self.image) is None:
+            self.report({'WARNING'}, "show_image: no window to show it in (background mode)")
             return {'CANCELLED'}
         return {'FINISHED'}
 

@@ -1,5 +1,6 @@
 """Images shown in Blender: the PNGs drapelab.ui.figures writes become bpy.data.images (reloaded when the file
-changes) whose previews the panels draw; `show_in_image_editor` puts one in an Image Editor."""
+changes) whose previews the panels draw; `show_in_image_editor` puts one in an Image Editor (a new window when
+the screen has none)."""
 import os
 
 import bpy
@@ -38,15 +39,24 @@ def icon(name):
 
 
 def show_in_image_editor(context, name):
-    """Shows the image in the first Image Editor of the screen; False when the screen has none."""
+    """Shows the image in the first Image Editor of the screen, else in a new window turned into an Image Editor.
+    Returns the area used, or None (no such image, or no window: --background)."""
     img = bpy.data.images.get(name)
-    if img is None:
-        return False
+    if img is None or context.window is None:
+        return None
     for area in context.screen.areas if context.screen else []:
         if area.type == 'IMAGE_EDITOR':
             area.spaces.active.image = img
-            return True
-    return False
+            return area
+    before = set(context.window_manager.windows[:])
+    bpy.ops.wm.window_new()
+    new = [w for w in context.window_manager.windows if w not in before]
+    if not new:
+        return None
+    area = max(new[0].screen.areas, key=lambda a: a.width * a.height)
+    area.type = 'IMAGE_EDITOR'
+    area.spaces.active.image = img
+    return area
 
 
 def draw_image(layout, name, scale=10.0):
