@@ -90,6 +90,18 @@ w = np.array([group.weight(v.index) for v in obj.data.vertices])
 assert 0 <= w.min() < 0.2 and 0.8 < w.max() <= 1
 assert np.corrcoef(w, rest[:, 0])[0, 1] > 0.9, "weights should follow the field"
 
+# per-edge bending tables (the add-on's edge attributes) read as the scalar is (the secant, cached above): the
+# preset's median table scaled 1x..4x across the disk gives a group spanning the scalar setting x [1, 4]
+scalar = cloth_export.apply_cloth_settings(obj, preset).settings.bending_stiffness
+median = np.exp(np.asarray(preset["posterior"]["bend"]["log_mean"]))
+scale = np.exp(np.log(4.0) * (mid[:, 0] + 0.15) / 0.3)
+mod = cloth_export.apply_cloth_settings(obj, preset, material={"edge_bend_N_m": scale[:, None, None] * median})
+hinges = blender_cloth.mesh_statistics(*cloth_export.mesh_arrays(obj)[:2])["hinge_edges"]
+index = {tuple(sorted(e)): i for i, e in enumerate(edges.reshape(-1, 2).tolist())}
+s_h = scale[[index[tuple(sorted(h))] for h in hinges.tolist()]]
+assert math.isclose(mod.settings.bending_stiffness, scalar * s_h.min(), rel_tol=1e-4), (mod.settings.bending_stiffness, scalar)
+assert math.isclose(mod.settings.bending_stiffness_max, scalar * s_h.max(), rel_tol=1e-4)
+
 # bad input
 for bad, expected in ((lambda: cloth_export.apply_cloth_settings(bpy.data.objects.new("empty", None), preset), "mesh"),
                       (lambda: cloth_export.apply_cloth_settings(obj, preset, pin_group="nope"), "nope"),

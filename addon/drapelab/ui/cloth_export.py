@@ -95,10 +95,18 @@ def apply_cloth_settings(obj, preset, material=None, *, quality=blender_cloth.DE
             raise InputError(f"{obj.name}: a per-element material needs a triangle mesh (triangulate it first)")
         stretch = material.get("face_stretch_N_m")
         bend = material.get("edge_bend_N_m")
+        if bend is not None:
+            bend = _hinge_values(obj, x, tri, bend)
+            if bend.ndim == 3:  # tables: read as the scalar was (at its curvature, or scaled to the secant)
+                d = values["derivation"]
+                median = np.exp(np.asarray(blender_cloth._preset_arg(preset)["posterior"]["bend"]["log_mean"]))
+                at = blender_cloth._bend_at(median, d["bend_curvature_per_m"]) if d["bend_reading"] == "secant" else None
+                bend = blender_cloth._bend_at(bend, d["bend_curvature_per_m"])
+                if at is not None:
+                    bend = bend * (d["bend_stiffness_N_m"] / at)
         groups = blender_cloth.vertex_group_weights(
-            x, tri, face_stretch_N_m=stretch,
-            hinge_bend_N_m=None if bend is None else _hinge_values(obj, x, tri, bend),
-            **{k: v for k, v in mapping.items() if k in ("curvature", "bend_calibration") and v is not None})
+            x, tri, face_stretch_N_m=stretch, hinge_bend_N_m=bend,
+            bend_calibration=values["derivation"]["bend_calibration"])
     s = mod.settings
     for key, value in values.items():
         if key not in ("collision_settings", "derivation"):
