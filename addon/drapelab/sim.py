@@ -216,6 +216,13 @@ def _mesh_arg(mesh_or_path):
 
 
 # ---------------------------------------------------------------- argument checks
+def _index_list(value, name):
+    a = np.asarray(value)
+    if a.ndim != 1 or (a.size and not np.issubdtype(a.dtype, np.integer)):
+        raise InputError(f"{name}: expected a list of vertex indices, got {a.dtype} of shape {a.shape}")
+    return [int(v) for v in a]
+
+
 def _float_array(value, name, ndim=None):
     try:
         arr = np.asarray(value)
@@ -282,21 +289,30 @@ class ClothModel:
     heterogeneous: one stretch table per face and one bend table per bending edge (else one shared table).
     density (kg/m^2), handle_stiffness (N/m), support_radius (m): defaults of ``parameters()`` and the
     handled region (vertices with rest radius below support_radius are held at their rest positions).
+    Garments: held_vertices (indices) replaces that region (their anchors move with ``set_handle_anchors``);
+    seams (S, 2) pairs of vertices held together by zero-length springs of seam_stiffness N/m.
 
     One model runs one simulation at a time; ``backward`` differentiates its last ``simulate``.
     """
 
     def __init__(self, mesh_or_path, heterogeneous=False, density=DEFAULT_DENSITY,
                  handle_stiffness=DEFAULT_HANDLE_STIFFNESS, support_radius=DEFAULT_SUPPORT_RADIUS,
-                 gravity=DEFAULT_GRAVITY, effects=None):
+                 gravity=DEFAULT_GRAVITY, effects=None, held_vertices=None, seams=None, seam_stiffness=1e3):
         mesh = _mesh_arg(mesh_or_path)
+        held = [] if held_vertices is None else _index_list(held_vertices, "held_vertices")
+        seam_pairs = [] if seams is None or len(seams) == 0 else np.asarray(seams)
+        if len(seam_pairs) and (seam_pairs.ndim != 2 or seam_pairs.shape[1] != 2):
+            raise InputError(f"seams: expected (S, 2) vertex pairs, got shape {seam_pairs.shape}")
+        seam_pairs = [tuple(int(v) for v in pair) for pair in np.asarray(seam_pairs, dtype=np.int64).reshape(-1, 2)]
+        seam_stiffness = _scalar(seam_stiffness, "seam_stiffness", 0.0, strictly=True, unit="N/m")
         density = _scalar(density, "density", 0.0, strictly=True, unit="kg/m^2")
         handle_stiffness = _scalar(handle_stiffness, "handle_stiffness", 0.0, unit="N/m")
         support_radius = _scalar(support_radius, "support_radius", 0.0, strictly=True, unit="m")
         gravity = _scalar(gravity, "gravity", 0.0, unit="m/s^2")
         self._native = native.Model(mesh, heterogeneous=bool(heterogeneous), support_radius=support_radius,
                                     gravity=gravity, density=density, handle_stiffness=handle_stiffness,
-                                    effects=effect_values(effects))
+                                    effects=effect_values(effects), held_vertices=held, seams=seam_pairs,
+                                    seam_stiffness=seam_stiffness)
         self._blocks = {b["name"]: b for b in self._native.layout}
         self._mesh = self._native.mesh
         self._dynamic = None
@@ -304,6 +320,15 @@ class ClothModel:
         self._last = None  # mode of the last successful simulate
         self._lock = threading.Lock()
         self.last_result = {}
+
+    def set_handle_anchors(self, anchors):
+        """Moves the held vertices' anchors (H, 3) metres, in ``handle_vertices`` order (a kinematic attachment:
+        a garment's waistband following the body between simulate calls)."""
+        a = _float_array(anchors, "anchors", ndim=2)
+        if a.shape != (len(self.handle_vertices), 3):
+            raise InputError(f"anchors: expected ({len(self.handle_vertices)}, 3), got {a.shape}")
+        with self._lock:
+            self._native.set_handle_anchors(a)
 
     # -- description
     @property

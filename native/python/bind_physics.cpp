@@ -18,6 +18,7 @@
 #include <optional>
 
 #include "geometry/mesh.hpp"
+#include "garment/revolved_body.hpp"
 #include "physics/model.hpp"
 #include "solver/implicit_euler.hpp"
 #include "solver/static_solve.hpp"
@@ -123,7 +124,25 @@ py::list effect_list() {
 
 }  // namespace
 
+std::vector<RigidPose> poses_from(const std::vector<Eigen::Matrix4d>& T) {
+  std::vector<RigidPose> out;
+  for (const auto& t : T) {
+    RigidPose p;
+    p.R = t.topLeftCorner<3, 3>();
+    p.c = t.topRightCorner<3, 1>();
+    out.push_back(p);
+  }
+  return out;
+}
+
 void bind_physics(py::module_& m) {
+  py::class_<RevolvedBodyContact, std::unique_ptr<RevolvedBodyContact, py::nodelete>>(
+      m, "RevolvedBodyContact", "A garment's body as a contact obstacle (garment/revolved_body.hpp).")
+      .def("set_poses", [](RevolvedBodyContact& b, const std::vector<Eigen::Matrix4d>& start,
+                           const std::vector<Eigen::Matrix4d>& end) { b.set_poses(poses_from(start), poses_from(end)); },
+           py::arg("start"), py::arg("end"), "Rigid 4x4 poses per part at the start and end of the next step.")
+      .def("clearance", [](const RevolvedBodyContact& b, const Vector& x) { return Vector(b.clearance(x)); },
+           py::arg("positions"), "Clearance (m, < 0 inside) of each vertex (flat 3V) at the end pose.");
   m.def(
       "effects", effect_list,
       "The effect registry (physics/effect.hpp): a list of {name, explanation, signature, parameters: [{name, "
@@ -141,8 +160,13 @@ void bind_physics(py::module_& m) {
                                             "Cloth model: mesh, rest data, masses, terms (stretch, bend, gravity, "
                                             "handle) and the flat parameter layout; see physics/model.hpp.")
       .def(py::init([](const TriangleMesh& mesh, bool heterogeneous, double support_radius, double gravity,
-                       double density, double handle_stiffness, const EffectValues& effects) {
+                       double density, double handle_stiffness, const EffectValues& effects,
+                       const std::vector<int>& held_vertices, const std::vector<std::array<int, 2>>& seams,
+                       double seam_stiffness) {
              ModelOptions o;
+             o.held_vertices = held_vertices;
+             o.seams = seams;
+             o.seam_stiffness = seam_stiffness;
              o.effects = effects;
              o.heterogeneous = heterogeneous;
              o.support_radius = support_radius;
@@ -153,7 +177,25 @@ void bind_physics(py::module_& m) {
            }),
            py::arg("mesh"), py::arg("heterogeneous") = false, py::arg("support_radius") = 0.09,
            py::arg("gravity") = 9.8, py::arg("density") = 0.192, py::arg("handle_stiffness") = 1e3,
-           py::arg("effects") = EffectValues{})
+           py::arg("effects") = EffectValues{}, py::arg("held_vertices") = std::vector<int>{},
+           py::arg("seams") = std::vector<std::array<int, 2>>{}, py::arg("seam_stiffness") = 1e3)
+      .def("add_body_contact",
+           [](Model& s, const std::vector<std::tuple<Eigen::Vector3d, std::vector<double>, std::vector<double>>>& parts,
+              const Vector& kappa, double activation) {
+             if (kappa.size() != s.num_vertices())
+               throw InputError("body contact: expected one stiffness per vertex (" + std::to_string(s.num_vertices()) +
+                                "), got " + std::to_string(kappa.size()));
+             std::vector<RevolvedPart> ps;
+             for (const auto& [origin, sv, rv] : parts) ps.push_back({origin, sv, rv});
+             auto term = std::make_unique<RevolvedBodyContact>(std::move(ps), kappa, activation);
+             return static_cast<RevolvedBodyContact*>(s.add_term(std::move(term)));
+           },
+           py::arg("parts"), py::arg("kappa"), py::arg("activation"), py::return_value_policy::reference_internal,
+           "Adds contact with a kinematic body of rigid surfaces of revolution (garment/revolved_body.hpp): parts "
+           "[(origin (3,), s (n,), r (n,))], kappa (V,) barrier stiffness per vertex [J], activation (m). Returns "
+           "the term (set_poses, clearance); the model owns it.")
+      .def("set_handle_anchors", &Model::set_handle_anchors, py::arg("anchors"),
+           "Moves the handle's anchors (H x 3, metres, in handle_vertices order): a kinematic attachment.")
       .def_property_readonly("active_effects", &Model::active_effects)
       .def_property_readonly("num_vertices", &Model::num_vertices)
       .def_property_readonly("num_dofs", &Model::num_dofs)

@@ -19,6 +19,7 @@ class HandleTerm : public ElementTerm<HandleTerm, 1, 1, 3> {
   const std::array<int, 1>& element_vertices(int e) const { return verts_[e]; }
   int parameter_offset(int) const { return offset_; }
   const std::vector<std::array<int, 1>>& vertices() const { return verts_; }
+  void set_anchors(const std::vector<Eigen::Vector3d>& anchors) { anchors_ = anchors; }
 
   template <class T>
   T element_energy(int e, const T* x, const T* p) const {

@@ -2,10 +2,13 @@
 
 #include <cmath>
 #include <sstream>
+#include <stdexcept>
+#include <algorithm>
 
 #include "physics/bend.hpp"
 #include "physics/gravity.hpp"
 #include "physics/handle.hpp"
+#include "physics/seam.hpp"
 #include "physics/stretch.hpp"
 #include "util/error.hpp"
 
@@ -57,12 +60,29 @@ Model::Model(const TriangleMesh& mesh, const ModelOptions& options) : mesh_(mesh
     for (int k = 0; k < 3; ++k) area_weights_[mesh_.faces(f, k)] += std::abs(areas[f]) / 3.0;
 
   std::vector<Eigen::Vector3d> anchors;
-  for (int i = 0; i < nv; ++i)
-    if (mesh_.uv.row(i).norm() < options.support_radius) {
+  if (!options.held_vertices.empty()) {
+    std::vector<char> seen(nv, 0);
+    for (int i : options.held_vertices) {
+      if (i < 0 || i >= nv) throw InputError("model: held vertex " + std::to_string(i) + " is not a vertex index");
+      if (seen[i]++) throw InputError("model: held vertex " + std::to_string(i) + " is listed twice");
       handle_vertices_.push_back(i);
       anchors.push_back(mesh_.positions.row(i).transpose());
     }
+  } else {
+    for (int i = 0; i < nv; ++i)
+      if (mesh_.uv.row(i).norm() < options.support_radius) {
+        handle_vertices_.push_back(i);
+        anchors.push_back(mesh_.positions.row(i).transpose());
+      }
+  }
   if (handle_vertices_.empty()) throw InputError("model: no vertex lies on the support disk (rest radius < support radius)");
+  for (const auto& s : options.seams) {
+    if (s[0] < 0 || s[0] >= nv || s[1] < 0 || s[1] >= nv || s[0] == s[1])
+      throw InputError("model: seam (" + std::to_string(s[0]) + ", " + std::to_string(s[1]) +
+                       ") does not pair two distinct vertices");
+  }
+  if (!options.seams.empty() && !(options.seam_stiffness > 0 && std::isfinite(options.seam_stiffness)))
+    throw InputError("model: seam stiffness must be > 0 N/m");
 
   const EffectContext context{mesh_, edges_, area_weights_, handle_vertices_, layout_, options_};
   BaseTermChanges changes;  // what active effects change inside the base terms (none: the base model)
@@ -84,7 +104,10 @@ Model::Model(const TriangleMesh& mesh, const ModelOptions& options) : mesh_(mesh
   terms_.push_back(std::make_unique<StretchTerm>(mesh_, stretch_off, shared, changes.stretch_rest));
   terms_.push_back(std::make_unique<BendTerm>(mesh_, edges_, bend_off, shared, changes.bend));
   terms_.push_back(std::make_unique<GravityTerm>(area_weights_, density_off, options.gravity));
-  terms_.push_back(std::make_unique<HandleTerm>(handle_vertices_, anchors, handle_off));
+  auto handle = std::make_unique<HandleTerm>(handle_vertices_, anchors, handle_off);
+  handle_ = handle.get();
+  terms_.push_back(std::move(handle));
+  if (!options.seams.empty()) terms_.push_back(std::make_unique<SeamTerm>(options.seams, options.seam_stiffness));
   for (const std::string& name : active_effects_)
     for (auto& t : find_effect(name).make_terms(context)) terms_.push_back(std::move(t));
 
@@ -109,6 +132,31 @@ Model::Model(const TriangleMesh& mesh, const ModelOptions& options) : mesh_(mesh
     }
   }
   validate_parameters(defaults_);
+}
+
+Term* Model::add_term(std::unique_ptr<Term> term) {
+  for (const auto& stencil : term->stencils())
+    for (int a : stencil)
+      for (int b : stencil)
+        try {
+          if (a < 0 || a >= num_vertices() || b < 0 || b >= num_vertices()) throw std::logic_error("index");
+          pattern_.index(3 * std::min(a, b), 3 * std::max(a, b));
+        } catch (const std::logic_error&) {
+          throw InputError("model: term " + term->name() + " couples vertices outside the sparsity pattern");
+        }
+  term->bind_pattern(pattern_);
+  terms_.push_back(std::move(term));
+  return terms_.back().get();
+}
+
+void Model::set_handle_anchors(const MatrixX3d& anchors) {
+  if (anchors.rows() != static_cast<Eigen::Index>(handle_vertices_.size()))
+    throw InputError("handle anchors: expected " + std::to_string(handle_vertices_.size()) + " rows, got " +
+                     std::to_string(anchors.rows()));
+  if (!anchors.allFinite()) throw InputError("handle anchors: not finite");
+  std::vector<Eigen::Vector3d> a(handle_vertices_.size());
+  for (size_t k = 0; k < a.size(); ++k) a[k] = anchors.row(static_cast<Eigen::Index>(k)).transpose();
+  handle_->set_anchors(a);
 }
 
 Eigen::VectorXd Model::rest_positions() const {

@@ -5,6 +5,7 @@
 // active effect (physics/effect.hpp), in registry order. Homogeneous models share one table; heterogeneous models
 // carry one table per face (stretch) and per bending edge (bend).
 #pragma once
+#include <array>
 #include <memory>
 #include <string>
 #include <vector>
@@ -25,7 +26,15 @@ struct ModelOptions {
   double handle_stiffness = 1e3;  // N/m (paper)
   // Active optional effects with their starting values (physics/effect.hpp); empty: the base model.
   EffectValues effects;
+  // Garments: the vertices the handle holds (a waistband), instead of those within support_radius of the
+  // pattern's origin; their anchors follow a moving body through Model::set_handle_anchors.
+  std::vector<int> held_vertices;
+  // Garments: pairs of seam vertices (one per pattern piece) held together (physics/seam.hpp).
+  std::vector<std::array<int, 2>> seams;
+  double seam_stiffness = 1e3;  // N/m per seam pair
 };
+
+class HandleTerm;
 
 using StretchTable = Eigen::Matrix<double, 6, 4, Eigen::RowMajor>;
 using BendTable = Eigen::Matrix<double, 3, 5, Eigen::RowMajor>;
@@ -47,6 +56,12 @@ class Model {
   const SparsePattern& pattern() const { return pattern_; }
   const std::vector<std::unique_ptr<Term>>& terms() const { return terms_; }
   const std::vector<int>& handle_vertices() const { return handle_vertices_; }
+  // Moves the handle's anchors (H x 3, metres, in handle_vertices() order): a kinematic attachment (a garment's
+  // waistband following the body). Not thread-safe against a running simulation of this model.
+  void set_handle_anchors(const MatrixX3d& anchors);
+  // Adds a term after construction (a garment's body contact): its stencils must lie in the model's sparsity
+  // pattern (single vertices always do); returns it. The model owns it.
+  Term* add_term(std::unique_ptr<Term> term);
   // Names of the active effects, in registry order.
   const std::vector<std::string>& active_effects() const { return active_effects_; }
 
@@ -77,6 +92,7 @@ class Model {
   std::vector<int> handle_vertices_;
   std::vector<std::string> active_effects_;
   std::vector<std::unique_ptr<Term>> terms_;
+  HandleTerm* handle_ = nullptr;  // owned by terms_
   SparsePattern pattern_;
 };
 

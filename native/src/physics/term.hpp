@@ -76,6 +76,9 @@ class Term {
   // (friction's normal forces and tangent frames, IPC's lagged friction) are taken from it. h = 0: a
   // static solve (no friction: the static equilibrium is the frictionless one).
   virtual void begin_step(const Eigen::VectorXd& /*x*/, const Eigen::VectorXd& /*p*/, double /*h*/) {}
+  // Moving obstacles (a garment's body): moves the step's first iterate x (the start state) so that it is clear
+  // of the obstacle at its end-of-step pose (cloth near a part is carried along with it).
+  virtual void carry_start(Eigen::VectorXd& /*x*/) const {}
 
   // Optional, for speed (defaults are correct for every term):
   // out += scale * K(x; p) dir without assembling K. Returns false if the term does not provide it (the

@@ -219,10 +219,12 @@ Eigen::VectorXd ImplicitEuler::contact_step(const Eigen::VectorXd& p, const Roll
     return r;
   };
   Eigen::VectorXd x = x_, g, A, dx, xn;
+  for (const auto& t : model_.terms()) t->carry_start(x);
   double Phi = potential(x);
   if (!std::isfinite(Phi)) {
     std::ostringstream s;
-    s << "rollout: step " << step << " starts in contact (a vertex touches an obstacle or the cloth itself)";
+    s << "rollout: step " << step << " starts in contact (a vertex touches an obstacle or the cloth itself, or a "
+      << "moving obstacle passed through the cloth: use shorter steps)";
     throw SolverError(s.str());
   }
   // Start from the inertial prediction x_hat as far as collision detection allows (x_t if that is no better):
