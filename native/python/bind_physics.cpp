@@ -257,8 +257,9 @@ void bind_physics(py::module_& m) {
           "forward",
           [](PyImplicitEuler& s, const Vector& p, double time_step, int steps, double max_speed, bool record,
              std::shared_ptr<PyProgress> progress, std::optional<Vector> x0, std::optional<Vector> v0,
-             double factor_memory_mb) {
+             double factor_memory_mb, double contact_force_tolerance) {
             RolloutOptions o;
+            o.contact_force_tolerance = contact_force_tolerance;
             o.time_step = time_step;
             o.steps = steps;
             o.max_speed = max_speed;
@@ -271,8 +272,10 @@ void bind_physics(py::module_& m) {
           py::arg("parameters"), py::arg("time_step") = 0.05, py::arg("steps") = 100, py::arg("max_speed") = 50.0,
           py::arg("record") = true, py::arg("progress") = nullptr, py::arg("x0") = py::none(),
           py::arg("v0") = py::none(), py::arg("factor_memory_mb") = RolloutOptions{}.factor_memory_mb,
+          py::arg("contact_force_tolerance") = RolloutOptions{}.contact_force_tolerance,
           "Rolls out from (x0, v0) (default: rest, at rest); returns final positions (3V). Factors for the adjoint "
-          "are kept up to factor_memory_mb (MB); later steps are refactorised in the backward.")
+          "are kept up to factor_memory_mb (MB); later steps are refactorised in the backward. With contact terms, "
+          "each step's Newton iterations end below contact_force_tolerance (of each vertex's weight).")
       .def(
           "backward",
           [](PyImplicitEuler& s, const Vector& dL_dx, std::optional<Vector> dL_dv, std::shared_ptr<PyProgress> progress) {
@@ -305,8 +308,12 @@ void bind_physics(py::module_& m) {
         out["assemble"] = t.assemble;
         out["factorize"] = t.factorize;
         out["solve"] = t.solve;
+        out["newton_iterations"] = t.newton_iterations;
+        out["factorizations"] = t.factorizations;
+        out["inexact_adjoint_steps"] = t.inexact_adjoint_steps;
         return out;
-      }, "Seconds spent in assembly, factorisation and solves during the last forward.")
+      }, "Seconds spent in assembly, factorisation and solves during the last forward; with contact (IPC steps) "
+         "also the Newton iterations and factorisations, and the steps whose adjoint used a definite substitute.")
       .def(
           "step_system",
           [](PyImplicitEuler& s, const Vector& x, const Vector& v, const Vector& p, double h) {

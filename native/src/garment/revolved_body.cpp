@@ -229,6 +229,9 @@ void RevolvedBodyContact::carry_start(Eigen::VectorXd& x) const {
   const int nparts = static_cast<int>(parts_.size());
   for (int i = 0; i < kappa_.size(); ++i) {
     const Eigen::Vector3d q = x.segment<3>(3 * i);
+    bool clear_already = true;  // only cloth the moving body would reach (or pass) needs carrying
+    for (int k = 0; k < nparts && clear_already; ++k) clear_already = part_clearance(k, q) > 0.5 * dhat_;
+    if (clear_already) continue;
     int nearest = -1;
     double best = kCarryReach;
     for (int k = 0; k < nparts; ++k) {

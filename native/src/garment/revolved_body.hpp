@@ -65,8 +65,9 @@ class RevolvedBodyContact : public Term {
   // g and its gradient / Hessian (world frame) of point q against part k at its end pose.
   double part_clearance(int k, const Eigen::Vector3d& q, Eigen::Vector3d* grad = nullptr,
                         Eigen::Matrix3d* hess = nullptr, bool at_start = false) const;
-  // Cloth vertices within kCarryReach of a part at the step's start pose move rigidly with that part to its
-  // end pose (where that keeps them clear of every part): the IPC step's first iterate when the body moves.
+  // Cloth vertices that the body at its end pose would reach (clearance below half the barrier's reach) and that
+  // lay within kCarryReach of a part at the start pose move rigidly with that part to its end pose (where that
+  // keeps them clear of every part): the IPC step's first iterate when the body moves; the others stay.
   void carry_start(Eigen::VectorXd& x) const override;
 
  private:
