@@ -6,7 +6,7 @@ import sys
 # One module per command under drapelab.commands, each with register(subparsers) -> sets func.
 # Module names (install_addon registers the subcommand install-addon).
 COMMANDS = ["demo", "bench", "measure", "compare", "fit", "evaluate", "effects", "synth", "diagnose", "package",
-            "install_addon"]
+            "install_addon", "drape"]
 
 
 def main(argv=None):

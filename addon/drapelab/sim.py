@@ -321,6 +321,13 @@ class ClothModel:
         self._lock = threading.Lock()
         self.last_result = {}
 
+    @property
+    def velocities(self):
+        """(V, 3) velocities at the end of the last dynamic rollout (m/s), to continue it in the next call."""
+        if self._dynamic is None:
+            raise InputError("velocities: run a dynamic simulate(...) first")
+        return np.asarray(self._dynamic.velocities).reshape(-1, 3)
+
     def set_handle_anchors(self, anchors):
         """Moves the held vertices' anchors (H, 3) metres, in ``handle_vertices`` order (a kinematic attachment:
         a garment's waistband following the body between simulate calls)."""
@@ -539,7 +546,8 @@ class ClothModel:
     # -- simulation
     def simulate(self, params, mode="dynamic", steps=DEFAULT_STEPS, time_step=DEFAULT_TIME_STEP, progress=None,
                  cancel_event=None, force_tolerance=DEFAULT_FORCE_TOLERANCE, max_iterations=DEFAULT_MAX_ITERATIONS,
-                 max_speed=DEFAULT_MAX_SPEED, record=True, positions0=None, velocities0=None, factor_memory_mb=None):
+                 max_speed=DEFAULT_MAX_SPEED, record=True, positions0=None, velocities0=None, factor_memory_mb=None,
+                 contact_force_tolerance=None):
         """Drapes the cloth from its flat rest state; returns the final positions (V, 3).
 
         mode "dynamic": ``steps`` implicit Euler steps of ``time_step`` seconds (record=False skips what
@@ -549,6 +557,8 @@ class ClothModel:
         velocities0 (V, 3): initial velocities of a dynamic rollout (default at rest).
         factor_memory_mb: memory (MB) for the per-step factorisations kept for backward (default 1024);
         steps beyond it are refactorised during backward (same result, slower).
+        contact_force_tolerance: with a contact effect (or a garment's body), every step is an IPC step whose
+        Newton iterations end when each residual force is below this fraction of the vertex's weight (default 1e-6).
         A dynamic rollout that diverges (a vertex faster than max_speed m/s, or a non-finite or indefinite step)
         raises SolverError naming the step, with the state before that step attached: ``e.step`` (0-based, the
         number of steps completed), ``e.positions`` and ``e.velocities`` (V, 3), all finite.
@@ -562,6 +572,9 @@ class ClothModel:
             max_speed = _scalar(max_speed, "max_speed", 0.0, strictly=True, unit="m/s")
             memory = {} if factor_memory_mb is None else {
                 "factor_memory_mb": _scalar(factor_memory_mb, "factor_memory_mb", 0.0, unit="MB")}
+            if contact_force_tolerance is not None:
+                memory["contact_force_tolerance"] = _scalar(contact_force_tolerance, "contact_force_tolerance", 0.0,
+                                                            strictly=True)
         else:
             force_tolerance = _scalar(force_tolerance, "force_tolerance", 0.0, strictly=True)
             max_iterations = _positive_int(max_iterations, "max_iterations")

@@ -29,7 +29,7 @@ import numpy as np
 from . import InputError
 
 __all__ = ["Body", "make_body", "body_frames", "pelvis_transforms", "max_vertex_speed", "check_clear_of_body", "MOTIONS",
-           "DEFAULT_HEIGHT_M", "waist_height", "PART_NAMES"]
+           "DEFAULT_HEIGHT_M", "waist_height", "PART_NAMES", "part_transforms"]
 
 MOTIONS = ("static", "walk", "twirl", "jump")
 PART_NAMES = ("pelvis", "leg_left", "leg_right")
@@ -280,7 +280,37 @@ def pelvis_transforms(motion, frames, fps=24):
     """(frames, 4, 4) rigid transforms of the pelvis (world from rest) at frames 0..frames-1 (t = frame / fps)."""
     motion = _motion_arg(motion)
     frames, fps = _frames_arg(frames, fps)
-    t = np.arange(frames) / fps
+    return _pelvis_at(motion, np.arange(frames) / fps, fps)
+
+
+def part_transforms(body, motion, times, fps=24):
+    """(len(times), parts, 4, 4) rigid transforms (world from rest) of each body part at arbitrary times (s): the
+    pelvis, and each leg swung about its hip joint and carried by the pelvis, exactly as ``body_frames`` moves
+    the vertices (body_frames at frame f equals these transforms at t = f / fps applied to the rest pose)."""
+    if not isinstance(body, Body):
+        raise InputError(f"body: expected a Body (make_body), got {type(body).__name__}")
+    motion = _motion_arg(motion)
+    _, fps = _frames_arg(1, fps)
+    t = np.asarray(times, dtype=np.float64).reshape(-1)
+    pelvis = _pelvis_at(motion, t, fps)
+    swing = _leg_swing(motion, t, fps)
+    out = np.tile(np.eye(4), (len(t), len(body.part_names), 1, 1))
+    out[:, 0] = pelvis
+    for k, name in enumerate(body.part_names):
+        if k == 0:
+            continue
+        joint = body.joints["hip_" + name.split("_")[1]]
+        a = swing * (1.0 if k == 1 else -1.0)
+        leg = np.tile(np.eye(4), (len(t), 1, 1))
+        c, s = np.cos(a), np.sin(a)
+        leg[:, 1, 1], leg[:, 1, 2], leg[:, 2, 1], leg[:, 2, 2] = c, -s, s, c
+        leg[:, :3, 3] = joint - np.einsum("fij,j->fi", leg[:, :3, :3], joint)
+        out[:, k] = pelvis @ leg
+    return out
+
+
+def _pelvis_at(motion, t, fps):
+    frames = len(t)
     zeros = np.zeros(frames)
     if motion == "static":
         return _rigid(zeros, np.zeros((frames, 3)))
