@@ -270,6 +270,9 @@ if not has_simulator:
     expect_error(lambda: bpy.ops.drapelab.simulate_garment(frame_start=1, frame_end=5),
                  "garment simulation is not available in this build yet")
 expect_error(lambda: bpy.ops.drapelab.simulate_garment(frame_start=5, frame_end=5), "must be after")
+if has_simulator:  # a collider that is not the bundled dress form is refused before anything runs
+    expect_error(lambda: bpy.ops.drapelab.simulate_garment(frame_start=1, frame_end=3, collider=skirt.name),
+                 "bundled dress form")
 
 # -- a PC2 cache written frame by frame plays back through the Mesh Cache modifier
 from drapelab.garment import pc2  # noqa: E402

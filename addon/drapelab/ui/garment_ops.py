@@ -235,7 +235,8 @@ class DRAPELAB_OT_apply_material(bpy.types.Operator):
                                    "the garment mesh")
             return {'CANCELLED'}
         try:
-            preset = infer.load_preset(_preset_argument(context, self.preset))
+            preset_path = _preset_argument(context, self.preset)
+            preset = infer.load_preset(preset_path)
             positions, polys, uv = mesh_arrays(obj)
             sizes = {len(p) for p in polys}
             if sizes - {3}:
@@ -263,6 +264,7 @@ class DRAPELAB_OT_apply_material(bpy.types.Operator):
         s = context.scene.drapelab
         s.garment = obj
         obj["drapelab_preset"] = (preset.get("fabric") or {}).get("name") or preset["model"]
+        obj["drapelab_preset_path"] = preset_path  # Simulate draws the same material from it
         summaries = [n for n in written if not n[-2:].isdigit()]
         self.report({'INFO'}, f"{obj.name}: wrote {len(written)} attributes ({', '.join(summaries)} and the full "
                               "tables drapelab_stretch_00.._23, drapelab_bend_00.._14)")
@@ -297,6 +299,38 @@ class DRAPELAB_OT_show_heat_map(bpy.types.Operator):
 
 
 CLASSES = (DRAPELAB_OT_apply_material, DRAPELAB_OT_show_heat_map)
+
+
+WAIST_BAND_M = 0.03  # a garment's waistband: its vertices within this of its highest point
+
+
+def garment_for_simulation(obj, collider):
+    """(Garment, source vertex of each garment vertex, Body) for simulate_garment: the mesh in world space with its
+    UV map (triangles only), its waistband (vertices within WAIST_BAND_M of the top), and the bundled dress form,
+    which the collider must be (other bodies are not supported by the simulator yet)."""
+    from ..garment import body as body_module, mesh as mesh_module
+    if collider is None:
+        raise ValueError("pick the collider (the dress form made by drapelab.garment.body.make_body)")
+    body = body_module.make_body()
+    if collider.type != 'MESH' or len(collider.data.vertices) != len(body.positions):
+        raise ValueError(f"{collider.name}: the collider must be the bundled dress form "
+                         f"(drapelab.garment.body.make_body); other bodies are not supported yet")
+    bpos, _, _ = mesh_arrays(collider)
+    if np.abs(bpos - body.positions).max() > 1e-4:
+        raise ValueError(f"{collider.name}: the collider must be the bundled dress form, unmoved (its vertices "
+                         "differ from drapelab.garment.body.make_body's)")
+    positions, polys, uv = mesh_arrays(obj)
+    if any(len(p) != 3 for p in polys):
+        raise ValueError(f"{obj.name}: quads or n-gons: triangulate it (Apply Material with Triangulate on)")
+    if uv is None:
+        raise ValueError(f"{obj.name}: no UV map (run Apply Material with Default warp/weft on, or unwrap it)")
+    faces = np.array(polys, dtype=np.int64).reshape(-1, 3)
+    garment = mesh_module.garment_from_arrays(positions, faces, corner_uv=np.array(uv), name=obj.name)
+    source = original_vertex_map(garment, positions, faces)
+    top = garment.positions[:, 2].max()
+    garment.waist_vertices = np.flatnonzero(garment.positions[:, 2] > top - WAIST_BAND_M).astype(np.int32)
+    garment.blender_positions = positions
+    return garment, source, body
 
 
 def attach_mesh_cache(obj, path, frame_start=1):

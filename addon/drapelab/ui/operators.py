@@ -9,6 +9,8 @@ the job's cancel flag, which the facade checks between simulation steps.
 import json
 import os
 
+import numpy as np
+
 import bpy
 from bpy.props import CollectionProperty, FloatProperty, IntProperty, StringProperty
 from bpy_extras.io_utils import ExportHelper, ImportHelper
@@ -516,29 +518,73 @@ def _preset_argument(context, preset):
     raise InputError("no preset: give preset (a name or path), or fit or load one first")
 
 
-class DRAPELAB_OT_simulate_garment(bpy.types.Operator):
-    """Bake the garment's drape on the collider into a PC2 cache played by a Mesh Cache modifier"""
+class DRAPELAB_OT_simulate_garment(_JobOperator, bpy.types.Operator):
+    """Bake the garment's drape on the collider into a PC2 cache played by a Mesh Cache modifier (Esc cancels,
+    keeping the frames done)"""
     bl_idname = "drapelab.simulate_garment"
     bl_label = "Simulate"
     bl_options = {'REGISTER', 'UNDO'}
+    kind = "simulate"
 
     frame_start: IntProperty(name="Start", default=1, min=0)
     frame_end: IntProperty(name="End", default=60, min=1)
     collider: StringProperty(name="Collider", default="", description="collider object name (default: the panel's)")
+    preset: StringProperty(name="Preset", default="", description="preset name or path (default: the current)")
+    seed: IntProperty(name="Seed", default=0, min=0, description="the material draw (as Apply Material's)")
 
-    def execute(self, context):
+    def make_work(self, context):
         if self.frame_end <= self.frame_start:
-            self.report({'ERROR'}, f"simulate_garment: frame_end ({self.frame_end}) must be after frame_start "
-                                   f"({self.frame_start})")
-            return {'CANCELLED'}
+            raise InputError(f"frame_end ({self.frame_end}) must be after frame_start ({self.frame_start})")
         if self.collider and self.collider not in bpy.data.objects:
-            self.report({'ERROR'}, f"simulate_garment: no object named {self.collider!r}")
-            return {'CANCELLED'}
-        if _simulate_function() is None:
-            self.report({'ERROR'}, f"simulate_garment: {NOT_AVAILABLE_SIMULATION}")
-            return {'CANCELLED'}
-        self.report({'ERROR'}, f"simulate_garment: {NOT_AVAILABLE_SIMULATION} (the add-on's bake is not wired yet)")
-        return {'CANCELLED'}
+            raise InputError(f"no object named {self.collider!r}")
+        drape = _simulate_function()
+        if drape is None:
+            raise InputError(NOT_AVAILABLE_SIMULATION)
+        s = settings(context)
+        obj = s.garment or context.active_object
+        if obj is None or obj.type != 'MESH':
+            raise InputError("pick the garment mesh (Garment field or the active object)")
+        collider = bpy.data.objects[self.collider] if self.collider else s.collider
+        from .garment_ops import garment_for_simulation
+        garment, source, body = garment_for_simulation(obj, collider)
+        if not self.preset and not s.preset_path and obj.get("drapelab_preset_path"):
+            preset = infer.load_preset(obj["drapelab_preset_path"])  # the preset Apply Material used
+        else:
+            preset = infer.load_preset(_preset_argument(context, self.preset))
+        from ..garment import material
+        mat = material.sample_garment_material(preset, garment, seed=self.seed, samples=1)[0]
+        frames = self.frame_end - self.frame_start + 1
+        os.makedirs(cache_dir(), exist_ok=True)
+        path = os.path.join(cache_dir(), f"{bpy.path.clean_name(obj.name)}.pc2")
+        inverse = np.linalg.inv(np.array(obj.matrix_world))
+        self._target = (obj.name, path, self.frame_start)
+
+        def work(state):
+            # The cache is written in the Blender mesh's vertex order and local coordinates (split seam copies share
+            # their vertex); the simulator's own frames go to a side file, then each frame is mapped.
+            from ..garment.pc2 import PC2Writer
+            sim_path = path + ".sim.pc2"
+            r = drape(garment, mat, body=body, motion="static", frames=frames, cancel_event=state.cancel,
+                      progress=lambda d, n: state.update(d / n, f"frame {d}/{n}"), pc2_path=None, keep_frames=True)
+            with PC2Writer(path, len(source_count_positions), start_frame=1, sample_rate=1.0) as w:
+                for x in r["positions"]:
+                    out = source_count_positions.copy()
+                    out[source] = x
+                    w.write_frame(out @ inverse[:3, :3].T + inverse[:3, 3])
+            return {"frames": r["frames"], "cancelled": r["cancelled"], "seconds_per_frame": r["seconds_per_frame"],
+                    "max_body_penetration_m": r["max_body_penetration_m"], "path": path}
+
+        source_count_positions = garment.blender_positions
+        return work
+
+    def finish(self, context, result):
+        from .garment_ops import attach_mesh_cache
+        name, path, start = self._target
+        attach_mesh_cache(bpy.data.objects[name], path, frame_start=start)
+        return (f"simulate: {result['frames']} frames into {os.path.basename(path)} "
+                f"({result['seconds_per_frame']:.2f} s/frame, body penetration "
+                f"{result['max_body_penetration_m'] * 1000:.2f} mm)" + (" - cancelled, frames done kept"
+                                                                     if result["cancelled"] else ""))
 
 
 class DRAPELAB_OT_export_blender_cloth(bpy.types.Operator):
