@@ -304,7 +304,10 @@ def test_gradient_clipping_scales_only_the_data_term_and_follows_the_median():
     data = {k: 2 * (full[k] - clipped[k]) for k in full}
     assert np.sqrt(sum(np.sum(g * g) for g in data.values())) == pytest.approx(terms["grad_norm"], rel=1e-9)
     _, d_mu, d_sigma = infer.kl_divergence(job.theta["mu"], infer.softplus(job.theta["eta"]), job.prior_mu, job.prior_sigma)
-    assert np.allclose(full["mu"] - data["mu"], cfg["kl_weight"] * d_mu, rtol=1e-9, atol=1e-12)
+    # full - data = 2 clipped - full: a difference of two evaluations, so round-off relative to the gradient's size
+    # (entries ~1e2; the KL part is 0 at the prior's mean)
+    assert np.allclose(full["mu"] - data["mu"], cfg["kl_weight"] * d_mu, rtol=1e-9,
+                       atol=1e-12 * max(1.0, np.abs(full["mu"]).max()))
     # Threshold: factor x median of the first `window` recorded norms, once min_epochs are recorded; rejected
     # epochs ignored; later (exploding) norms do not move it.
     factor, window = cfg["gradient_clip"]["factor"], cfg["gradient_clip"]["window"]
