@@ -31,6 +31,13 @@ values (disk_contact: 2 cm clamp) beside the same placements without contact, fo
            forward_ms_per_step, backward_ms_per_step, base_forward_ms_per_step, base_backward_ms_per_step,
            min_signed_distance_m (the smallest clearance of a free vertex over the disk),
            vertices_below_disk_max, intersecting_pairs_max (null until self-contact diagnostics are bound)
+Garments (issue 21), unless --no-garment: the bundled skirt (--garment-vertices, default 6000, flared) on the walking
+dress form for --garment-frames (default 48) with our simulator (drapelab.garment.simulate; the stiffest and the
+softest shipped presets, wool fabric 5 and viscose fabric 3) and with Blender's own cloth modifier at its default
+quality, collisions and self-collision on (tools/blender/blender_cloth_bench.py), each in its own process:
+  garment: vertices, frames, ours_seconds_per_frame, blender_cloth_seconds_per_frame,
+           ours_vs_blender_cloth_time_ratio (< 1: ours is faster), max_body_penetration_m, self_intersections_final,
+           hem_radius_m {wool, viscose}, blender_hem_radius_m
 Also the soft renderer's forward and backward (ms, 256 x 256, Gaussian profile, sigma 1 px, median of 10)
 on the circle3 drape, and the paper's GPU figures (seconds per step, NVIDIA TITAN Xp) for comparison.
 With --fit (or --meshes none --fit), also one whole BDP fit as a user runs it (`fit` with its defaults: fit.json's
@@ -82,6 +89,9 @@ def register(subparsers):
                    help="skip the rows with each registered effect on (circle3, moderate strength)")
     p.add_argument("--contact-draws", type=int, default=20, metavar="N",
                    help="drapes with contact on (and off) for the contact block (default 20; 0 skips it)")
+    p.add_argument("--no-garment", action="store_true", help="skip the garment block (ours against Blender cloth)")
+    p.add_argument("--garment-vertices", type=int, default=6000, metavar="N", help="garment block skirt size")
+    p.add_argument("--garment-frames", type=int, default=48, metavar="N", help="garment block frames")
     p.add_argument("--fit", action="store_true",
                    help="also time one whole BDP fit of the bundled Cotton Blue silhouette (about 3-4 minutes)")
     p.add_argument("--fit-epochs", type=int, default=None, metavar="N",
@@ -180,6 +190,15 @@ def run(args):
             print(f" error: {contact['error']}", flush=True)
         else:
             print(f" {time.perf_counter() - t0:.0f} s", flush=True)
+    garment = None
+    if levels and not args.no_garment:
+        t0 = time.perf_counter()
+        print(f"  garment ({args.garment_vertices} vertices, {args.garment_frames} frames, walk) ...", end="",
+              flush=True)
+        garment = run_garment_block(args.garment_vertices, args.garment_frames, env)
+        failed += int("error" in garment)
+        print(f" {time.perf_counter() - t0:.0f} s" + (f" error: {garment['error']}" if "error" in garment else ""),
+              flush=True)
     fit = None
     if args.fit:
         t0 = time.perf_counter()
@@ -206,6 +225,8 @@ def run(args):
         report["effects"] = effects
     if contact is not None:
         report["contact"] = contact
+    if garment is not None:
+        report["garment"] = garment
     if fit is not None:
         report["fit"] = fit
     measure.write_json(args.json, report)
@@ -516,6 +537,52 @@ def child_contact(task):
             "intersecting_pairs_max": None}
 
 
+GARMENT_STYLE = "flared"
+GARMENT_PRESETS = {"wool": "fabric_05_wool_red_bdp.json", "viscose": "fabric_03_viscose_white_bdp.json"}
+
+
+def run_garment_block(vertices, frames, env):
+    """Ours (two presets) and Blender's cloth on the same skirt, body and motion (see the module doc)."""
+    import tempfile
+
+    ours = {name: run_child({"task": "garment", "preset": preset, "vertices": vertices, "frames": frames}, env)
+            for name, preset in GARMENT_PRESETS.items()}
+    out = {"vertices": None, "frames": frames, "style": GARMENT_STYLE, "motion": "walk",
+           "hem_radius_m": {n: r.get("hem_radius_m") for n, r in ours.items()}}
+    wool = ours["wool"]
+    if "error" in wool:
+        return {**out, "error": wool["error"]}
+    out.update(vertices=wool["vertices"], ours_seconds_per_frame=wool["seconds_per_frame"],
+               max_body_penetration_m=max(r.get("max_body_penetration_m", 0) for r in ours.values()),
+               self_intersections_final=wool["self_intersections_final"])
+    with tempfile.TemporaryDirectory() as tmp:
+        path = os.path.join(tmp, "blender.json")
+        cmd = ["blender", "--background", "--factory-startup", "--python-exit-code", "1", "--python",
+               os.path.join(_ROOT, "tools", "blender", "blender_cloth_bench.py"), "--", "--json", path,
+               "--vertices", str(vertices), "--style", GARMENT_STYLE, "--motion", "walk", "--frames", str(frames)]
+        done = subprocess.run(cmd, env=env, capture_output=True, text=True)
+        if done.returncode != 0 or not os.path.exists(path):
+            return {**out, "error": "blender cloth: " + (done.stdout + done.stderr)[-500:]}
+        with open(path) as f:
+            blender = json.load(f)
+    spf = blender.get("seconds_per_frame_after_first") or blender.get("seconds_per_frame")
+    out.update(blender_cloth_seconds_per_frame=spf, blender_hem_radius_m=blender.get("hem_radius_m"),
+               ours_vs_blender_cloth_time_ratio=out["ours_seconds_per_frame"] / spf if spf else None,
+               blender_cloth=blender)
+    return out
+
+
+def child_garment(task):
+    """Our garment simulator on the bundled skirt walking (one preset)."""
+    from ..garment import material, simulate, skirt
+
+    g = skirt.make_skirt(GARMENT_STYLE, vertices=task["vertices"])
+    m = material.sample_garment_material(os.path.join(_ROOT, "assets", "presets", task["preset"]), g, seed=0)[0]
+    r = simulate.drape(g, m, motion="walk", frames=task["frames"], keep_frames=False)
+    return {k: r[k] for k in ("vertices", "frames", "seconds_per_frame", "max_body_penetration_m",
+                              "min_body_clearance_m", "self_intersections_final", "hem_radius_m", "newton_iterations")}
+
+
 def child_render(task):
     from .. import sim
     mesh = sim.cusick_specimen(task["level"])
@@ -556,7 +623,7 @@ def child_fit(task):
 def child_main(argv):
     task = json.loads(argv[argv.index("--child") + 1])
     kinds = {"mesh": child_mesh, "render": child_render, "fit": child_fit, "effect": child_effect,
-             "contact": child_contact}
+             "contact": child_contact, "garment": child_garment}
     result = kinds[task["task"]](task)
     print(json.dumps(result), flush=True)
     return 0
