@@ -1,0 +1,69 @@
+// The hash-grid broad phase returns exactly the box-overlapping pairs that brute force finds (static and swept,
+// self and cross filters), on crumpled random meshes.
+#include <gtest/gtest.h>
+
+#include <chrono>
+#include <random>
+
+#include "contact/broad_phase.hpp"
+#include "contact/diagnostics.hpp"
+#include "contact_support.hpp"
+
+namespace drapelab {
+namespace {
+
+ContactPositions crumpled(const TriangleMesh& m, double amplitude, unsigned seed) {
+  std::mt19937 rng(seed);
+  std::normal_distribution<double> n01(0.0, 1.0);
+  ContactPositions P = m.positions;
+  for (int i = 0; i < P.rows(); ++i) {
+    P(i, 2) += amplitude * std::sin(20 * P(i, 0)) * std::cos(17 * P(i, 1));
+    for (int k = 0; k < 3; ++k) P(i, k) += 0.3 * amplitude * n01(rng);
+  }
+  return P;
+}
+
+void expect_same(const CandidatePairs& a, const CandidatePairs& b) {
+  auto pt = a.point_triangle, pt2 = b.point_triangle, ee = a.edge_edge, ee2 = b.edge_edge;
+  std::sort(pt.begin(), pt.end());
+  std::sort(pt2.begin(), pt2.end());
+  std::sort(ee.begin(), ee.end());
+  std::sort(ee2.begin(), ee2.end());
+  EXPECT_EQ(pt, pt2);
+  EXPECT_EQ(ee, ee2);
+}
+
+TEST(BroadPhase, MatchesBruteForceOnRandomMeshes) {
+  const TriangleMesh m = testing::grid_mesh(14, 0.1);
+  const ContactSurfaces s = make_contact_surfaces(m.faces, m.num_vertices());
+  for (unsigned seed = 0; seed < 4; ++seed) {
+    const ContactPositions x0 = crumpled(m, 0.01, seed), x1 = crumpled(m, 0.01, seed + 10);
+    for (double inflation : {0.0, 1e-3, 0.02}) {
+      SCOPED_TRACE(inflation);
+      const CandidatePairs a = broad_phase(s, x0, nullptr, inflation, PairFilter::kSelf);
+      expect_same(a, broad_phase_brute_force(s, x0, nullptr, inflation, PairFilter::kSelf));
+      const CandidatePairs b = broad_phase(s, x0, &x1, inflation, PairFilter::kSelf);
+      expect_same(b, broad_phase_brute_force(s, x0, &x1, inflation, PairFilter::kSelf));
+      if (inflation > 0) EXPECT_FALSE(a.point_triangle.empty() || a.edge_edge.empty());
+      for (const auto& q : a.point_triangle)
+        for (int v : s.faces[q[1]]) EXPECT_NE(v, q[0]);  // no pair sharing a vertex
+    }
+  }
+}
+
+TEST(BroadPhase, CrossFilterKeepsOnlyClothObstaclePairs) {
+  const TriangleMesh m = testing::grid_mesh(10, 0.1, 0.0);
+  const ObstacleMesh sphere = testing::icosphere(2, 0.03, {0, 0, -0.029});
+  const ContactSurfaces s = make_contact_surfaces(m.faces, m.num_vertices(), &sphere);
+  ContactPositions P(s.num_vertices(), 3);
+  P.topRows(m.num_vertices()) = m.positions;
+  P.bottomRows(sphere.positions.rows()) = sphere.positions;
+  const CandidatePairs a = broad_phase(s, P, nullptr, 2e-3, PairFilter::kCross);
+  expect_same(a, broad_phase_brute_force(s, P, nullptr, 2e-3, PairFilter::kCross));
+  ASSERT_FALSE(a.point_triangle.empty());
+  for (const auto& q : a.point_triangle) EXPECT_NE(s.vertex_group[q[0]], s.face_group(q[1]));
+  for (const auto& q : a.edge_edge) EXPECT_NE(s.edge_group(q[0]), s.edge_group(q[1]));
+}
+
+}  // namespace
+}  // namespace drapelab
