@@ -186,4 +186,12 @@ void Model::add_gradient(const Eigen::VectorXd& x, const Eigen::VectorXd& p, Eig
   for (const auto& t : terms_) t->add_gradient(x, p, g);
 }
 
+void Model::add_term_impl(std::unique_ptr<Term> term) {
+  if (!term) throw InputError("model: add_term needs a term");
+  if (!term->stencils().empty())
+    throw InputError("model: term '" + term->name() + "' couples vertices outside the model's pattern (stencils)");
+  term->bind_pattern(pattern_);
+  terms_.push_back(std::move(term));
+}
+
 }  // namespace drapelab

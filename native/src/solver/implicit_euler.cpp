@@ -7,6 +7,7 @@
 #include <cstdio>
 #include <cstdlib>
 
+#include "solver/contact_linear_solve.hpp"
 #include "util/error.hpp"
 
 namespace drapelab {
@@ -181,6 +182,9 @@ constexpr double kMinStep = 1e-6;         // smallest line-search step tried
 // precision (a 10 cm specimen's potential changes by ~1e-16 relative), and the state is then as converged as
 // the residual test can see.
 constexpr double kNegligibleMove = 1e-9;
+// Relative residual of the preconditioned CG solves with off-pattern contact couplings (Newton directions and
+// adjoints): far below the Newton iterations' own accuracy.
+constexpr double kOffpatternTolerance = 1e-10;
 }  // namespace
 
 Eigen::VectorXd ImplicitEuler::contact_step(const Eigen::VectorXd& p, const RolloutOptions& options, int step) {
@@ -205,6 +209,7 @@ Eigen::VectorXd ImplicitEuler::contact_step(const Eigen::VectorXd& p, const Roll
     for (int i = 0; i < nv; ++i) r = std::max(r, g.segment<3>(3 * i).norm() / (m[i] * kStandardGravity));
     return r;
   };
+  const bool offpattern = has_offpattern_terms(model_);
   Eigen::VectorXd x = x_, g, A, dx, xn;
   double Phi = potential(x);
   if (!std::isfinite(Phi)) {
@@ -247,11 +252,25 @@ Eigen::VectorXd ImplicitEuler::contact_step(const Eigen::VectorXd& p, const Roll
       for (int i = 0; i < nv; ++i)
         for (int k = 0; k < 3; ++k) A[pattern.diagonal(3 * i + k)] += inv_h2 * m[i];
     };
+    // Terms with couplings outside the pattern (self contact): the direction solves the full operator by
+    // preconditioned CG (solver/contact_linear_solve.hpp); an indefinite full operator moves on to the next kind.
     bool factorised = false;
+    double solve_seconds = 0;
     for (int kind = (exact_fails % 4 == 0 ? 0 : 1); kind < 4 && !factorised; ++kind) {
       assemble(kind);
       factorised = solver_.factorize(A);
       ++timing_.factorizations;
+      if (factorised) {
+        const auto ts = std::chrono::steady_clock::now();
+        if (offpattern) {
+          Eigen::VectorXd y;
+          factorised = solve_with_offpattern(model_, solver_, A, x, p, kind >= 2, g, y, kOffpatternTolerance);
+          dx = -y;
+        } else {
+          dx = -solver_.solve(g);
+        }
+        solve_seconds += seconds_since(ts);
+      }
       if (kind == 0) exact_fails = factorised ? 0 : exact_fails + 1;
       else if (kind == 1 && exact_fails > 0) ++exact_fails;
     }
@@ -260,10 +279,8 @@ Eigen::VectorXd ImplicitEuler::contact_step(const Eigen::VectorXd& p, const Roll
       s << "rollout: step " << step << " contact Newton matrix is not positive definite";
       throw SolverError(s.str());
     }
-    timing_.factorize += seconds_since(t0);
-    t0 = std::chrono::steady_clock::now();
-    dx = -solver_.solve(g);
-    timing_.solve += seconds_since(t0);
+    timing_.factorize += seconds_since(t0) - solve_seconds;
+    timing_.solve += solve_seconds;
     ++timing_.newton_iterations;
     if (dx.lpNorm<Eigen::Infinity>() < kNegligibleMove) {  // below what the potential resolves: converged
       xn = x + dx;
@@ -332,14 +349,23 @@ void ImplicitEuler::contact_step_adjoint(const StepRecord& r, Eigen::VectorXd& g
   for (const auto& t : model_.terms()) t->add_hessian(x_next, p_, 1.0, H);
   for (int i = 0; i < nv; ++i)
     for (int k = 0; k < 3; ++k) H[pattern.diagonal(3 * i + k)] += inv_h2 * m[i];
-  if (!solver_.factorize(H)) {
+  // With off-pattern couplings (self contact) the exact Hessian is the assembled part plus their products: CG
+  // preconditioned with the assembled part's factor (solver/contact_linear_solve.hpp).
+  const bool offpattern = has_offpattern_terms(model_);
+  Eigen::VectorXd lambda;
+  bool solved = solver_.factorize(H);
+  if (solved) {
+    if (offpattern) solved = solve_with_offpattern(model_, solver_, H, x_next, p_, false, gbar, lambda, kOffpatternTolerance);
+    else lambda = solver_.solve(gbar);
+  }
+  if (!solved) {
     H.setZero();
     for (const auto& t : model_.terms()) t->add_static_newton_matrix(x_next, p_, 1.0, H);
     for (int i = 0; i < nv; ++i)
       for (int k = 0; k < 3; ++k) H[pattern.diagonal(3 * i + k)] += inv_h2 * m[i];
     if (!solver_.factorize(H)) throw SolverError("backward: the contact step's Hessian is not positive definite");
+    lambda = solver_.solve(gbar);
   }
-  const Eigen::VectorXd lambda = solver_.solve(gbar);
   for (const auto& t : model_.terms()) t->add_gradient_parameter_product(x_next, p_, lambda, -1.0, gp);
   const auto& density_block = model_.layout().block("density");
   const Eigen::VectorXd& w = model_.area_weights();

@@ -1,0 +1,41 @@
+#include "contact/obstacle_contact.hpp"
+
+#include <cmath>
+
+#include "util/error.hpp"
+
+namespace drapelab {
+
+namespace {
+std::vector<double> unit_stiffness(const Eigen::VectorXd& w, double density, double gravity) {
+  std::vector<double> c(w.size());
+  for (int i = 0; i < w.size(); ++i) c[i] = w[i] * density * gravity;
+  return c;
+}
+}  // namespace
+
+ObstacleContact::ObstacleContact(const TriangleMesh& cloth, const Eigen::VectorXd& area_weights, double density,
+                                 double gravity, const ObstacleMesh& obstacle, double thickness)
+    : PairContactTerm(make_contact_surfaces(cloth.faces, cloth.num_vertices(), &obstacle), cloth.num_vertices(),
+                      unit_stiffness(area_weights, density, gravity), PairFilter::kCross),
+      thickness_(thickness) {
+  if (!(thickness > 0) || !std::isfinite(thickness)) throw InputError("obstacle contact: thickness must be > 0 m");
+  if (obstacle.faces.rows() == 0) throw InputError("obstacle contact: the obstacle mesh has no faces");
+  if (!obstacle.positions.allFinite()) throw InputError("obstacle contact: obstacle positions are not finite");
+  for (int f = 0; f < obstacle.faces.rows(); ++f)
+    for (int k = 0; k < 3; ++k)
+      if (obstacle.faces(f, k) < 0 || obstacle.faces(f, k) >= obstacle.positions.rows())
+        throw InputError("obstacle contact: obstacle face " + std::to_string(f) + " indexes a missing vertex");
+  set_obstacle(obstacle.positions, obstacle.positions);
+}
+
+void ObstacleContact::set_obstacle(const MatrixX3d& at_t, const MatrixX3d& at_t1) {
+  if (at_t.rows() != obstacle_.rows() || at_t1.rows() != obstacle_.rows())
+    throw InputError("obstacle contact: obstacle positions have " + std::to_string(at_t1.rows()) + " rows, expected " +
+                     std::to_string(obstacle_.rows()));
+  if (!at_t.allFinite() || !at_t1.allFinite()) throw InputError("obstacle contact: obstacle positions are not finite");
+  start_ = at_t;
+  obstacle_ = at_t1;
+}
+
+}  // namespace drapelab

@@ -1,0 +1,116 @@
+// A contact term over triangle-mesh pairs: IPC barriers on every point-triangle and edge-edge pair closer than
+// the activation distance dhat, between the cloth and itself (self contact, effects/self_contact.cpp) and/or
+// between the cloth and an obstacle mesh whose positions are data, not unknowns (contact/obstacle_contact.hpp).
+//
+// Energy: E(x) = sum over active pairs of kappa_k b(d_k(x)) (contact/pair_barrier.hpp), kappa_k = c_k dhat with
+// c_k = kWeightScale * (mean area weight of the pair's cloth vertices) * rho * g: as in disk_contact, the
+// barrier carries about a vertex's weight at half the activation distance. The active set is rebuilt from x in
+// every call (broad phase with the boxes inflated by dhat, contact/broad_phase.hpp; the last one is cached per
+// exact x, since a Newton iteration evaluates energy, gradient and Hessian at one state).
+//
+// The model's sparsity pattern is fixed when it is built, but pairs couple vertices far apart in the mesh. The
+// term therefore assembles only each pair's diagonal 3x3 vertex blocks (of the exact Hessian in add_hessian, of
+// the per-pair PSD projection in add_projected_hessian and add_step_matrix; the diagonal blocks of a PSD
+// matrix are PSD, so the assembled matrices stay definite) and gives the rest, the off-diagonal blocks, as a
+// product (add_offpattern_hessian_product); add_hessian_product is the full exact product. Solvers combine them
+// by conjugate gradients preconditioned with the assembled matrix's factor (solver/contact_linear_solve.hpp).
+//
+// max_step: the smallest additive-CCD time of impact (contact/ccd.hpp) over the pairs whose swept boxes overlap.
+// No friction between cloth layers yet (disk_contact's lagged friction is not ported to pairs).
+#pragma once
+#include <array>
+#include <memory>
+#include <mutex>
+#include <vector>
+
+#include "contact/broad_phase.hpp"
+#include "contact/pair_barrier.hpp"
+#include "physics/term.hpp"
+
+namespace drapelab {
+
+struct ActivePair {
+  PairKind kind;
+  int type;
+  std::array<int, 4> v;  // rows of the combined position array (cloth vertices first)
+  double c;              // kappa / dhat [J/m]
+};
+
+class PairContactTerm : public Term {
+ public:
+  // surfaces: cloth vertices are rows [0, num_cloth) of the combined array, obstacle vertices after them;
+  // unit_stiffness: per cloth vertex, c_i = kWeightScale w_i rho g [J/m].
+  PairContactTerm(ContactSurfaces surfaces, int num_cloth, std::vector<double> unit_stiffness, PairFilter filter);
+
+  bool is_contact() const override { return true; }
+  bool has_offpattern_hessian() const override { return true; }
+  std::vector<std::vector<int>> stencils() const override { return {}; }  // diagonal blocks only
+  void bind_pattern(const SparsePattern& pattern) override;
+
+  double energy(const Eigen::VectorXd& x, const Eigen::VectorXd& p) const override;
+  void add_gradient(const Eigen::VectorXd& x, const Eigen::VectorXd& p, Eigen::VectorXd& g) const override;
+  void add_step_matrix(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double scale,
+                       Eigen::VectorXd& values) const override;
+  void add_hessian(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double scale,
+                   Eigen::VectorXd& values) const override;
+  void add_projected_hessian(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double scale,
+                             Eigen::VectorXd& values) const override;
+  // The static solve's Newton matrix: the projected diagonal blocks (remainder: projected = true).
+  void add_static_newton_matrix(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double scale,
+                                Eigen::VectorXd& values) const override {
+    add_projected_hessian(x, p, scale, values);
+  }
+  void add_hessian_product(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& dir,
+                           Eigen::VectorXd& out) const override;
+  void add_offpattern_hessian_product(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& dir,
+                                      bool projected, Eigen::VectorXd& out) const override;
+  void add_energy_parameter_gradient(const Eigen::VectorXd& x, const Eigen::VectorXd& p,
+                                     Eigen::VectorXd& gp) const override;
+  void add_gradient_parameter_product(const Eigen::VectorXd& x, const Eigen::VectorXd& p,
+                                      const Eigen::VectorXd& lambda, double scale, Eigen::VectorXd& gp) const override;
+  // K = the diagonal blocks of the projected Hessian: its x-derivative is not provided (rollouts with contact
+  // take IPC steps, whose adjoint uses the exact Hessian, never d(lambda^T K w)/dx); adds nothing.
+  void add_step_matrix_derivatives(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& lambda,
+                                   const Eigen::VectorXd& w, double scale, Eigen::VectorXd& gx,
+                                   Eigen::VectorXd& gp) const override {}
+  double max_step(const Eigen::VectorXd& x, const Eigen::VectorXd& dx, const Eigen::VectorXd& p) const override;
+  // A state must start free of intersections: begin_step throws SolverError naming the first intersecting
+  // triangle pair (contact/diagnostics.hpp).
+  void begin_step(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double h) override;
+
+  // The pairs closer than dhat at x (cached per x).
+  std::vector<ActivePair> active_pairs(const Eigen::VectorXd& x, double dhat) const;
+  const ContactSurfaces& surfaces() const { return surfaces_; }
+  int num_cloth() const { return num_cloth_; }
+
+ protected:
+  // The activation distance from the parameters (self contact: the thickness parameter; obstacle: fixed).
+  virtual double dhat(const Eigen::VectorXd& p) const = 0;
+  // Where dhat lives in p (-1: not a parameter).
+  virtual int dhat_index() const = 0;
+  // The combined positions: cloth from x, obstacle rows from obstacle_ (end-of-step positions).
+  ContactPositions positions(const Eigen::VectorXd& x) const;
+  ContactSurfaces surfaces_;
+  int num_cloth_;
+  ContactPositions obstacle_;  // (rows - num_cloth) x 3
+  std::vector<double> unit_stiffness_;
+  PairFilter filter_;
+
+ private:
+  void gather(const ActivePair& q, const ContactPositions& P, double* x12) const;
+  template <class F>
+  void for_each_pair_hessian(const Eigen::VectorXd& x, const Eigen::VectorXd& p, bool project, const F& f) const;
+  void add_diagonal_blocks(const Eigen::VectorXd& x, const Eigen::VectorXd& p, bool project, double scale,
+                           Eigen::VectorXd& values) const;
+  std::vector<std::array<int, 6>> diagonal_index_;  // per cloth vertex: the upper-triangle entries of its block
+  struct Cache {
+    Eigen::VectorXd x;
+    ContactPositions obstacle;
+    double dhat = -1;
+    std::vector<ActivePair> pairs;
+  };
+  mutable std::mutex cache_mutex_;
+  mutable Cache cache_;
+};
+
+}  // namespace drapelab
