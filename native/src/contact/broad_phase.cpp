@@ -2,7 +2,6 @@
 
 #include <algorithm>
 #include <cmath>
-#include <cstdint>
 
 namespace drapelab {
 
@@ -49,43 +48,71 @@ bool keep(PairFilter f, int group_a, int group_b) {
   return true;
 }
 
-// Uniform grid: cell keys of boxes, binned by sorting (key, primitive) entries.
+// Uniform grid over the scene's bounding box: boxes are binned into every cell they touch, in compressed rows
+// (cell -> ids, by a counting sort), so a query visits its cells in O(1) each. Duplicate hits (a primitive in
+// several of the query's cells) are dropped with a per-id stamp.
 class HashGrid {
  public:
-  HashGrid(const Eigen::Array3d& origin, double cell) : origin_(origin), inv_(1.0 / cell) {}
+  HashGrid(const Eigen::Array3d& lo, const Eigen::Array3d& hi, double cell, int num_ids)
+      : origin_(lo), inv_(1.0 / cell), stamp_(num_ids, -1) {
+    dims_ = ((hi - lo) * inv_).floor().cast<int>() + 1;
+    dims_ = dims_.max(1);
+  }
   Eigen::Array3i cell_of(const Eigen::Array3d& p) const {
-    return ((p - origin_) * inv_).floor().cast<int>().max(0).min(kMaxCell);
+    return ((p - origin_) * inv_).floor().cast<int>().max(0).min(dims_ - 1);
   }
-  static uint64_t key(int i, int j, int k) {
-    return (static_cast<uint64_t>(i) << 42) | (static_cast<uint64_t>(j) << 21) | static_cast<uint64_t>(k);
-  }
+  long key(int i, int j, int k) const { return (static_cast<long>(k) * dims_[1] + j) * dims_[0] + i; }
   void insert(const Box& b, int id) {
     const Eigen::Array3i lo = cell_of(b.lo), hi = cell_of(b.hi);
-    for (int i = lo[0]; i <= hi[0]; ++i)
+    for (int k = lo[2]; k <= hi[2]; ++k)
       for (int j = lo[1]; j <= hi[1]; ++j)
-        for (int k = lo[2]; k <= hi[2]; ++k) entries_.push_back({key(i, j, k), id});
+        for (int i = lo[0]; i <= hi[0]; ++i) entries_.push_back({key(i, j, k), id});
   }
-  void finish() { std::sort(entries_.begin(), entries_.end()); }
-  // Ids binned in any cell of the box, deduplicated into `out`.
-  void query(const Box& b, std::vector<int>& out) const {
+  void finish() {
+    const long cells = static_cast<long>(dims_[0]) * dims_[1] * dims_[2];
+    dense_ = cells <= 8 * static_cast<long>(entries_.size()) + (1 << 16);
+    if (!dense_) {
+      std::sort(entries_.begin(), entries_.end());
+      return;
+    }
+    start_.assign(cells + 1, 0);
+    for (const auto& e : entries_) ++start_[e.first + 1];
+    for (long c = 0; c < cells; ++c) start_[c + 1] += start_[c];
+    ids_.resize(entries_.size());
+    std::vector<int> fill(start_.begin(), start_.end() - 1);
+    for (const auto& e : entries_) ids_[fill[e.first]++] = e.second;
+    entries_.clear();
+  }
+  // Ids binned in any cell of the box, each once, into `out`; `query_id` must differ between calls.
+  void query(const Box& b, int query_id, std::vector<int>& out) {
     out.clear();
     const Eigen::Array3i lo = cell_of(b.lo), hi = cell_of(b.hi);
-    for (int i = lo[0]; i <= hi[0]; ++i)
+    auto take = [&](int id) {
+      if (stamp_[id] != query_id) {
+        stamp_[id] = query_id;
+        out.push_back(id);
+      }
+    };
+    for (int k = lo[2]; k <= hi[2]; ++k)
       for (int j = lo[1]; j <= hi[1]; ++j)
-        for (int k = lo[2]; k <= hi[2]; ++k) {
-          const uint64_t c = key(i, j, k);
-          auto it = std::lower_bound(entries_.begin(), entries_.end(), std::pair<uint64_t, int>{c, -1});
-          for (; it != entries_.end() && it->first == c; ++it) out.push_back(it->second);
+        for (int i = lo[0]; i <= hi[0]; ++i) {
+          const long c = key(i, j, k);
+          if (dense_) {
+            for (int m = start_[c]; m < start_[c + 1]; ++m) take(ids_[m]);
+          } else {
+            auto it = std::lower_bound(entries_.begin(), entries_.end(), std::pair<long, int>{c, -1});
+            for (; it != entries_.end() && it->first == c; ++it) take(it->second);
+          }
         }
-    std::sort(out.begin(), out.end());
-    out.erase(std::unique(out.begin(), out.end()), out.end());
   }
 
  private:
-  static constexpr int kMaxCell = (1 << 21) - 1;
   Eigen::Array3d origin_;
   double inv_;
-  std::vector<std::pair<uint64_t, int>> entries_;
+  Eigen::Array3i dims_;
+  bool dense_ = false;
+  std::vector<std::pair<long, int>> entries_;
+  std::vector<int> start_, ids_, stamp_;
 };
 
 }  // namespace
@@ -123,15 +150,15 @@ CandidatePairs broad_phase(const ContactSurfaces& s, const ContactPositions& x0,
   for (int f = 0; f < nf; ++f) fbox[f] = primitive_box(s.faces[f], x0, x1, pad);
   for (int e = 0; e < ne; ++e) ebox[e] = primitive_box(s.edges[e], x0, x1, pad);
   double cell = cell_size > 0 ? cell_size : s.mean_edge_length(x0);
-  // Never more than ~2^21 cells per axis, never a zero cell.
-  cell = std::max({cell, (hi - lo).maxCoeff() / 1e6, 1e-9});
+  // Never more than ~200 cells per axis (a swept box spanning the scene stays cheap), never a zero cell.
+  cell = std::max({cell, (hi - lo).maxCoeff() / 200, 1e-9});
   std::vector<int> hits;
   {
-    HashGrid grid(lo, cell);
+    HashGrid grid(lo, hi, cell, nf);
     for (int f = 0; f < nf; ++f) grid.insert(fbox[f], f);
     grid.finish();
     for (int v = 0; v < nv; ++v) {
-      grid.query(vbox[v], hits);
+      grid.query(vbox[v], v, hits);
       for (int f : hits) {
         if (!keep(filter, s.vertex_group[v], s.face_group(f))) continue;
         if (share_vertex(std::array<int, 1>{v}, s.faces[f])) continue;
@@ -140,11 +167,11 @@ CandidatePairs broad_phase(const ContactSurfaces& s, const ContactPositions& x0,
     }
   }
   {
-    HashGrid grid(lo, cell);
+    HashGrid grid(lo, hi, cell, ne);
     for (int e = 0; e < ne; ++e) grid.insert(ebox[e], e);
     grid.finish();
     for (int e = 0; e < ne; ++e) {
-      grid.query(ebox[e], hits);
+      grid.query(ebox[e], e, hits);
       for (int o : hits) {
         if (o <= e) continue;
         if (!keep(filter, s.edge_group(e), s.edge_group(o))) continue;
@@ -169,13 +196,13 @@ std::vector<std::array<int, 2>> triangle_pairs(const ContactSurfaces& s, const C
     hi = hi.max(fbox[f].hi);
   }
   double cell = cell_size > 0 ? cell_size : s.mean_edge_length(x);
-  cell = std::max({cell, (hi - lo).maxCoeff() / 1e6, 1e-9});
-  HashGrid grid(lo, cell);
+  cell = std::max({cell, (hi - lo).maxCoeff() / 200, 1e-9});
+  HashGrid grid(lo, hi, cell, nf);
   for (int f = 0; f < nf; ++f) grid.insert(fbox[f], f);
   grid.finish();
   std::vector<int> hits;
   for (int f = 0; f < nf; ++f) {
-    grid.query(fbox[f], hits);
+    grid.query(fbox[f], f, hits);
     for (int g : hits)
       if (g > f && keep(filter, s.face_group(f), s.face_group(g)) && !share_vertex(s.faces[f], s.faces[g]) &&
           overlap(fbox[f], fbox[g]))

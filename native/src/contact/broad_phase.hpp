@@ -4,7 +4,7 @@
 // Each primitive's axis-aligned bounding box (over its start and, for a swept query, end positions) is
 // inflated by inflation / 2 on every side; two primitives are a candidate iff their inflated boxes overlap
 // (then every per-axis gap is below `inflation`, which any pair within that distance satisfies). The grid's
-// cell is about the mean edge length, so a primitive covers a few cells; boxes are binned into every cell they
+// cell is about the mean edge length (at most 200 cells per axis), so a primitive covers a few cells; boxes are binned into every cell they
 // touch and each query primitive looks only at the cells its box covers. The result is exactly the set of
 // box-overlapping pairs (tests/native/contact/test_broad_phase.cpp compares it with brute force); pairs that
 // share a vertex are left out (their distance is zero by construction).

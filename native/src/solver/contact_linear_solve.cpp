@@ -22,8 +22,11 @@ bool solve_with_offpattern(const Model& model, const CholmodSolver& solver, cons
     return out;
   };
   y = solver.solve(b);
-  // r = b - (A + R) y = (b - A y) - R y; b - A y is round-off of the factor's solve.
-  Eigen::VectorXd r = b - symmetric_multiply(pattern, A, y) - remainder(y);
+  // r = b - (A + R) y = (b - A y) - R y; b - A y is round-off of the factor's solve. No pair couples vertices
+  // outside the pattern (R y = 0 exactly): y is the direct solve's answer.
+  const Eigen::VectorXd Ry = remainder(y);
+  if (!Ry.any()) return y.allFinite();
+  Eigen::VectorXd r = b - symmetric_multiply(pattern, A, y) - Ry;
   const double bnorm = b.norm();
   OffpatternSolveStats local;
   OffpatternSolveStats& s = stats ? *stats : local;
