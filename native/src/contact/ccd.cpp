@@ -23,7 +23,7 @@ double additive_ccd(Eigen::Vector3d q[4], Eigen::Vector3d dq[4], int split, doub
   const double lp = l0 + l1;
   double d = distance(q);
   if (!(d > 0)) return 0.0;
-  if (lp == 0) return 1.0;
+  if (lp == 0 || lp <= (1.0 - s) * d) return 1.0;  // the first safe advancement already covers [0, 1]
   const double gap = s * d;
   double t = 0, step = (1.0 - s) * d / lp;
   for (int it = 0; it < kMaxIterations; ++it) {

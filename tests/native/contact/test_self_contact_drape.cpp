@@ -89,3 +89,38 @@ TEST(SelfContactDrape, DISABLED_ProbeCircle1AndCircle3) {
 
 }  // namespace
 }  // namespace drapelab
+
+namespace drapelab {
+namespace {
+
+// Probe: the self-contact term's cost per call at a circle1 drape (energy: broad phase + active set; max_step:
+// swept broad phase + ACCD over the candidates; begin_step: the intersection check).
+TEST(SelfContactDrape, DISABLED_ProbeTermCostPerCall) {
+  const TriangleMesh mesh = load_cusick_template(1, testing::template_dir());
+  ModelOptions o;
+  o.effects["self_contact"] = {{"thickness_m", 1e-3}};
+  Model model(mesh, o);
+  ImplicitEuler sim(model);
+  RolloutOptions ro;
+  ro.steps = 20;
+  ro.record = false;
+  const Eigen::VectorXd p = model.default_parameters();
+  const Eigen::VectorXd x = sim.forward(p, ro);
+  const Eigen::VectorXd dx = 0.05 * sim.velocities();
+  Term* term = nullptr;
+  for (const auto& t : model.terms())
+    if (t->name() == "self_contact") term = t.get();
+  ASSERT_NE(term, nullptr);
+  auto per_call = [&](auto&& f) {
+    const auto t0 = std::chrono::steady_clock::now();
+    for (int r = 0; r < 50; ++r) f(r);
+    return 1e3 * seconds_since(t0) / 50;
+  };
+  const double e = per_call([&](int r) { term->energy(x + (1e-9 * r) * dx, p); });
+  const double m = per_call([&](int) { term->max_step(x, dx, p); });
+  const double b = per_call([&](int) { term->begin_step(x, p, 0.05); });
+  std::printf("circle1 self_contact per call: energy %.3f ms, max_step %.3f ms, begin_step %.3f ms\n", e, m, b);
+}
+
+}  // namespace
+}  // namespace drapelab
