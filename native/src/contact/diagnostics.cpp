@@ -17,7 +17,11 @@ double orient(const Eigen::Vector3d& a, const Eigen::Vector3d& b, const Eigen::V
 bool segment_triangle_intersect(const Eigen::Vector3d& p, const Eigen::Vector3d& q, const Eigen::Vector3d& a,
                                 const Eigen::Vector3d& b, const Eigen::Vector3d& c) {
   const double sp = orient(a, b, c, p), sq = orient(a, b, c, q);
-  if ((sp > 0 && sq > 0) || (sp < 0 && sq < 0) || (sp == 0 && sq == 0)) return false;
+  // Coplanar up to round-off (both ends within 1e-12 relative of the plane): not counted (their orientation
+  // signs would be noise).
+  const double tol = 1e-12 * (b - a).cross(c - a).norm() * std::max((p - a).norm(), (q - a).norm());
+  if (std::abs(sp) <= tol && std::abs(sq) <= tol) return false;
+  if ((sp > 0 && sq > 0) || (sp < 0 && sq < 0)) return false;
   // The line pq pierces the plane: inside iff the three edge orientations around pq agree in sign.
   const double s0 = orient(p, q, a, b), s1 = orient(p, q, b, c), s2 = orient(p, q, c, a);
   return (s0 >= 0 && s1 >= 0 && s2 >= 0) || (s0 <= 0 && s1 <= 0 && s2 <= 0);

@@ -3,7 +3,8 @@
 // through the bindings, the add-on).
 //
 // Intersection: two triangles that share no vertex intersect iff an edge of one crosses the other (tested with
-// the signs of orientation determinants in double precision; exactly coplanar overlaps are not counted).
+// the signs of orientation determinants in double precision; coplanar pairs, within 1e-12 relative, are not
+// counted).
 // Distance: the minimum over point-triangle and edge-edge pairs found by the broad phase within
 // search_radius_m (default: the mean edge length); +inf when no pair is that close.
 #pragma once
@@ -40,7 +41,7 @@ ContactReport contact_report(const MatrixX3i& faces, const Eigen::VectorXd& x, c
 ContactSurfaces make_contact_surfaces(const MatrixX3i& cloth_faces, int cloth_vertices,
                                       const ObstacleMesh* obstacle = nullptr);
 
-// Whether segment (p, q) crosses triangle (a, b, c) (touching counts; coplanar does not).
+// Whether segment (p, q) crosses triangle (a, b, c) (touching counts; coplanar, within 1e-12 relative, does not).
 bool segment_triangle_intersect(const Eigen::Vector3d& p, const Eigen::Vector3d& q, const Eigen::Vector3d& a,
                                 const Eigen::Vector3d& b, const Eigen::Vector3d& c);
 bool triangles_intersect(const Eigen::Vector3d t0[3], const Eigen::Vector3d t1[3]);

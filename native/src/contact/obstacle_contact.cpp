@@ -15,11 +15,13 @@ std::vector<double> unit_stiffness(const Eigen::VectorXd& w, double density, dou
 }  // namespace
 
 ObstacleContact::ObstacleContact(const TriangleMesh& cloth, const Eigen::VectorXd& area_weights, double density,
-                                 double gravity, const ObstacleMesh& obstacle, double thickness)
+                                 double gravity, const ObstacleMesh& obstacle, double thickness, double friction)
     : PairContactTerm(make_contact_surfaces(cloth.faces, cloth.num_vertices(), &obstacle), cloth.num_vertices(),
                       unit_stiffness(area_weights, density, gravity), PairFilter::kCross),
-      thickness_(thickness) {
+      thickness_(thickness),
+      friction_(friction) {
   if (!(thickness > 0) || !std::isfinite(thickness)) throw InputError("obstacle contact: thickness must be > 0 m");
+  if (!(friction >= 0) || !std::isfinite(friction)) throw InputError("obstacle contact: friction must be >= 0");
   if (obstacle.faces.rows() == 0) throw InputError("obstacle contact: the obstacle mesh has no faces");
   if (!obstacle.positions.allFinite()) throw InputError("obstacle contact: obstacle positions are not finite");
   for (int f = 0; f < obstacle.faces.rows(); ++f)
@@ -35,6 +37,7 @@ void ObstacleContact::set_obstacle(const MatrixX3d& at_t, const MatrixX3d& at_t1
                      std::to_string(obstacle_.rows()));
   if (!at_t.allFinite() || !at_t1.allFinite()) throw InputError("obstacle contact: obstacle positions are not finite");
   start_ = at_t;
+  obstacle_start_ = at_t;
   obstacle_ = at_t1;
 }
 

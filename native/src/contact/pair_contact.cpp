@@ -5,12 +5,62 @@
 #include <limits>
 #include <sstream>
 
+#include "contact/barrier.hpp"
 #include "contact/ccd.hpp"
+#include "contact/distance.hpp"
 #include "contact/diagnostics.hpp"
 #include "physics/sparse_pattern.hpp"
 #include "util/error.hpp"
 
 namespace drapelab {
+
+namespace {
+constexpr double kSlipSpeed = 1e-3;  // eps_v [m/s]: friction is smoothed below this slip speed (as disk_contact)
+
+double segment_parameter(const Eigen::Vector3d& p, const Eigen::Vector3d& a, const Eigen::Vector3d& b) {
+  const Eigen::Vector3d e = b - a;
+  const double ee = e.squaredNorm();
+  return ee > 0 ? std::clamp((p - a).dot(e) / ee, 0.0, 1.0) : 0.0;
+}
+
+// Weights of the pair's 4 vertices whose combination is (closest point of the first primitive) - (closest point
+// of the second), by closest-feature type.
+std::array<double, 4> closest_weights(PairKind kind, int type, const double* x) {
+  const Eigen::Map<const Eigen::Vector3d> q0(x), q1(x + 3), q2(x + 6), q3(x + 9);
+  if (kind == PairKind::kPointTriangle) {
+    switch (static_cast<PointTriangleType>(type)) {
+      case PointTriangleType::kA: return {1, -1, 0, 0};
+      case PointTriangleType::kB: return {1, 0, -1, 0};
+      case PointTriangleType::kC: return {1, 0, 0, -1};
+      case PointTriangleType::kAB: { const double t = segment_parameter(q0, q1, q2); return {1, -(1 - t), -t, 0}; }
+      case PointTriangleType::kBC: { const double t = segment_parameter(q0, q2, q3); return {1, 0, -(1 - t), -t}; }
+      case PointTriangleType::kCA: { const double t = segment_parameter(q0, q3, q1); return {1, -t, 0, -(1 - t)}; }
+      case PointTriangleType::kFace: break;
+    }
+    const Eigen::Vector3d e0 = q2 - q1, e1 = q3 - q1, w = q0 - q1;
+    const double d00 = e0.dot(e0), d01 = e0.dot(e1), d11 = e1.dot(e1), d20 = w.dot(e0), d21 = w.dot(e1);
+    const double den = d00 * d11 - d01 * d01;
+    const double v = (d11 * d20 - d01 * d21) / den, t = (d00 * d21 - d01 * d20) / den;
+    return {1, -(1 - v - t), -v, -t};
+  }
+  switch (static_cast<EdgeEdgeType>(type)) {
+    case EdgeEdgeType::kA0_E1: { const double t = segment_parameter(q0, q2, q3); return {1, 0, -(1 - t), -t}; }
+    case EdgeEdgeType::kB0_E1: { const double t = segment_parameter(q1, q2, q3); return {0, 1, -(1 - t), -t}; }
+    case EdgeEdgeType::kA1_E0: { const double s = segment_parameter(q2, q0, q1); return {1 - s, s, -1, 0}; }
+    case EdgeEdgeType::kB1_E0: { const double s = segment_parameter(q3, q0, q1); return {1 - s, s, 0, -1}; }
+    case EdgeEdgeType::kA0_A1: return {1, 0, -1, 0};
+    case EdgeEdgeType::kA0_B1: return {1, 0, 0, -1};
+    case EdgeEdgeType::kB0_A1: return {0, 1, -1, 0};
+    case EdgeEdgeType::kB0_B1: return {0, 1, 0, -1};
+    case EdgeEdgeType::kLineLine: break;
+  }
+  const Eigen::Vector3d e0 = q1 - q0, e1 = q3 - q2, w = q0 - q2;
+  const double a = e0.dot(e0), b = e0.dot(e1), c = e1.dot(e1), d = e0.dot(w), e = e1.dot(w);
+  const double den = a * c - b * b;
+  const double sp = (b * e - c * d) / den, tp = (a * e - b * d) / den;
+  return {1 - sp, sp, -(1 - tp), -tp};
+}
+}  // namespace
 
 PairContactTerm::PairContactTerm(ContactSurfaces surfaces, int num_cloth, std::vector<double> unit_stiffness,
                                  PairFilter filter)
@@ -20,6 +70,7 @@ PairContactTerm::PairContactTerm(ContactSurfaces surfaces, int num_cloth, std::v
       unit_stiffness_(std::move(unit_stiffness)),
       filter_(filter) {
   obstacle_.setZero();
+  obstacle_start_ = obstacle_;
 }
 
 void PairContactTerm::bind_pattern(const SparsePattern& pattern) {
@@ -96,6 +147,12 @@ double PairContactTerm::energy(const Eigen::VectorXd& x, const Eigen::VectorXd& 
     gather(q, P, x12);
     E += pair_barrier_energy(q.kind, q.type, x12, dh, q.c * dh);
   }
+  const double mu = friction(p);
+  for (const auto& f : friction_pairs_) {
+    double value;
+    friction_kernel(f, x, &value, nullptr, nullptr);
+    E += mu * f.normal_force * value;
+  }
   return E;
 }
 
@@ -109,6 +166,14 @@ void PairContactTerm::add_gradient(const Eigen::VectorXd& x, const Eigen::Vector
     for (int k = 0; k < 4; ++k)
       if (q.v[k] < num_cloth_)
         for (int a = 0; a < 3; ++a) g[3 * q.v[k] + a] += g12[3 * k + a];
+  }
+  const double mu = friction(p);
+  for (const auto& f : friction_pairs_) {
+    double g12[12];
+    friction_kernel(f, x, nullptr, g12, nullptr);
+    for (int k = 0; k < 4; ++k)
+      if (f.v[k] < num_cloth_)
+        for (int a = 0; a < 3; ++a) g[3 * f.v[k] + a] += mu * f.normal_force * g12[3 * k + a];
   }
 }
 
@@ -136,6 +201,7 @@ void PairContactTerm::add_diagonal_blocks(const Eigen::VectorXd& x, const Eigen:
         for (int b = a; b < 3; ++b) values[idx[m++]] += scale * H[12 * (3 * k + a) + 3 * k + b];
     }
   });
+  add_friction_blocks(x, p, scale, values);
 }
 
 void PairContactTerm::add_step_matrix(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double scale,
@@ -163,6 +229,7 @@ void PairContactTerm::add_hessian_product(const Eigen::VectorXd& x, const Eigen:
       }
     }
   });
+  add_friction_product(x, p, dir, false, out);
 }
 
 void PairContactTerm::add_offpattern_hessian_product(const Eigen::VectorXd& x, const Eigen::VectorXd& p,
@@ -178,10 +245,17 @@ void PairContactTerm::add_offpattern_hessian_product(const Eigen::VectorXd& x, c
       }
     }
   });
+  add_friction_product(x, p, dir, true, out);  // the friction Hessian is PSD: exact = projected
 }
 
 void PairContactTerm::add_energy_parameter_gradient(const Eigen::VectorXd& x, const Eigen::VectorXd& p,
                                                     Eigen::VectorXd& gp) const {
+  if (friction_index() >= 0)
+    for (const auto& f : friction_pairs_) {
+      double value;
+      friction_kernel(f, x, &value, nullptr, nullptr);
+      gp[friction_index()] += f.normal_force * value;
+    }
   const int k = dhat_index();
   if (k < 0) return;
   const double dh = dhat(p);
@@ -197,6 +271,15 @@ void PairContactTerm::add_energy_parameter_gradient(const Eigen::VectorXd& x, co
 void PairContactTerm::add_gradient_parameter_product(const Eigen::VectorXd& x, const Eigen::VectorXd& p,
                                                      const Eigen::VectorXd& lambda, double scale,
                                                      Eigen::VectorXd& gp) const {
+  if (friction_index() >= 0)
+    for (const auto& f : friction_pairs_) {
+      double g12[12], sum = 0;
+      friction_kernel(f, x, nullptr, g12, nullptr);
+      for (int m = 0; m < 4; ++m)
+        if (f.v[m] < num_cloth_)
+          for (int a = 0; a < 3; ++a) sum += lambda[3 * f.v[m] + a] * g12[3 * m + a];
+      gp[friction_index()] += scale * f.normal_force * sum;
+    }
   const int k = dhat_index();
   if (k < 0) return;
   const double dh = dhat(p);
@@ -233,6 +316,8 @@ double PairContactTerm::max_step(const Eigen::VectorXd& x, const Eigen::VectorXd
 }
 
 void PairContactTerm::begin_step(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double h) {
+  friction_pairs_.clear();
+  eps_u_ = kSlipSpeed * h;
   if (!(dhat(p) > 0)) return;
   const ContactPositions P = positions(x);
   std::vector<std::array<int, 2>> first;
@@ -247,7 +332,36 @@ void PairContactTerm::begin_step(const Eigen::VectorXd& x, const Eigen::VectorXd
       break;
     }
   }
-  if (first.empty()) return;
+  if (!first.empty()) throw_intersection(first[0]);
+  if (!(h > 0)) return;  // a static drape: no friction
+  // Lagged friction: each active pair's normal force, closest-point weights and normal at the step's start.
+  const double dh = dhat(p);
+  for (const auto& q : active_pairs(x, dh)) {
+    double x12[12];
+    gather(q, P, x12);
+    const double d = std::sqrt(pair_distance2(q.kind, q.type, x12));
+    if (!(d > 0 && d < dh)) continue;
+    double b, db, d2b;
+    barrier_derivatives(d, dh, b, db, d2b);
+    FrictionPair f;
+    f.v = q.v;
+    f.normal_force = q.c * dh * std::abs(db);
+    const std::array<double, 4> w = closest_weights(q.kind, q.type, x12);
+    Eigen::Vector3d r = Eigen::Vector3d::Zero();
+    for (int k = 0; k < 4; ++k) r += w[k] * Eigen::Map<const Eigen::Vector3d>(x12 + 3 * k);
+    if (!(r.norm() > 0)) continue;
+    const Eigen::Vector3d n = r.normalized();
+    const Eigen::Matrix3d proj = Eigen::Matrix3d::Identity() - n * n.transpose();
+    for (int k = 0; k < 4; ++k) {
+      f.T.block<3, 3>(0, 3 * k) = w[k] * proj;
+      f.start.segment<3>(3 * k) =
+          q.v[k] < num_cloth_ ? Eigen::Vector3d(x.segment<3>(3 * q.v[k])) : Eigen::Vector3d(obstacle_start_.row(q.v[k] - num_cloth_).transpose());
+    }
+    friction_pairs_.push_back(f);
+  }
+}
+
+void PairContactTerm::throw_intersection(const std::array<int, 2>& pair) const {
   int cloth_faces = 0;
   for (size_t f = 0; f < surfaces_.faces.size(); ++f) cloth_faces += surfaces_.face_group(static_cast<int>(f)) == 0;
   auto triangle = [&](int f) {
@@ -257,9 +371,85 @@ void PairContactTerm::begin_step(const Eigen::VectorXd& x, const Eigen::VectorXd
     return s.str();
   };
   std::ostringstream s;
-  s << name() << ": " << triangle(first[0][0]) << " and " << triangle(first[0][1])
+  s << name() << ": " << triangle(pair[0]) << " and " << triangle(pair[1])
     << " intersect at the start of a step (contact needs an intersection-free state)";
   throw SolverError(s.str());
+}
+
+Eigen::Vector3d PairContactTerm::slip(const FrictionPair& f, const Eigen::VectorXd& x) const {
+  Eigen::Matrix<double, 12, 1> X;
+  for (int k = 0; k < 4; ++k)
+    X.segment<3>(3 * k) = f.v[k] < num_cloth_ ? Eigen::Vector3d(x.segment<3>(3 * f.v[k]))
+                                              : Eigen::Vector3d(obstacle_.row(f.v[k] - num_cloth_).transpose());
+  return f.T * (X - f.start);
+}
+
+void PairContactTerm::friction_kernel(const FrictionPair& f, const Eigen::VectorXd& x, double* value, double* g,
+                                      double* H) const {
+  const Eigen::Vector3d r = slip(f, x);
+  const double u2 = r.squaredNorm(), eps = eps_u_;
+  // D / (mu lambda) = f0(|r|): smooth in u^2 near zero slip (as disk_contact's friction)
+  const bool tiny = u2 < 1e-20 * eps * eps;
+  const double u = std::sqrt(u2);
+  if (value) value[0] = tiny ? eps / 3.0 + u2 / eps : friction_f0(u, eps);
+  double f1_over_u, df1;
+  if (tiny) {
+    f1_over_u = 2.0 / eps;
+    df1 = 2.0 / eps;
+  } else if (u >= eps) {
+    f1_over_u = 1.0 / u;
+    df1 = 0.0;
+  } else {
+    f1_over_u = -u / (eps * eps) + 2.0 / eps;
+    df1 = -2.0 * u / (eps * eps) + 2.0 / eps;
+  }
+  if (g) {
+    Eigen::Map<Eigen::Matrix<double, 12, 1>> gm(g);
+    gm = f.T.transpose() * (f1_over_u * r);
+  }
+  if (H) {
+    // S = f1/u (I - r r^T/u^2) + f1' r r^T/u^2 (PSD); H = T^T S T
+    Eigen::Matrix3d S = f1_over_u * Eigen::Matrix3d::Identity();
+    if (!tiny) S += (df1 - f1_over_u) * r * r.transpose() / u2;
+    Eigen::Map<Eigen::Matrix<double, 12, 12, Eigen::RowMajor>> Hm(H);
+    Hm = f.T.transpose() * S * f.T;
+  }
+}
+
+void PairContactTerm::add_friction_blocks(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double scale,
+                                          Eigen::VectorXd& values) const {
+  const double mu = friction(p);
+  if (mu == 0) return;
+  for (const auto& f : friction_pairs_) {
+    double H[144];
+    friction_kernel(f, x, nullptr, nullptr, H);
+    for (int k = 0; k < 4; ++k) {
+      if (f.v[k] >= num_cloth_) continue;
+      const auto& idx = diagonal_index_[f.v[k]];
+      int m = 0;
+      for (int a = 0; a < 3; ++a)
+        for (int b = a; b < 3; ++b) values[idx[m++]] += scale * mu * f.normal_force * H[12 * (3 * k + a) + 3 * k + b];
+    }
+  }
+}
+
+void PairContactTerm::add_friction_product(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& dir,
+                                           bool offpattern_only, Eigen::VectorXd& out) const {
+  const double mu = friction(p);
+  if (mu == 0) return;
+  for (const auto& f : friction_pairs_) {
+    double H[144];
+    friction_kernel(f, x, nullptr, nullptr, H);
+    const double s = mu * f.normal_force;
+    for (int k = 0; k < 4; ++k) {
+      if (f.v[k] >= num_cloth_) continue;
+      for (int l = 0; l < 4; ++l) {
+        if ((offpattern_only && l == k) || f.v[l] >= num_cloth_) continue;
+        for (int a = 0; a < 3; ++a)
+          for (int b = 0; b < 3; ++b) out[3 * f.v[k] + a] += s * H[12 * (3 * k + a) + 3 * l + b] * dir[3 * f.v[l] + b];
+      }
+    }
+  }
 }
 
 }  // namespace drapelab

@@ -16,7 +16,17 @@
 // by conjugate gradients preconditioned with the assembled matrix's factor (solver/contact_linear_solve.hpp).
 //
 // max_step: the smallest additive-CCD time of impact (contact/ccd.hpp) over the pairs whose swept boxes overlap.
-// No friction between cloth layers yet (disk_contact's lagged friction is not ported to pairs).
+//
+// Friction (coefficient mu from friction(p)): IPC's lagged smoothed Coulomb potential per pair, as disk_contact
+// has it per vertex. At the start of each time step (begin_step, x_t; none when h = 0: a static drape has no
+// friction) every active pair fixes its normal force lambda = kappa |b'(d)|, the barycentric weights of its
+// closest points and its normal n; its relative tangential slip over the step is then the linear map
+// u = (I - n n^T) Gamma (X - X_t), Gamma the closest points' weights (point minus triangle point, or edge point
+// minus edge point), and D = mu lambda f0(|u|, eps_v h) [J]. An obstacle's vertices slip by their own motion over
+// the step (set_obstacle's at_t1 - at_t), so a moving body drags the cloth. The lagging is IPC's approximation:
+// within a step (and in the adjoint) lambda, the weights and n are those of its start. The friction Hessian is
+// PSD (f1 >= 0, f1' >= 0) and couples the pair's vertices like the barrier's (diagonal blocks assembled, the rest
+// as products).
 #pragma once
 #include <array>
 #include <memory>
@@ -88,20 +98,40 @@ class PairContactTerm : public Term {
   virtual double dhat(const Eigen::VectorXd& p) const = 0;
   // Where dhat lives in p (-1: not a parameter).
   virtual int dhat_index() const = 0;
+  // The friction coefficient and where it lives in p (-1: not a parameter).
+  virtual double friction(const Eigen::VectorXd& p) const = 0;
+  virtual int friction_index() const = 0;
   // The combined positions: cloth from x, obstacle rows from obstacle_ (end-of-step positions).
   ContactPositions positions(const Eigen::VectorXd& x) const;
   ContactSurfaces surfaces_;
   int num_cloth_;
-  ContactPositions obstacle_;  // (rows - num_cloth) x 3
+  ContactPositions obstacle_;        // (rows - num_cloth) x 3: positions within the step (its end)
+  ContactPositions obstacle_start_;  // at the step's start (friction: the obstacle's slip over the step)
   std::vector<double> unit_stiffness_;
   PairFilter filter_;
 
  private:
   void gather(const ActivePair& q, const ContactPositions& P, double* x12) const;
+  [[noreturn]] void throw_intersection(const std::array<int, 2>& faces) const;
   template <class F>
   void for_each_pair_hessian(const Eigen::VectorXd& x, const Eigen::VectorXd& p, bool project, const F& f) const;
   void add_diagonal_blocks(const Eigen::VectorXd& x, const Eigen::VectorXd& p, bool project, double scale,
                            Eigen::VectorXd& values) const;
+  struct FrictionPair {
+    std::array<int, 4> v;
+    Eigen::Matrix<double, 3, 12> T;  // (I - n n^T) Gamma
+    Eigen::Matrix<double, 12, 1> start;  // X_t of the pair's vertices (obstacle rows: at the step's start)
+    double normal_force;                 // lambda [N]
+  };
+  // Slip u = T (X - X_t) of a friction pair at x (obstacle rows at the end position).
+  Eigen::Vector3d slip(const FrictionPair& f, const Eigen::VectorXd& x) const;
+  // Per friction pair: D / (mu lambda), its gradient (12) and Hessian (12 x 12) in X.
+  void friction_kernel(const FrictionPair& f, const Eigen::VectorXd& x, double* value, double* g, double* H) const;
+  void add_friction_blocks(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double scale, Eigen::VectorXd& values) const;
+  void add_friction_product(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& dir,
+                            bool offpattern_only, Eigen::VectorXd& out) const;
+  std::vector<FrictionPair> friction_pairs_;
+  double eps_u_ = 0;
   std::vector<std::array<int, 6>> diagonal_index_;  // per cloth vertex: the upper-triangle entries of its block
   struct Cache {
     Eigen::VectorXd x;

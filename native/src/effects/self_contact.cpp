@@ -5,7 +5,8 @@
 // distance per step, never touch, and rest about a thickness apart where folds press together.
 // Off value: thickness 0, no term (the base model bit for bit). The term exists when the model is built with a
 // thickness > 0; the thickness in the parameter vector is then the one used (a fit can move it; at 0 the term
-// adds nothing). No friction between layers yet (the issue's `friction` parameter is not provided).
+// adds nothing). `friction`: Coulomb coefficient between layers (IPC's lagged smoothed friction per pair; none
+// in a static drape).
 #include "contact/diagnostics.hpp"
 #include "contact/pair_contact.hpp"
 #include "physics/effect.hpp"
@@ -29,15 +30,18 @@ class SelfContactTerm : public PairContactTerm {
  public:
   SelfContactTerm(const EffectContext& c, ContactSurfaces s, std::vector<double> stiffness)
       : PairContactTerm(std::move(s), c.mesh.num_vertices(), std::move(stiffness), PairFilter::kSelf),
-        thickness_(c.layout.block(effect_block_name("self_contact", "thickness_m")).offset) {}
+        thickness_(c.layout.block(effect_block_name("self_contact", "thickness_m")).offset),
+        friction_(c.layout.block(effect_block_name("self_contact", "friction")).offset) {}
   std::string name() const override { return "self_contact"; }
 
  protected:
   double dhat(const Eigen::VectorXd& p) const override { return p[thickness_]; }
   int dhat_index() const override { return thickness_; }
+  double friction(const Eigen::VectorXd& p) const override { return p[friction_]; }
+  int friction_index() const override { return friction_; }
 
  private:
-  int thickness_;
+  int thickness_, friction_;
 };
 
 }  // namespace
@@ -49,6 +53,7 @@ EffectSpec make_self_contact_effect() {
   s.signature = "deep folds stay a thickness apart: fewer, rounder nodes where the cloth would fold over itself";
   s.parameters = {
       {"thickness_m", "m", 0.0, 0.0, 0.01, 5e-4, 1e-3, "cloth thickness: distance at which layers repel"},
+      {"friction", "1", 0.0, 0.0, 2.0, 0.2, 0.3, "Coulomb friction coefficient between layers of the fabric"},
   };
   s.make_terms = [](const EffectContext& c) {
     std::vector<std::unique_ptr<Term>> terms;
