@@ -3,10 +3,12 @@
 // collision detection bounding every solver step (contact/pair_contact.hpp has the model, its stiffness and how
 // the solvers handle couplings outside the model's sparsity pattern). Surfaces keep at least a fraction of their
 // distance per step, never touch, and rest about a thickness apart where folds press together.
-// Off value: thickness 0, no term (the base model bit for bit). The term exists when the model is built with a
-// thickness > 0; the thickness in the parameter vector is then the one used (a fit can move it; at 0 the term
-// adds nothing). `friction`: Coulomb coefficient between layers (IPC's lagged smoothed friction per pair; none
-// in a static drape).
+// Off value: thickness 0, no term (the base model bit for bit). The thickness is structural (physics/effect.hpp):
+// it decides whether the model carries a contact term at all (a model built without one cannot learn one), so
+// it is read when the model is built, fits hold it (at the fabric's thickness, or the registry's 1 mm when the
+// effect is fitted), and the diagnosis treats self_contact as a switch judged by its refit. Its derivatives are
+// still provided (checked against rebuilt models in tests/native/contact/test_self_contact.cpp). `friction`:
+// Coulomb coefficient between layers (IPC's lagged smoothed friction per pair; none in a static drape), fitted.
 #include "contact/diagnostics.hpp"
 #include "contact/pair_contact.hpp"
 #include "physics/effect.hpp"
@@ -52,7 +54,8 @@ EffectSpec make_self_contact_effect() {
   s.explanation = "folds of the specimen press against each other and cannot pass through (cloth thickness)";
   s.signature = "deep folds stay a thickness apart: fewer, rounder nodes where the cloth would fold over itself";
   s.parameters = {
-      {"thickness_m", "m", 0.0, 0.0, 0.01, 5e-4, 1e-3, "cloth thickness: distance at which layers repel"},
+      // Structural: whether the model has a contact term (a switch for the diagnosis); 1 mm when fitted.
+      {"thickness_m", "m", 0.0, 0.0, 0.01, 5e-4, 1e-3, "cloth thickness: distance at which layers repel", true},
       {"friction", "1", 0.0, 0.0, 2.0, 0.2, 0.3, "Coulomb friction coefficient between layers of the fabric"},
   };
   s.make_terms = [](const EffectContext& c) {

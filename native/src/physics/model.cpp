@@ -153,7 +153,8 @@ void Model::validate_parameters(const Eigen::VectorXd& p) const {
         if (q.name == param && q.structural && p[b.offset] != defaults_[b.offset]) {
           std::ostringstream s;
           s << "parameters: " << b.name << " = " << p[b.offset] << " differs from the model's " << defaults_[b.offset]
-            << ": it is structural (it chooses which vertices the model holds); build the model with the value";
+            << ": it is structural (it chooses the model's structure: which vertices it holds, whether a contact "
+            << "term exists); build the model with the value";
           throw InputError(s.str());
         }
       continue;

@@ -169,10 +169,19 @@ TEST(SelfContact, RolloutParameterGradientMatchesCentralDifferences) {
   for (const char* block : {"self_contact.thickness_m", "density", "bend"}) {
     const int k = model.layout().block(block).offset;
     const double h = 1e-5 * std::abs(p[k]);
-    Eigen::VectorXd pp = p, pm = p;
-    pp[k] += h;
-    pm[k] -= h;
-    const double fd = (w.dot(sim.forward(pp, fo, nullptr, &x0, &v0)) - w.dot(sim.forward(pm, fo, nullptr, &x0, &v0))) / (2 * h);
+    double fd;
+    if (std::string(block) == "self_contact.thickness_m") {
+      // structural: the two sides are models built with the thickness moved (same layout and parameters else)
+      Model mp(mesh, self_contact_options(p[k] + h)), mm(mesh, self_contact_options(p[k] - h));
+      ImplicitEuler sp(mp), sm(mm);
+      fd = (w.dot(sp.forward(mp.default_parameters(), fo, nullptr, &x0, &v0)) -
+            w.dot(sm.forward(mm.default_parameters(), fo, nullptr, &x0, &v0))) / (2 * h);
+    } else {
+      Eigen::VectorXd pp = p, pm = p;
+      pp[k] += h;
+      pm[k] -= h;
+      fd = (w.dot(sim.forward(pp, fo, nullptr, &x0, &v0)) - w.dot(sim.forward(pm, fo, nullptr, &x0, &v0))) / (2 * h);
+    }
     EXPECT_NEAR(g.parameters[k], fd, 1e-4 * std::abs(fd)) << block;
     std::printf("rollout gradient %s: adjoint %.9g, central difference %.9g\n", block, g.parameters[k], fd);
   }
@@ -289,11 +298,22 @@ TEST(SelfContact, StaticSolveAndAdjointWithActivePairs) {
   for (const char* block : {"self_contact.thickness_m", "density"}) {
     const int k = model.layout().block(block).offset;
     const double h = 1e-4 * std::abs(p[k]);
-    Eigen::VectorXd pp = p, pm = p;
-    pp[k] += h;
-    pm[k] -= h;
-    const double fd = (w.dot(solver.solve(pp, tight, nullptr, &r.positions).positions) -
-                       w.dot(solver.solve(pm, tight, nullptr, &r.positions).positions)) / (2 * h);
+    double fd;
+    if (std::string(block) == "self_contact.thickness_m") {  // structural: models built with it moved
+      ModelOptions op = o, om = o;
+      op.effects["self_contact"]["thickness_m"] = p[k] + h;
+      om.effects["self_contact"]["thickness_m"] = p[k] - h;
+      Model mp(mesh, op), mm(mesh, om);
+      StaticSolver sp(mp), sm(mm);
+      fd = (w.dot(sp.solve(mp.default_parameters(), tight, nullptr, &r.positions).positions) -
+            w.dot(sm.solve(mm.default_parameters(), tight, nullptr, &r.positions).positions)) / (2 * h);
+    } else {
+      Eigen::VectorXd pp = p, pm = p;
+      pp[k] += h;
+      pm[k] -= h;
+      fd = (w.dot(solver.solve(pp, tight, nullptr, &r.positions).positions) -
+            w.dot(solver.solve(pm, tight, nullptr, &r.positions).positions)) / (2 * h);
+    }
     EXPECT_NEAR(g[k], fd, 1e-4 * std::abs(fd)) << block;
     std::printf("static gradient %s: adjoint %.9g, central difference %.9g\n", block, g[k], fd);
   }
