@@ -64,6 +64,32 @@ TEST(ObstacleContact, ClothDroppedOnSphereEndsOutsideAndIntersectionFree) {
               1e3 * r.min_distance_m, 1e3 * worst_centre, 1e3 * lowest, sim.timing().newton_iterations);
 }
 
+TEST(ObstacleContact, DropWithSelfContactTooStaysIntersectionFree) {
+  // A finer cloth (14 x 14) on the sphere with self contact on as well (its rim folds around the sphere), with
+  // friction on both: no cloth-cloth or cloth-sphere intersection, no vertex inside.
+  const TriangleMesh cloth = testing::grid_mesh(14, 0.14, 0.0);
+  const ObstacleMesh sphere = testing::icosphere(2, 0.03, {0.0, 0.0, -0.035});
+  ModelOptions o;
+  o.handle_stiffness = 0.0;
+  o.effects["self_contact"] = {{"thickness_m", 1e-3}, {"friction", 0.3}};
+  Model model(cloth, o);
+  model.add_term(std::make_unique<ObstacleContact>(cloth, model.area_weights(), o.density, o.gravity, sphere, 1e-3, 0.3));
+  ImplicitEuler sim(model);
+  RolloutOptions ro;
+  ro.steps = 15;
+  ro.time_step = 0.02;
+  ro.record = false;
+  const Eigen::VectorXd x = sim.forward(model.default_parameters(), ro);
+  const ContactReport r = contact_report(cloth.faces, x, &sphere);
+  EXPECT_EQ(r.intersecting_pairs, 0);
+  EXPECT_GT(r.min_distance_m, 0.0);
+  int inside = 0;
+  for (int i = 0; i < model.num_vertices(); ++i) inside += inside_convex(sphere, x.segment<3>(3 * i));
+  EXPECT_EQ(inside, 0);
+  std::printf("cloth (self contact) on sphere: min distance %.3g mm, %d Newton iterations\n", 1e3 * r.min_distance_m,
+              sim.timing().newton_iterations);
+}
+
 TEST(ObstacleContact, DerivativesMatchCentralDifferences) {
   const TriangleMesh cloth = testing::grid_mesh(8, 0.06, 0.0);
   const ObstacleMesh sphere = testing::icosphere(2, 0.03, {0.0, 0.0, -0.0306});
