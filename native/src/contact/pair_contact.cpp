@@ -16,6 +16,9 @@ namespace drapelab {
 
 namespace {
 constexpr double kSlipSpeed = 1e-3;  // eps_v [m/s]: friction is smoothed below this slip speed (as disk_contact)
+// Candidate pairs are found with boxes inflated by dhat (1 + 2 margin) and reused while no vertex moves more
+// than margin * dhat (line-search trials and Newton iterations near convergence move far less).
+constexpr double kCandidateMargin = 1.0;
 
 double segment_parameter(const Eigen::Vector3d& p, const Eigen::Vector3d& a, const Eigen::Vector3d& b) {
   const Eigen::Vector3d e = b - a;
@@ -103,7 +106,31 @@ std::vector<ActivePair> PairContactTerm::active_pairs(const Eigen::VectorXd& x, 
       return cache_.pairs;
   }
   const ContactPositions P = positions(x);
-  const CandidatePairs c = broad_phase(surfaces_, P, nullptr, dh, filter_);
+  // Candidates: reused while no cloth vertex has moved more than kCandidateMargin dhat from where they were found
+  // (found with the boxes inflated by dhat (1 + 2 kCandidateMargin): a box moves by at most the margin, so every
+  // pair closer than dhat now was a candidate then); else found again here.
+  std::shared_ptr<const CandidatePairs> candidates;
+  {
+    std::lock_guard<std::mutex> lock(cache_mutex_);
+    if (cache_.candidates && cache_.candidate_dhat == dh && cache_.candidate_x.size() == x.size() &&
+        cache_.candidate_obstacle.rows() == obstacle_.rows() && cache_.candidate_obstacle == obstacle_) {
+      double moved2 = 0;
+      for (int i = 0; i < num_cloth_; ++i)
+        moved2 = std::max(moved2, (x.segment<3>(3 * i) - cache_.candidate_x.segment<3>(3 * i)).squaredNorm());
+      const double margin = kCandidateMargin * dh;
+      if (moved2 <= margin * margin) candidates = cache_.candidates;
+    }
+  }
+  if (!candidates) {
+    candidates = std::make_shared<const CandidatePairs>(
+        broad_phase(surfaces_, P, nullptr, dh * (1 + 2 * kCandidateMargin), filter_));
+    std::lock_guard<std::mutex> lock(cache_mutex_);
+    cache_.candidates = candidates;
+    cache_.candidate_x = x;
+    cache_.candidate_obstacle = obstacle_;
+    cache_.candidate_dhat = dh;
+  }
+  const CandidatePairs& c = *candidates;
   std::vector<ActivePair> pairs;
   auto stiffness = [&](const std::array<int, 4>& v) {
     double sum = 0;

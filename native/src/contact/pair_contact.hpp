@@ -5,8 +5,9 @@
 // Energy: E(x) = sum over active pairs of kappa_k b(d_k(x)) (contact/pair_barrier.hpp), kappa_k = c_k dhat with
 // c_k = kWeightScale * (mean area weight of the pair's cloth vertices) * rho * g: as in disk_contact, the
 // barrier carries about a vertex's weight at half the activation distance. The active set is rebuilt from x in
-// every call (broad phase with the boxes inflated by dhat, contact/broad_phase.hpp; the last one is cached per
-// exact x, since a Newton iteration evaluates energy, gradient and Hessian at one state).
+// every call from candidate pairs (broad phase, contact/broad_phase.hpp, with the boxes inflated by 3 dhat, reused
+// while no vertex has moved by more than dhat since they were found); the active set is cached per exact x, since
+// a Newton iteration evaluates energy, gradient and Hessian at one state.
 //
 // The model's sparsity pattern is fixed when it is built, but pairs couple vertices far apart in the mesh. The
 // term therefore assembles only each pair's diagonal 3x3 vertex blocks (of the exact Hessian in add_hessian, of
@@ -138,6 +139,11 @@ class PairContactTerm : public Term {
     ContactPositions obstacle;
     double dhat = -1;
     std::vector<ActivePair> pairs;
+    // broad-phase candidates, valid near candidate_x (active_pairs)
+    std::shared_ptr<const CandidatePairs> candidates;
+    Eigen::VectorXd candidate_x;
+    ContactPositions candidate_obstacle;
+    double candidate_dhat = -1;
   };
   mutable std::mutex cache_mutex_;
   mutable Cache cache_;
