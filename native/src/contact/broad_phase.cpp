@@ -45,7 +45,7 @@ bool keep(PairFilter f, int group_a, int group_b) {
     case PairFilter::kCross: return group_a != group_b;
     case PairFilter::kAll: break;
   }
-  return true;
+  return group_a == 0 || group_b == 0;  // never obstacle-obstacle
 }
 
 // Uniform grid over the scene's bounding box: boxes are binned into every cell they touch, in compressed rows

@@ -10,7 +10,8 @@
 // share a vertex are left out (their distance is zero by construction).
 //
 // Vertices are rows of one position array; primitives carry a group (0 = cloth, 1 = obstacle) and a
-// `PairFilter` keeps pairs within the cloth (self contact), across groups (obstacle contact) or both.
+// `PairFilter` keeps pairs within the cloth (self contact), across groups (obstacle contact) or both (never
+// pairs within the obstacle: its own closeness, legs against legs, is not the cloth's business).
 #pragma once
 #include <Eigen/Core>
 #include <array>

@@ -29,7 +29,8 @@ ContactReport contact_report(const ContactSurfaces& s, const ContactPositions& x
                              double search_radius = 0, int max_listed = 8);
 
 // A cloth (faces F x 3, positions x as 3V flat) alone (self contact), or against an obstacle mesh (then both
-// self and cloth-obstacle pairs count; obstacle faces are numbered after the cloth's, from num_faces).
+// self and cloth-obstacle pairs count, obstacle-obstacle pairs do not; obstacle faces are numbered after the
+// cloth's, from num_faces).
 struct ObstacleMesh {
   MatrixX3d positions;
   MatrixX3i faces;

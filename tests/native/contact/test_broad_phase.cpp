@@ -106,3 +106,40 @@ TEST(BroadPhase, DISABLED_ProbeTwentyThousandTriangles) {
 
 }  // namespace
 }  // namespace drapelab
+
+namespace drapelab {
+namespace {
+
+TEST(ContactReport, CountsClothPairsAndNotTheObstacleItself) {
+  // Two crossing cloth sheets (one intersecting pair region) over an obstacle made of two crossing plates (its
+  // own intersection is not reported), the cloth clear of the plates.
+  TriangleMesh a = testing::grid_mesh(3, 0.02, 0.0);
+  MatrixX3i faces(2 * a.num_faces(), 3);
+  faces << a.faces, a.faces.array() + a.num_vertices();
+  Eigen::VectorXd x(6 * a.num_vertices());
+  for (int i = 0; i < a.num_vertices(); ++i) {
+    x.segment<3>(3 * i) = a.positions.row(i).transpose();
+    // the second sheet: vertical, through the first along x = 0.001
+    x.segment<3>(3 * (i + a.num_vertices())) = Eigen::Vector3d(0.001, a.positions(i, 1), a.positions(i, 0));
+  }
+  ObstacleMesh plates;
+  plates.positions.resize(8, 3);
+  plates.positions << -0.01, -0.01, -0.05, 0.01, -0.01, -0.05, 0.01, 0.01, -0.05, -0.01, 0.01, -0.05,  //
+      0.0, -0.01, -0.06, 0.0, 0.01, -0.06, 0.0, 0.01, -0.04, 0.0, -0.01, -0.04;
+  plates.faces.resize(4, 3);
+  plates.faces << 0, 1, 2, 0, 2, 3, 4, 5, 6, 4, 6, 7;
+  const ContactReport r = contact_report(faces, x, &plates);
+  EXPECT_GT(r.intersecting_pairs, 0);
+  for (const auto& q : r.first_pairs) {
+    EXPECT_LT(q[0], faces.rows()) << "an obstacle-obstacle pair was reported";
+    EXPECT_LT(std::min(q[0], q[1]), faces.rows());
+  }
+  // the cloth alone: the same count (the plates are 4 cm below)
+  EXPECT_EQ(contact_report(faces, x).intersecting_pairs, r.intersecting_pairs);
+  // the plates' own intersection is not counted
+  ContactSurfaces s = make_contact_surfaces(MatrixX3i(0, 3), 0, &plates);
+  EXPECT_EQ(contact_report(s, plates.positions, PairFilter::kAll).intersecting_pairs, 0);
+}
+
+}  // namespace
+}  // namespace drapelab
