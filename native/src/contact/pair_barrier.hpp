@@ -9,6 +9,12 @@
 // Stiffness parametrised by the activation distance: kappa = c dhat (c [J/m]: contact terms take it from the
 // pair's vertex weights, as disk_contact does), so that dhat, the cloth thickness, can be a fitted parameter;
 // pair_barrier_dhat_derivatives gives dE/ddhat and d(grad E)/ddhat at fixed x for the parameter adjoints.
+//
+// Edge-edge pairs take IPC's mollifier (Li et al. 2020, sec. 4.3; ipc-toolkit's edge_edge_mollifier) when
+// mollifier_eps > 0: E = m(x) kappa b(d) with c = |e0 x e1|^2 and m = (2 - c/eps) c/eps for c < eps, 1 beyond
+// (C1 in c), eps = 1e-3 |e0_rest|^2 |e1_rest|^2. Nearly parallel edges then fade out of the barrier (their
+// contact is carried by the point-triangle pairs of their end points), where the line-line distance's
+// derivatives blow up and its closest-feature type flips (Newton bounced between them on stacked sheets).
 #pragma once
 #include <cstdint>
 
@@ -22,13 +28,18 @@ int pair_type(PairKind kind, const double* x);
 double pair_distance2(PairKind kind, int type, const double* x);
 
 // E [J] (+inf when d <= 0, 0 when d >= dhat).
-double pair_barrier_energy(PairKind kind, int type, const double* x, double dhat, double kappa);
+double pair_barrier_energy(PairKind kind, int type, const double* x, double dhat, double kappa,
+                   double mollifier_eps = 0);
 // g (12) = dE/dx, overwritten.
-void pair_barrier_gradient(PairKind kind, int type, const double* x, double dhat, double kappa, double* g);
+void pair_barrier_gradient(PairKind kind, int type, const double* x, double dhat, double kappa, double* g,
+                   double mollifier_eps = 0);
 // H (12 x 12, row-major) = d2E/dx2, overwritten; projected onto the PSD cone if `project`.
-void pair_barrier_hessian(PairKind kind, int type, const double* x, double dhat, double kappa, bool project, double* H);
+void pair_barrier_hessian(PairKind kind, int type, const double* x, double dhat, double kappa, bool project, double* H,
+                          double mollifier_eps = 0);
 // With kappa = c dhat: dE/ddhat and dg (12) = d(dE/dx)/ddhat at fixed x.
 void pair_barrier_dhat_derivatives(PairKind kind, int type, const double* x, double dhat, double c, double& dE,
-                                   double* dg);
+                                   double* dg, double mollifier_eps = 0);
+// The edge-edge mollifier m(x) in [0, 1] (1 for point-triangle pairs or mollifier_eps <= 0).
+double pair_mollifier(PairKind kind, const double* x, double mollifier_eps);
 
 }  // namespace drapelab

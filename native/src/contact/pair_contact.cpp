@@ -19,6 +19,7 @@ constexpr double kSlipSpeed = 1e-3;  // eps_v [m/s]: friction is smoothed below 
 // Candidate pairs are found with boxes inflated by dhat (1 + 2 margin) and reused while no vertex moves more
 // than margin * dhat (line-search trials and Newton iterations near convergence move far less).
 constexpr double kCandidateMargin = 1.0;
+constexpr double kMollifierScale = 1e-3;  // edge-edge mollifier eps = this |e0_rest|^2 |e1_rest|^2 (IPC's choice)
 
 double segment_parameter(const Eigen::Vector3d& p, const Eigen::Vector3d& a, const Eigen::Vector3d& b) {
   const Eigen::Vector3d e = b - a;
@@ -66,7 +67,7 @@ std::array<double, 4> closest_weights(PairKind kind, int type, const double* x) 
 }  // namespace
 
 PairContactTerm::PairContactTerm(ContactSurfaces surfaces, int num_cloth, std::vector<double> unit_stiffness,
-                                 PairFilter filter)
+                                 PairFilter filter, const ContactPositions& rest)
     : surfaces_(std::move(surfaces)),
       num_cloth_(num_cloth),
       obstacle_(surfaces_.num_vertices() - num_cloth, 3),
@@ -74,6 +75,7 @@ PairContactTerm::PairContactTerm(ContactSurfaces surfaces, int num_cloth, std::v
       filter_(filter) {
   obstacle_.setZero();
   obstacle_start_ = obstacle_;
+  for (const auto& e : surfaces_.edges) edge_rest_length2_.push_back((rest.row(e[0]) - rest.row(e[1])).squaredNorm());
 }
 
 void PairContactTerm::bind_pattern(const SparsePattern& pattern) {
@@ -142,8 +144,8 @@ std::vector<ActivePair> PairContactTerm::active_pairs(const Eigen::VectorXd& x, 
       }
     return n > 0 ? sum / n : 0.0;
   };
-  auto consider = [&](PairKind kind, const std::array<int, 4>& v) {
-    ActivePair q{kind, 0, v, stiffness(v)};
+  auto consider = [&](PairKind kind, const std::array<int, 4>& v, double eps) {
+    ActivePair q{kind, 0, v, stiffness(v), eps};
     double x12[12];
     gather(q, P, x12);
     q.type = pair_type(kind, x12);
@@ -151,11 +153,12 @@ std::vector<ActivePair> PairContactTerm::active_pairs(const Eigen::VectorXd& x, 
   };
   for (const auto& pt : c.point_triangle) {
     const auto& f = surfaces_.faces[pt[1]];
-    consider(PairKind::kPointTriangle, {pt[0], f[0], f[1], f[2]});
+    consider(PairKind::kPointTriangle, {pt[0], f[0], f[1], f[2]}, 0.0);
   }
   for (const auto& ee : c.edge_edge) {
     const auto &e = surfaces_.edges[ee[0]], &o = surfaces_.edges[ee[1]];
-    consider(PairKind::kEdgeEdge, {e[0], e[1], o[0], o[1]});
+    consider(PairKind::kEdgeEdge, {e[0], e[1], o[0], o[1]},
+             kMollifierScale * edge_rest_length2_[ee[0]] * edge_rest_length2_[ee[1]]);
   }
   std::lock_guard<std::mutex> lock(cache_mutex_);
   cache_.x = x;
@@ -172,7 +175,7 @@ double PairContactTerm::energy(const Eigen::VectorXd& x, const Eigen::VectorXd& 
   for (const auto& q : active_pairs(x, dh)) {
     double x12[12];
     gather(q, P, x12);
-    E += pair_barrier_energy(q.kind, q.type, x12, dh, q.c * dh);
+    E += pair_barrier_energy(q.kind, q.type, x12, dh, q.c * dh, q.mollifier_eps);
   }
   const double mu = friction(p);
   for (const auto& f : friction_pairs_) {
@@ -189,7 +192,7 @@ void PairContactTerm::add_gradient(const Eigen::VectorXd& x, const Eigen::Vector
   for (const auto& q : active_pairs(x, dh)) {
     double x12[12], g12[12];
     gather(q, P, x12);
-    pair_barrier_gradient(q.kind, q.type, x12, dh, q.c * dh, g12);
+    pair_barrier_gradient(q.kind, q.type, x12, dh, q.c * dh, g12, q.mollifier_eps);
     for (int k = 0; k < 4; ++k)
       if (q.v[k] < num_cloth_)
         for (int a = 0; a < 3; ++a) g[3 * q.v[k] + a] += g12[3 * k + a];
@@ -212,7 +215,7 @@ void PairContactTerm::for_each_pair_hessian(const Eigen::VectorXd& x, const Eige
   for (const auto& q : active_pairs(x, dh)) {
     double x12[12], H[144];
     gather(q, P, x12);
-    pair_barrier_hessian(q.kind, q.type, x12, dh, q.c * dh, project, H);
+    pair_barrier_hessian(q.kind, q.type, x12, dh, q.c * dh, project, H, q.mollifier_eps);
     f(q, H);
   }
 }
@@ -290,7 +293,7 @@ void PairContactTerm::add_energy_parameter_gradient(const Eigen::VectorXd& x, co
   for (const auto& q : active_pairs(x, dh)) {
     double x12[12], dg[12], dE;
     gather(q, P, x12);
-    pair_barrier_dhat_derivatives(q.kind, q.type, x12, dh, q.c, dE, dg);
+    pair_barrier_dhat_derivatives(q.kind, q.type, x12, dh, q.c, dE, dg, q.mollifier_eps);
     gp[k] += dE;
   }
 }
@@ -315,7 +318,7 @@ void PairContactTerm::add_gradient_parameter_product(const Eigen::VectorXd& x, c
   for (const auto& q : active_pairs(x, dh)) {
     double x12[12], dg[12], dE;
     gather(q, P, x12);
-    pair_barrier_dhat_derivatives(q.kind, q.type, x12, dh, q.c, dE, dg);
+    pair_barrier_dhat_derivatives(q.kind, q.type, x12, dh, q.c, dE, dg, q.mollifier_eps);
     for (int m = 0; m < 4; ++m)
       if (q.v[m] < num_cloth_)
         for (int a = 0; a < 3; ++a) sum += lambda[3 * q.v[m] + a] * dg[3 * m + a];
@@ -372,7 +375,8 @@ void PairContactTerm::begin_step(const Eigen::VectorXd& x, const Eigen::VectorXd
     barrier_derivatives(d, dh, b, db, d2b);
     FrictionPair f;
     f.v = q.v;
-    f.normal_force = q.c * dh * std::abs(db);
+    f.normal_force = q.c * dh * std::abs(db) * pair_mollifier(q.kind, x12, q.mollifier_eps);
+    if (!(f.normal_force > 0)) continue;
     const std::array<double, 4> w = closest_weights(q.kind, q.type, x12);
     Eigen::Vector3d r = Eigen::Vector3d::Zero();
     for (int k = 0; k < 4; ++k) r += w[k] * Eigen::Map<const Eigen::Vector3d>(x12 + 3 * k);

@@ -45,13 +45,16 @@ struct ActivePair {
   int type;
   std::array<int, 4> v;  // rows of the combined position array (cloth vertices first)
   double c;              // kappa / dhat [J/m]
+  double mollifier_eps = 0;  // edge-edge: 1e-3 |e0_rest|^2 |e1_rest|^2 (contact/pair_barrier.hpp)
 };
 
 class PairContactTerm : public Term {
  public:
   // surfaces: cloth vertices are rows [0, num_cloth) of the combined array, obstacle vertices after them;
-  // unit_stiffness: per cloth vertex, c_i = kWeightScale w_i rho g [J/m].
-  PairContactTerm(ContactSurfaces surfaces, int num_cloth, std::vector<double> unit_stiffness, PairFilter filter);
+  // unit_stiffness: per cloth vertex, c_i = kWeightScale w_i rho g [J/m]; rest: the combined positions at rest
+  // (the edge-edge mollifier's scale).
+  PairContactTerm(ContactSurfaces surfaces, int num_cloth, std::vector<double> unit_stiffness, PairFilter filter,
+                  const ContactPositions& rest);
 
   bool is_contact() const override { return true; }
   bool has_offpattern_hessian() const override { return true; }
@@ -109,6 +112,7 @@ class PairContactTerm : public Term {
   ContactPositions obstacle_;        // (rows - num_cloth) x 3: positions within the step (its end)
   ContactPositions obstacle_start_;  // at the step's start (friction: the obstacle's slip over the step)
   std::vector<double> unit_stiffness_;
+  std::vector<double> edge_rest_length2_;
   PairFilter filter_;
 
  private:

@@ -31,7 +31,7 @@ double built_thickness(const EffectContext& c) {
 class SelfContactTerm : public PairContactTerm {
  public:
   SelfContactTerm(const EffectContext& c, ContactSurfaces s, std::vector<double> stiffness)
-      : PairContactTerm(std::move(s), c.mesh.num_vertices(), std::move(stiffness), PairFilter::kSelf),
+      : PairContactTerm(std::move(s), c.mesh.num_vertices(), std::move(stiffness), PairFilter::kSelf, c.mesh.positions),
         thickness_(c.layout.block(effect_block_name("self_contact", "thickness_m")).offset),
         friction_(c.layout.block(effect_block_name("self_contact", "friction")).offset) {}
   std::string name() const override { return "self_contact"; }

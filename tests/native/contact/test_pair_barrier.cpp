@@ -5,6 +5,7 @@
 #include <Eigen/Geometry>
 
 #include <Eigen/Eigenvalues>
+#include <cmath>
 #include <random>
 
 #include "contact/pair_barrier.hpp"
@@ -98,6 +99,65 @@ TEST(PairBarrier, DerivativesMatchCentralDifferences) {
   }
   EXPECT_GT(tested[0], 10);
   EXPECT_GT(tested[1], 10);
+}
+
+TEST(PairBarrier, MollifiedNearlyParallelEdgesMatchCentralDifferences) {
+  // Edges 1 cm long, 0.5 mm apart, at 0.5-1.5 degrees to each other: |e0 x e1|^2 below eps = 1e-3 |e0|^2 |e1|^2
+  // (the mollifier acts), derivatives of m kappa b against central differences.
+  std::mt19937 rng(11);
+  std::normal_distribution<double> n01(0, 1);
+  std::uniform_real_distribution<double> u(0.5, 1.5);
+  const double dhat = 1e-3, c = 0.7, kappa = c * dhat;
+  int tested = 0;
+  for (int trial = 0; trial < 20; ++trial) {
+    const double angle = u(rng) * M_PI / 180, shift = 0.003 * (u(rng) - 1);
+    double x[12] = {0, 0, 0, 0.01, 0, 0,
+                    shift, -0.005 * std::sin(angle), 5e-4, shift + 0.01 * std::cos(angle), 0.005 * std::sin(angle), 5e-4};
+    const double eps = 1e-3 * 1e-4 * 1e-4;
+    const double m = pair_mollifier(PairKind::kEdgeEdge, x, eps);
+    ASSERT_LT(m, 1.0);
+    ASSERT_GT(m, 0.0);
+    const int type = pair_type(PairKind::kEdgeEdge, x);
+    double dir[12], xp[12], xm[12];
+    for (double& v : dir) v = n01(rng);
+    const double h = 1e-9;
+    for (int i = 0; i < 12; ++i) {
+      xp[i] = x[i] + h * dir[i];
+      xm[i] = x[i] - h * dir[i];
+    }
+    if (pair_type(PairKind::kEdgeEdge, xp) != type || pair_type(PairKind::kEdgeEdge, xm) != type) continue;
+    ++tested;
+    double g[12], gp[12], gm[12], H[144];
+    pair_barrier_gradient(PairKind::kEdgeEdge, type, x, dhat, kappa, g, eps);
+    const double fd = (pair_barrier_energy(PairKind::kEdgeEdge, type, xp, dhat, kappa, eps) -
+                       pair_barrier_energy(PairKind::kEdgeEdge, type, xm, dhat, kappa, eps)) / (2 * h);
+    double gd = 0;
+    for (int i = 0; i < 12; ++i) gd += g[i] * dir[i];
+    EXPECT_NEAR(gd, fd, 1e-6 * std::abs(fd)) << "gradient";
+    pair_barrier_gradient(PairKind::kEdgeEdge, type, xp, dhat, kappa, gp, eps);
+    pair_barrier_gradient(PairKind::kEdgeEdge, type, xm, dhat, kappa, gm, eps);
+    pair_barrier_hessian(PairKind::kEdgeEdge, type, x, dhat, kappa, false, H, eps);
+    Eigen::Map<Eigen::Matrix<double, 12, 12, Eigen::RowMajor>> Hm(H);
+    Eigen::Map<Eigen::Matrix<double, 12, 1>> dv(dir);
+    Eigen::Matrix<double, 12, 1> fdH;
+    for (int i = 0; i < 12; ++i) fdH[i] = (gp[i] - gm[i]) / (2 * h);
+    EXPECT_LE((Hm * dv - fdH).norm(), 1e-5 * fdH.norm()) << "Hessian";
+    double dE, dg[12], g1[12], g2[12];
+    pair_barrier_dhat_derivatives(PairKind::kEdgeEdge, type, x, dhat, c, dE, dg, eps);
+    const double hd = 1e-9;
+    EXPECT_NEAR(dE, (pair_barrier_energy(PairKind::kEdgeEdge, type, x, dhat + hd, c * (dhat + hd), eps) -
+                     pair_barrier_energy(PairKind::kEdgeEdge, type, x, dhat - hd, c * (dhat - hd), eps)) / (2 * hd),
+                1e-6 * std::abs(dE));
+    pair_barrier_gradient(PairKind::kEdgeEdge, type, x, dhat + hd, c * (dhat + hd), g1, eps);
+    pair_barrier_gradient(PairKind::kEdgeEdge, type, x, dhat - hd, c * (dhat - hd), g2, eps);
+    for (int i = 0; i < 12; ++i) EXPECT_NEAR(dg[i], (g1[i] - g2[i]) / (2 * hd), 1e-5 * std::abs(dg[i]) + 1e-9);
+    // the mollified energy is below the plain one, and vanishes for parallel edges
+    EXPECT_LT(pair_barrier_energy(PairKind::kEdgeEdge, type, x, dhat, kappa, eps),
+              pair_barrier_energy(PairKind::kEdgeEdge, type, x, dhat, kappa));
+  }
+  EXPECT_GT(tested, 10);
+  const double parallel[12] = {0, 0, 0, 0.01, 0, 0, 0.002, 0, 5e-4, 0.012, 0, 5e-4};
+  EXPECT_EQ(pair_mollifier(PairKind::kEdgeEdge, parallel, 1e-11), 0.0);
 }
 
 TEST(PairBarrier, ZeroBeyondActivationInfiniteAtContact) {
