@@ -201,7 +201,8 @@ void Model::validate_parameters(const Eigen::VectorXd& p) const {
         if (q.name == param && q.structural && p[b.offset] != defaults_[b.offset]) {
           std::ostringstream s;
           s << "parameters: " << b.name << " = " << p[b.offset] << " differs from the model's " << defaults_[b.offset]
-            << ": it is structural (it chooses which vertices the model holds); build the model with the value";
+            << ": it is structural (it chooses the model's structure: which vertices it holds, whether a contact "
+            << "term exists); build the model with the value";
           throw InputError(s.str());
         }
       continue;
@@ -232,6 +233,14 @@ double Model::energy(const Eigen::VectorXd& x, const Eigen::VectorXd& p) const {
 
 void Model::add_gradient(const Eigen::VectorXd& x, const Eigen::VectorXd& p, Eigen::VectorXd& g) const {
   for (const auto& t : terms_) t->add_gradient(x, p, g);
+}
+
+void Model::add_term_impl(std::unique_ptr<Term> term) {
+  if (!term) throw InputError("model: add_term needs a term");
+  if (!term->stencils().empty())
+    throw InputError("model: term '" + term->name() + "' couples vertices outside the model's pattern (stencils)");
+  term->bind_pattern(pattern_);
+  terms_.push_back(std::move(term));
 }
 
 }  // namespace drapelab

@@ -83,7 +83,19 @@ class Model {
   double energy(const Eigen::VectorXd& x, const Eigen::VectorXd& p) const;
   void add_gradient(const Eigen::VectorXd& x, const Eigen::VectorXd& p, Eigen::VectorXd& g) const;
 
+  // Adds a term after construction whose assembled matrices need no new pattern entries (empty stencils: its
+  // couplings outside the pattern come as products, Term::has_offpattern_hessian), e.g. a moving obstacle's
+  // contact (contact/obstacle_contact.hpp); the model keeps it. Returns it, for per-step updates. InputError
+  // if the term has stencils.
+  template <class T>
+  T* add_term(std::unique_ptr<T> term) {
+    T* raw = term.get();
+    add_term_impl(std::move(term));
+    return raw;
+  }
+
  private:
+  void add_term_impl(std::unique_ptr<Term> term);
   TriangleMesh mesh_;
   ModelOptions options_;
   std::vector<BendingEdge> edges_;

@@ -79,6 +79,17 @@ class Term {
   // Moving obstacles (a garment's body): moves the step's first iterate x (the start state) so that it is clear
   // of the obstacle at its end-of-step pose (cloth near a part is carried along with it).
   virtual void carry_start(Eigen::VectorXd& /*x*/) const {}
+  // Contact between surfaces (self contact, a moving obstacle: contact/pair_contact.hpp) couples vertices that
+  // are not neighbours in the mesh, outside the model's fixed sparsity pattern. Such a term assembles only the
+  // part of its matrices that lies in the pattern (add_hessian, add_projected_hessian, add_step_matrix) and
+  // gives the rest as a product: out += (H - H_assembled) dir, with H the exact Hessian (projected = false:
+  // add_hessian's remainder) or the per-pair PSD-projected one (projected = true: the remainder of
+  // add_projected_hessian and add_step_matrix). Solvers then solve with the full operator by conjugate
+  // gradients preconditioned with the assembled matrix's factor (solver/contact_linear_solve.hpp).
+  virtual bool has_offpattern_hessian() const { return false; }
+  virtual void add_offpattern_hessian_product(const Eigen::VectorXd& /*x*/, const Eigen::VectorXd& /*p*/,
+                                              const Eigen::VectorXd& /*dir*/, bool /*projected*/,
+                                              Eigen::VectorXd& /*out*/) const {}
 
   // Optional, for speed (defaults are correct for every term):
   // out += scale * K(x; p) dir without assembling K. Returns false if the term does not provide it (the

@@ -7,6 +7,7 @@
 #include <cstdio>
 #include <cstdlib>
 
+#include "solver/contact_linear_solve.hpp"
 #include "util/error.hpp"
 
 namespace drapelab {
@@ -195,6 +196,9 @@ constexpr double kMinStep = 1e-6;         // smallest line-search step tried
 // precision (a 10 cm specimen's potential changes by ~1e-16 relative), and the state is then as converged as
 // the residual test can see.
 constexpr double kNegligibleMove = 1e-9;
+// Relative residual of the preconditioned CG solves with off-pattern contact couplings (Newton directions and
+// adjoints): far below the Newton iterations' own accuracy.
+constexpr double kOffpatternTolerance = 1e-10;
 }  // namespace
 
 Eigen::VectorXd ImplicitEuler::contact_step(const Eigen::VectorXd& p, const RolloutOptions& options, int step) {
@@ -218,6 +222,7 @@ Eigen::VectorXd ImplicitEuler::contact_step(const Eigen::VectorXd& p, const Roll
     for (int i = 0; i < nv; ++i) r = std::max(r, g.segment<3>(3 * i).norm() / (m[i] * kStandardGravity));
     return r;
   };
+  const bool offpattern = has_offpattern_terms(model_);
   Eigen::VectorXd x = x_, g, A, dx, xn;
   for (const auto& t : model_.terms()) t->carry_start(x);
   double Phi = potential(x);
@@ -251,11 +256,25 @@ Eigen::VectorXd ImplicitEuler::contact_step(const Eigen::VectorXd& p, const Roll
     // indefinite sideways; the inertia M/h^2 usually holds the sum definite, and projecting it per vertex
     // made convergence linear); failing that, their PSD projections; failing that, the PSD step matrix K
     // (K alone drops the membrane's compression softening and crawls: 10-50 iterations per step).
+    // Terms with couplings outside the pattern (self contact): the direction solves the full operator by
+    // preconditioned CG (solver/contact_linear_solve.hpp); an indefinite full operator moves on to the next kind.
     bool factorised = false;
+    double solve_seconds = 0;
     for (int kind = (exact_fails % 4 == 0 ? 0 : 1); kind < 4 && !factorised; ++kind) {
       contact_matrix(kind, x, p, inv_h2, m, A);
       factorised = solver_.factorize(A);
       ++timing_.factorizations;
+      if (factorised) {
+        const auto ts = std::chrono::steady_clock::now();
+        if (offpattern) {
+          Eigen::VectorXd y;
+          factorised = solve_with_offpattern(model_, solver_, A, x, p, kind >= 2, g, y, kOffpatternTolerance);
+          dx = -y;
+        } else {
+          dx = -solver_.solve(g);
+        }
+        solve_seconds += seconds_since(ts);
+      }
       if (kind == 0) exact_fails = factorised ? 0 : exact_fails + 1;
       else if (kind == 1 && exact_fails > 0) ++exact_fails;
     }
@@ -264,10 +283,8 @@ Eigen::VectorXd ImplicitEuler::contact_step(const Eigen::VectorXd& p, const Roll
       s << "rollout: step " << step << " contact Newton matrix is not positive definite";
       throw SolverError(s.str());
     }
-    timing_.factorize += seconds_since(t0);
-    t0 = std::chrono::steady_clock::now();
-    dx = -solver_.solve(g);
-    timing_.solve += seconds_since(t0);
+    timing_.factorize += seconds_since(t0) - solve_seconds;
+    timing_.solve += solve_seconds;
     ++timing_.newton_iterations;
     if (dx.lpNorm<Eigen::Infinity>() < kNegligibleMove) {  // below what the potential resolves: converged
       xn = x + dx;
@@ -333,16 +350,23 @@ void ImplicitEuler::contact_step_adjoint(const StepRecord& r, Eigen::VectorXd& g
   const Eigen::VectorXd gbar = gx + gv / h;
   // The exact Hessian of the potential; where the minimiser is only a saddle of its quadratic model (the
   // Newton iterations then ran on a definite substitute, see contact_step), the same substitutes in turn: the
-  // gradient is then that of the substitute's linearisation (counted in timing().inexact_adjoint_steps).
-  Eigen::VectorXd H;
-  bool factorised = false;
-  for (int kind = 0; kind < 4 && !factorised; ++kind) {
+  // gradient is then that of the substitute's linearisation (counted in timing().inexact_adjoint_steps). With
+  // off-pattern couplings (self contact) each is the assembled part plus their products: CG preconditioned with
+  // the assembled part's factor (solver/contact_linear_solve.hpp).
+  const bool offpattern = has_offpattern_terms(model_);
+  Eigen::VectorXd H, lambda;
+  bool solved = false;
+  for (int kind = 0; kind < 4 && !solved; ++kind) {
     contact_matrix(kind, x_next, p_, inv_h2, m, H);
-    factorised = solver_.factorize(H);
-    if (factorised && kind > 0) ++timing_.inexact_adjoint_steps;
+    solved = solver_.factorize(H);
+    if (solved) {
+      if (offpattern) solved = solve_with_offpattern(model_, solver_, H, x_next, p_, kind >= 2, gbar, lambda,
+                                                     kOffpatternTolerance);
+      else lambda = solver_.solve(gbar);
+    }
+    if (solved && kind > 0) ++timing_.inexact_adjoint_steps;
   }
-  if (!factorised) throw SolverError("backward: no definite matrix for a contact step's adjoint");
-  const Eigen::VectorXd lambda = solver_.solve(gbar);
+  if (!solved) throw SolverError("backward: no definite matrix for a contact step's adjoint");
   for (const auto& t : model_.terms()) t->add_gradient_parameter_product(x_next, p_, lambda, -1.0, gp);
   const auto& density_block = model_.layout().block("density");
   const Eigen::VectorXd& w = model_.area_weights();

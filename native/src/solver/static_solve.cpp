@@ -6,6 +6,7 @@
 #include <cstdlib>
 #include <sstream>
 
+#include "solver/contact_linear_solve.hpp"
 #include "util/error.hpp"
 
 namespace drapelab {
@@ -71,6 +72,7 @@ StaticResult StaticSolver::solve(const Eigen::VectorXd& p, const StaticOptions& 
   // kMaxExtension) while E keeps falling. Where E no longer resolves the decrease (round-off near the
   // minimum), a decrease of the residual instead. Moves x and returns the step length, 0 if none.
   bool contact = false;
+  const bool offpattern = has_offpattern_terms(model_);
   for (const auto& t : model_.terms()) {
     contact = contact || t->is_contact();
     t->begin_step(x, p, 0.0);  // a static drape: no friction
@@ -148,8 +150,16 @@ StaticResult StaticSolver::solve(const Eigen::VectorXd& p, const StaticOptions& 
       if (!factorised && mu == 0) factorised = factorise(used = Matrix::kNewton);
       if (!factorised) factorised = factorise(used = Matrix::kShiftedStep);
       if (factorised) {
-        dx = -solver_.solve(g);
-        alpha = line_search(result.residual);
+        if (offpattern) {  // couplings outside the pattern (self contact): CG on the full operator
+          Eigen::VectorXd y;
+          if (solve_with_offpattern(model_, solver_, A, x, p, used != Matrix::kExact, g, y)) {
+            dx = -y;
+            alpha = line_search(result.residual);
+          }
+        } else {
+          dx = -solver_.solve(g);
+          alpha = line_search(result.residual);
+        }
       }
       if (alpha == 0.0) {
         // No descent with this matrix: a shifted step matrix next (shorter, gradient-like steps).
@@ -185,7 +195,12 @@ Eigen::VectorXd StaticSolver::adjoint(const Eigen::VectorXd& dL_dx) {
   for (const auto& t : model_.terms()) t->add_hessian(x_, p_, 1.0, H);
   if (!solver_.factorize(H))
     throw SolverError("static adjoint: the Hessian at the equilibrium is not positive definite (unstable equilibrium)");
-  const Eigen::VectorXd lambda = solver_.solve(dL_dx);
+  Eigen::VectorXd lambda;
+  if (!has_offpattern_terms(model_)) {
+    lambda = solver_.solve(dL_dx);
+  } else if (!solve_with_offpattern(model_, solver_, H, x_, p_, false, dL_dx, lambda)) {
+    throw SolverError("static adjoint: the Hessian with contact couplings is not positive definite (unstable equilibrium)");
+  }
   Eigen::VectorXd gp = Eigen::VectorXd::Zero(p_.size());
   for (const auto& t : model_.terms()) t->add_gradient_parameter_product(x_, p_, lambda, -1.0, gp);
   return gp;

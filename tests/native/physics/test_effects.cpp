@@ -127,13 +127,21 @@ TEST_P(EffectSuite, TermDerivativesMatchCentralDifferencesAtModerateStrength) {
       term->add_hessian(x, p, 1.0, H);
       const Eigen::VectorXd fdH = (gp - gm) / (2 * eps);
       EXPECT_LE((Hd - fdH).norm(), 1e-6 * std::max(1e-12, fdH.norm()) + 1e-12 * g.norm()) << "Hessian product";
-      EXPECT_LE((symmetric_multiply(pat, H, d) - Hd).norm(), 1e-10 * std::max(1e-12, Hd.norm()) + 1e-14)
+      // A term with couplings outside the pattern (self contact) assembles part of its Hessian and gives the
+      // rest as a product (Term::add_offpattern_hessian_product): together, the exact Hessian.
+      Eigen::VectorXd rest = Eigen::VectorXd::Zero(n);
+      term->add_offpattern_hessian_product(x, p, d, false, rest);
+      EXPECT_LE((symmetric_multiply(pat, H, d) + rest - Hd).norm(), 1e-10 * std::max(1e-12, Hd.norm()) + 1e-14)
           << "assembled Hessian";
       // projected Hessian and step matrix are PSD
       Eigen::VectorXd P = Eigen::VectorXd::Zero(pat.nnz()), K = Eigen::VectorXd::Zero(pat.nnz());
       term->add_projected_hessian(x, p, 1.0, P);
       term->add_step_matrix(x, p, 1.0, K);
+      Eigen::VectorXd prest = Eigen::VectorXd::Zero(n);
+      term->add_offpattern_hessian_product(x, p, d, true, prest);
       EXPECT_GE(d.dot(symmetric_multiply(pat, P, d)), -1e-12 * std::max(1.0, H.norm())) << "projected Hessian";
+      EXPECT_GE(d.dot(symmetric_multiply(pat, P, d) + prest), -1e-12 * std::max(1.0, H.norm()))
+          << "projected Hessian with its off-pattern part";
       EXPECT_GE(d.dot(symmetric_multiply(pat, K, d)), -1e-12 * std::max(1.0, H.norm())) << "step matrix";
     }
     // parameter derivatives against central differences in every parameter the term reads

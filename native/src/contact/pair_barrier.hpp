@@ -1,0 +1,45 @@
+// The IPC barrier of one contact pair (point-triangle or edge-edge) as free-function kernels:
+//   E(x) = kappa b(d(x)),   d = sqrt(d2(x)) the pair's unsigned distance (contact/distance.hpp, by
+//   closest-feature type), b the log barrier of contact/barrier.hpp (divided by dhat^2), kappa [J].
+// x: the pair's 4 vertices as 12 scalars ((p, a, b, c) or (a0, b0, a1, b1)). Gradient and Hessian are exact
+// (closed-form barrier derivatives chained with the jet-exact distance derivatives); the Hessian can be
+// projected onto the PSD cone (util/psd_projection.hpp). Each is checked against central differences in
+// tests/native/contact/test_pair_barrier.cpp.
+//
+// Stiffness parametrised by the activation distance: kappa = c dhat (c [J/m]: contact terms take it from the
+// pair's vertex weights, as disk_contact does), so that dhat, the cloth thickness, can be a fitted parameter;
+// pair_barrier_dhat_derivatives gives dE/ddhat and d(grad E)/ddhat at fixed x for the parameter adjoints.
+//
+// Edge-edge pairs take IPC's mollifier (Li et al. 2020, sec. 4.3; ipc-toolkit's edge_edge_mollifier) when
+// mollifier_eps > 0: E = m(x) kappa b(d) with c = |e0 x e1|^2 and m = (2 - c/eps) c/eps for c < eps, 1 beyond
+// (C1 in c), eps = 1e-3 |e0_rest|^2 |e1_rest|^2. Nearly parallel edges then fade out of the barrier (their
+// contact is carried by the point-triangle pairs of their end points), where the line-line distance's
+// derivatives blow up and its closest-feature type flips (Newton bounced between them on stacked sheets).
+#pragma once
+#include <cstdint>
+
+namespace drapelab {
+
+enum class PairKind : uint8_t { kPointTriangle, kEdgeEdge };
+
+// The closest-feature type of the pair at x (a PointTriangleType or EdgeEdgeType as int).
+int pair_type(PairKind kind, const double* x);
+// Squared distance of the pair at x for a given type [m^2].
+double pair_distance2(PairKind kind, int type, const double* x);
+
+// E [J] (+inf when d <= 0, 0 when d >= dhat).
+double pair_barrier_energy(PairKind kind, int type, const double* x, double dhat, double kappa,
+                   double mollifier_eps = 0);
+// g (12) = dE/dx, overwritten.
+void pair_barrier_gradient(PairKind kind, int type, const double* x, double dhat, double kappa, double* g,
+                   double mollifier_eps = 0);
+// H (12 x 12, row-major) = d2E/dx2, overwritten; projected onto the PSD cone if `project`.
+void pair_barrier_hessian(PairKind kind, int type, const double* x, double dhat, double kappa, bool project, double* H,
+                          double mollifier_eps = 0);
+// With kappa = c dhat: dE/ddhat and dg (12) = d(dE/dx)/ddhat at fixed x.
+void pair_barrier_dhat_derivatives(PairKind kind, int type, const double* x, double dhat, double c, double& dE,
+                                   double* dg, double mollifier_eps = 0);
+// The edge-edge mollifier m(x) in [0, 1] (1 for point-triangle pairs or mollifier_eps <= 0).
+double pair_mollifier(PairKind kind, const double* x, double mollifier_eps);
+
+}  // namespace drapelab

@@ -1,0 +1,486 @@
+#include "contact/pair_contact.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <sstream>
+
+#include "contact/barrier.hpp"
+#include "contact/ccd.hpp"
+#include "contact/distance.hpp"
+#include "contact/diagnostics.hpp"
+#include "physics/sparse_pattern.hpp"
+#include "util/error.hpp"
+
+namespace drapelab {
+
+namespace {
+constexpr double kSlipSpeed = 1e-3;  // eps_v [m/s]: friction is smoothed below this slip speed (as disk_contact)
+// Candidate pairs are found with boxes inflated by dhat (1 + 2 margin) and reused while no vertex moves more
+// than margin * dhat (line-search trials and Newton iterations near convergence move far less).
+constexpr double kCandidateMargin = 1.0;
+constexpr double kMollifierScale = 1e-3;  // edge-edge mollifier eps = this |e0_rest|^2 |e1_rest|^2 (IPC's choice)
+
+double segment_parameter(const Eigen::Vector3d& p, const Eigen::Vector3d& a, const Eigen::Vector3d& b) {
+  const Eigen::Vector3d e = b - a;
+  const double ee = e.squaredNorm();
+  return ee > 0 ? std::clamp((p - a).dot(e) / ee, 0.0, 1.0) : 0.0;
+}
+
+// Weights of the pair's 4 vertices whose combination is (closest point of the first primitive) - (closest point
+// of the second), by closest-feature type.
+std::array<double, 4> closest_weights(PairKind kind, int type, const double* x) {
+  const Eigen::Map<const Eigen::Vector3d> q0(x), q1(x + 3), q2(x + 6), q3(x + 9);
+  if (kind == PairKind::kPointTriangle) {
+    switch (static_cast<PointTriangleType>(type)) {
+      case PointTriangleType::kA: return {1, -1, 0, 0};
+      case PointTriangleType::kB: return {1, 0, -1, 0};
+      case PointTriangleType::kC: return {1, 0, 0, -1};
+      case PointTriangleType::kAB: { const double t = segment_parameter(q0, q1, q2); return {1, -(1 - t), -t, 0}; }
+      case PointTriangleType::kBC: { const double t = segment_parameter(q0, q2, q3); return {1, 0, -(1 - t), -t}; }
+      case PointTriangleType::kCA: { const double t = segment_parameter(q0, q3, q1); return {1, -t, 0, -(1 - t)}; }
+      case PointTriangleType::kFace: break;
+    }
+    const Eigen::Vector3d e0 = q2 - q1, e1 = q3 - q1, w = q0 - q1;
+    const double d00 = e0.dot(e0), d01 = e0.dot(e1), d11 = e1.dot(e1), d20 = w.dot(e0), d21 = w.dot(e1);
+    const double den = d00 * d11 - d01 * d01;
+    const double v = (d11 * d20 - d01 * d21) / den, t = (d00 * d21 - d01 * d20) / den;
+    return {1, -(1 - v - t), -v, -t};
+  }
+  switch (static_cast<EdgeEdgeType>(type)) {
+    case EdgeEdgeType::kA0_E1: { const double t = segment_parameter(q0, q2, q3); return {1, 0, -(1 - t), -t}; }
+    case EdgeEdgeType::kB0_E1: { const double t = segment_parameter(q1, q2, q3); return {0, 1, -(1 - t), -t}; }
+    case EdgeEdgeType::kA1_E0: { const double s = segment_parameter(q2, q0, q1); return {1 - s, s, -1, 0}; }
+    case EdgeEdgeType::kB1_E0: { const double s = segment_parameter(q3, q0, q1); return {1 - s, s, 0, -1}; }
+    case EdgeEdgeType::kA0_A1: return {1, 0, -1, 0};
+    case EdgeEdgeType::kA0_B1: return {1, 0, 0, -1};
+    case EdgeEdgeType::kB0_A1: return {0, 1, -1, 0};
+    case EdgeEdgeType::kB0_B1: return {0, 1, 0, -1};
+    case EdgeEdgeType::kLineLine: break;
+  }
+  const Eigen::Vector3d e0 = q1 - q0, e1 = q3 - q2, w = q0 - q2;
+  const double a = e0.dot(e0), b = e0.dot(e1), c = e1.dot(e1), d = e0.dot(w), e = e1.dot(w);
+  const double den = a * c - b * b;
+  const double sp = (b * e - c * d) / den, tp = (a * e - b * d) / den;
+  return {1 - sp, sp, -(1 - tp), -tp};
+}
+}  // namespace
+
+PairContactTerm::PairContactTerm(ContactSurfaces surfaces, int num_cloth, std::vector<double> unit_stiffness,
+                                 PairFilter filter, const ContactPositions& rest)
+    : surfaces_(std::move(surfaces)),
+      num_cloth_(num_cloth),
+      obstacle_(surfaces_.num_vertices() - num_cloth, 3),
+      unit_stiffness_(std::move(unit_stiffness)),
+      filter_(filter) {
+  obstacle_.setZero();
+  obstacle_start_ = obstacle_;
+  for (const auto& e : surfaces_.edges) edge_rest_length2_.push_back((rest.row(e[0]) - rest.row(e[1])).squaredNorm());
+}
+
+void PairContactTerm::bind_pattern(const SparsePattern& pattern) {
+  diagonal_index_.resize(num_cloth_);
+  for (int i = 0; i < num_cloth_; ++i) {
+    int k = 0;
+    for (int a = 0; a < 3; ++a)
+      for (int b = a; b < 3; ++b) diagonal_index_[i][k++] = pattern.index(3 * i + a, 3 * i + b);
+  }
+}
+
+ContactPositions PairContactTerm::positions(const Eigen::VectorXd& x) const {
+  ContactPositions P(surfaces_.num_vertices(), 3);
+  for (int i = 0; i < num_cloth_; ++i) P.row(i) = x.segment<3>(3 * i).transpose();
+  if (obstacle_.rows() > 0) P.bottomRows(obstacle_.rows()) = obstacle_;
+  return P;
+}
+
+void PairContactTerm::gather(const ActivePair& q, const ContactPositions& P, double* x12) const {
+  for (int k = 0; k < 4; ++k)
+    for (int a = 0; a < 3; ++a) x12[3 * k + a] = P(q.v[k], a);
+}
+
+std::vector<ActivePair> PairContactTerm::active_pairs(const Eigen::VectorXd& x, double dh) const {
+  if (!(dh > 0)) return {};
+  {
+    std::lock_guard<std::mutex> lock(cache_mutex_);
+    if (cache_.dhat == dh && cache_.x.size() == x.size() && cache_.x == x && cache_.obstacle.rows() == obstacle_.rows() &&
+        cache_.obstacle == obstacle_)
+      return cache_.pairs;
+  }
+  const ContactPositions P = positions(x);
+  // Candidates: reused while no cloth vertex has moved more than kCandidateMargin dhat from where they were found
+  // (found with the boxes inflated by dhat (1 + 2 kCandidateMargin): a box moves by at most the margin, so every
+  // pair closer than dhat now was a candidate then); else found again here.
+  std::shared_ptr<const CandidatePairs> candidates;
+  {
+    std::lock_guard<std::mutex> lock(cache_mutex_);
+    if (cache_.candidates && cache_.candidate_dhat == dh && cache_.candidate_x.size() == x.size() &&
+        cache_.candidate_obstacle.rows() == obstacle_.rows() && cache_.candidate_obstacle == obstacle_) {
+      double moved2 = 0;
+      for (int i = 0; i < num_cloth_; ++i)
+        moved2 = std::max(moved2, (x.segment<3>(3 * i) - cache_.candidate_x.segment<3>(3 * i)).squaredNorm());
+      const double margin = kCandidateMargin * dh;
+      if (moved2 <= margin * margin) candidates = cache_.candidates;
+    }
+  }
+  if (!candidates) {
+    candidates = std::make_shared<const CandidatePairs>(
+        broad_phase(surfaces_, P, nullptr, dh * (1 + 2 * kCandidateMargin), filter_));
+    std::lock_guard<std::mutex> lock(cache_mutex_);
+    cache_.candidates = candidates;
+    cache_.candidate_x = x;
+    cache_.candidate_obstacle = obstacle_;
+    cache_.candidate_dhat = dh;
+  }
+  const CandidatePairs& c = *candidates;
+  std::vector<ActivePair> pairs;
+  auto stiffness = [&](const std::array<int, 4>& v) {
+    double sum = 0;
+    int n = 0;
+    for (int i : v)
+      if (i < num_cloth_) {
+        sum += unit_stiffness_[i];
+        ++n;
+      }
+    return n > 0 ? sum / n : 0.0;
+  };
+  auto consider = [&](PairKind kind, const std::array<int, 4>& v, double eps) {
+    ActivePair q{kind, 0, v, stiffness(v), eps};
+    double x12[12];
+    gather(q, P, x12);
+    q.type = pair_type(kind, x12);
+    if (pair_distance2(kind, q.type, x12) < dh * dh) pairs.push_back(q);
+  };
+  for (const auto& pt : c.point_triangle) {
+    const auto& f = surfaces_.faces[pt[1]];
+    consider(PairKind::kPointTriangle, {pt[0], f[0], f[1], f[2]}, 0.0);
+  }
+  for (const auto& ee : c.edge_edge) {
+    const auto &e = surfaces_.edges[ee[0]], &o = surfaces_.edges[ee[1]];
+    consider(PairKind::kEdgeEdge, {e[0], e[1], o[0], o[1]},
+             kMollifierScale * edge_rest_length2_[ee[0]] * edge_rest_length2_[ee[1]]);
+  }
+  std::lock_guard<std::mutex> lock(cache_mutex_);
+  cache_.x = x;
+  cache_.obstacle = obstacle_;
+  cache_.dhat = dh;
+  cache_.pairs = pairs;
+  return pairs;
+}
+
+double PairContactTerm::energy(const Eigen::VectorXd& x, const Eigen::VectorXd& p) const {
+  const double dh = dhat(p);
+  const ContactPositions P = positions(x);
+  double E = 0;
+  for (const auto& q : active_pairs(x, dh)) {
+    double x12[12];
+    gather(q, P, x12);
+    E += pair_barrier_energy(q.kind, q.type, x12, dh, q.c * dh, q.mollifier_eps);
+  }
+  const double mu = friction(p);
+  for (const auto& f : friction_pairs_) {
+    double value;
+    friction_kernel(f, x, &value, nullptr, nullptr);
+    E += mu * f.normal_force * value;
+  }
+  return E;
+}
+
+void PairContactTerm::add_gradient(const Eigen::VectorXd& x, const Eigen::VectorXd& p, Eigen::VectorXd& g) const {
+  const double dh = dhat(p);
+  const ContactPositions P = positions(x);
+  for (const auto& q : active_pairs(x, dh)) {
+    double x12[12], g12[12];
+    gather(q, P, x12);
+    pair_barrier_gradient(q.kind, q.type, x12, dh, q.c * dh, g12, q.mollifier_eps);
+    for (int k = 0; k < 4; ++k)
+      if (q.v[k] < num_cloth_)
+        for (int a = 0; a < 3; ++a) g[3 * q.v[k] + a] += g12[3 * k + a];
+  }
+  const double mu = friction(p);
+  for (const auto& f : friction_pairs_) {
+    double g12[12];
+    friction_kernel(f, x, nullptr, g12, nullptr);
+    for (int k = 0; k < 4; ++k)
+      if (f.v[k] < num_cloth_)
+        for (int a = 0; a < 3; ++a) g[3 * f.v[k] + a] += mu * f.normal_force * g12[3 * k + a];
+  }
+}
+
+template <class F>
+void PairContactTerm::for_each_pair_hessian(const Eigen::VectorXd& x, const Eigen::VectorXd& p, bool project,
+                                            const F& f) const {
+  const double dh = dhat(p);
+  const ContactPositions P = positions(x);
+  for (const auto& q : active_pairs(x, dh)) {
+    double x12[12], H[144];
+    gather(q, P, x12);
+    pair_barrier_hessian(q.kind, q.type, x12, dh, q.c * dh, project, H, q.mollifier_eps);
+    f(q, H);
+  }
+}
+
+void PairContactTerm::add_diagonal_blocks(const Eigen::VectorXd& x, const Eigen::VectorXd& p, bool project,
+                                          double scale, Eigen::VectorXd& values) const {
+  for_each_pair_hessian(x, p, project, [&](const ActivePair& q, const double* H) {
+    for (int k = 0; k < 4; ++k) {
+      if (q.v[k] >= num_cloth_) continue;
+      const auto& idx = diagonal_index_[q.v[k]];
+      int m = 0;
+      for (int a = 0; a < 3; ++a)
+        for (int b = a; b < 3; ++b) values[idx[m++]] += scale * H[12 * (3 * k + a) + 3 * k + b];
+    }
+  });
+  add_friction_blocks(x, p, scale, values);
+}
+
+void PairContactTerm::add_step_matrix(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double scale,
+                                      Eigen::VectorXd& values) const {
+  add_diagonal_blocks(x, p, true, scale, values);
+}
+void PairContactTerm::add_hessian(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double scale,
+                                  Eigen::VectorXd& values) const {
+  add_diagonal_blocks(x, p, false, scale, values);
+}
+void PairContactTerm::add_projected_hessian(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double scale,
+                                            Eigen::VectorXd& values) const {
+  add_diagonal_blocks(x, p, true, scale, values);
+}
+
+void PairContactTerm::add_hessian_product(const Eigen::VectorXd& x, const Eigen::VectorXd& p,
+                                          const Eigen::VectorXd& dir, Eigen::VectorXd& out) const {
+  for_each_pair_hessian(x, p, false, [&](const ActivePair& q, const double* H) {
+    for (int k = 0; k < 4; ++k) {
+      if (q.v[k] >= num_cloth_) continue;
+      for (int l = 0; l < 4; ++l) {
+        if (q.v[l] >= num_cloth_) continue;
+        for (int a = 0; a < 3; ++a)
+          for (int b = 0; b < 3; ++b) out[3 * q.v[k] + a] += H[12 * (3 * k + a) + 3 * l + b] * dir[3 * q.v[l] + b];
+      }
+    }
+  });
+  add_friction_product(x, p, dir, false, out);
+}
+
+void PairContactTerm::add_offpattern_hessian_product(const Eigen::VectorXd& x, const Eigen::VectorXd& p,
+                                                     const Eigen::VectorXd& dir, bool projected,
+                                                     Eigen::VectorXd& out) const {
+  for_each_pair_hessian(x, p, projected, [&](const ActivePair& q, const double* H) {
+    for (int k = 0; k < 4; ++k) {
+      if (q.v[k] >= num_cloth_) continue;
+      for (int l = 0; l < 4; ++l) {
+        if (l == k || q.v[l] >= num_cloth_) continue;
+        for (int a = 0; a < 3; ++a)
+          for (int b = 0; b < 3; ++b) out[3 * q.v[k] + a] += H[12 * (3 * k + a) + 3 * l + b] * dir[3 * q.v[l] + b];
+      }
+    }
+  });
+  add_friction_product(x, p, dir, true, out);  // the friction Hessian is PSD: exact = projected
+}
+
+void PairContactTerm::add_energy_parameter_gradient(const Eigen::VectorXd& x, const Eigen::VectorXd& p,
+                                                    Eigen::VectorXd& gp) const {
+  if (friction_index() >= 0)
+    for (const auto& f : friction_pairs_) {
+      double value;
+      friction_kernel(f, x, &value, nullptr, nullptr);
+      gp[friction_index()] += f.normal_force * value;
+    }
+  const int k = dhat_index();
+  if (k < 0) return;
+  const double dh = dhat(p);
+  const ContactPositions P = positions(x);
+  for (const auto& q : active_pairs(x, dh)) {
+    double x12[12], dg[12], dE;
+    gather(q, P, x12);
+    pair_barrier_dhat_derivatives(q.kind, q.type, x12, dh, q.c, dE, dg, q.mollifier_eps);
+    gp[k] += dE;
+  }
+}
+
+void PairContactTerm::add_gradient_parameter_product(const Eigen::VectorXd& x, const Eigen::VectorXd& p,
+                                                     const Eigen::VectorXd& lambda, double scale,
+                                                     Eigen::VectorXd& gp) const {
+  if (friction_index() >= 0)
+    for (const auto& f : friction_pairs_) {
+      double g12[12], sum = 0;
+      friction_kernel(f, x, nullptr, g12, nullptr);
+      for (int m = 0; m < 4; ++m)
+        if (f.v[m] < num_cloth_)
+          for (int a = 0; a < 3; ++a) sum += lambda[3 * f.v[m] + a] * g12[3 * m + a];
+      gp[friction_index()] += scale * f.normal_force * sum;
+    }
+  const int k = dhat_index();
+  if (k < 0) return;
+  const double dh = dhat(p);
+  const ContactPositions P = positions(x);
+  double sum = 0;
+  for (const auto& q : active_pairs(x, dh)) {
+    double x12[12], dg[12], dE;
+    gather(q, P, x12);
+    pair_barrier_dhat_derivatives(q.kind, q.type, x12, dh, q.c, dE, dg, q.mollifier_eps);
+    for (int m = 0; m < 4; ++m)
+      if (q.v[m] < num_cloth_)
+        for (int a = 0; a < 3; ++a) sum += lambda[3 * q.v[m] + a] * dg[3 * m + a];
+  }
+  gp[k] += scale * sum;
+}
+
+double PairContactTerm::max_step(const Eigen::VectorXd& x, const Eigen::VectorXd& dx, const Eigen::VectorXd& p) const {
+  if (!(dhat(p) > 0)) return 1.0;
+  const ContactPositions P0 = positions(x), P1 = positions(x + dx);
+  const CandidatePairs c = broad_phase(surfaces_, P0, &P1, 0.0, filter_);
+  const ContactPositions D = P1 - P0;
+  double alpha = 1.0;
+  for (const auto& pt : c.point_triangle) {
+    const auto& f = surfaces_.faces[pt[1]];
+    alpha = std::min(alpha, point_triangle_ccd(P0.row(pt[0]), P0.row(f[0]), P0.row(f[1]), P0.row(f[2]), D.row(pt[0]),
+                                               D.row(f[0]), D.row(f[1]), D.row(f[2])));
+  }
+  for (const auto& ee : c.edge_edge) {
+    const auto &e = surfaces_.edges[ee[0]], &o = surfaces_.edges[ee[1]];
+    alpha = std::min(alpha, edge_edge_ccd(P0.row(e[0]), P0.row(e[1]), P0.row(o[0]), P0.row(o[1]), D.row(e[0]),
+                                          D.row(e[1]), D.row(o[0]), D.row(o[1])));
+  }
+  return alpha;
+}
+
+void PairContactTerm::begin_step(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double h) {
+  friction_pairs_.clear();
+  eps_u_ = kSlipSpeed * h;
+  if (!(dhat(p) > 0)) return;
+  const ContactPositions P = positions(x);
+  std::vector<std::array<int, 2>> first;
+  for (const auto& q : triangle_pairs(surfaces_, P, 0.0, filter_)) {
+    Eigen::Vector3d t0[3], t1[3];
+    for (int k = 0; k < 3; ++k) {
+      t0[k] = P.row(surfaces_.faces[q[0]][k]);
+      t1[k] = P.row(surfaces_.faces[q[1]][k]);
+    }
+    if (triangles_intersect(t0, t1)) {
+      first.push_back(q);
+      break;
+    }
+  }
+  if (!first.empty()) throw_intersection(first[0]);
+  if (!(h > 0)) return;  // a static drape: no friction
+  // Lagged friction: each active pair's normal force, closest-point weights and normal at the step's start.
+  const double dh = dhat(p);
+  for (const auto& q : active_pairs(x, dh)) {
+    double x12[12];
+    gather(q, P, x12);
+    const double d = std::sqrt(pair_distance2(q.kind, q.type, x12));
+    if (!(d > 0 && d < dh)) continue;
+    double b, db, d2b;
+    barrier_derivatives(d, dh, b, db, d2b);
+    FrictionPair f;
+    f.v = q.v;
+    f.normal_force = q.c * dh * std::abs(db) * pair_mollifier(q.kind, x12, q.mollifier_eps);
+    if (!(f.normal_force > 0)) continue;
+    const std::array<double, 4> w = closest_weights(q.kind, q.type, x12);
+    Eigen::Vector3d r = Eigen::Vector3d::Zero();
+    for (int k = 0; k < 4; ++k) r += w[k] * Eigen::Map<const Eigen::Vector3d>(x12 + 3 * k);
+    if (!(r.norm() > 0)) continue;
+    const Eigen::Vector3d n = r.normalized();
+    const Eigen::Matrix3d proj = Eigen::Matrix3d::Identity() - n * n.transpose();
+    for (int k = 0; k < 4; ++k) {
+      f.T.block<3, 3>(0, 3 * k) = w[k] * proj;
+      f.start.segment<3>(3 * k) =
+          q.v[k] < num_cloth_ ? Eigen::Vector3d(x.segment<3>(3 * q.v[k])) : Eigen::Vector3d(obstacle_start_.row(q.v[k] - num_cloth_).transpose());
+    }
+    friction_pairs_.push_back(f);
+  }
+}
+
+void PairContactTerm::throw_intersection(const std::array<int, 2>& pair) const {
+  int cloth_faces = 0;
+  for (size_t f = 0; f < surfaces_.faces.size(); ++f) cloth_faces += surfaces_.face_group(static_cast<int>(f)) == 0;
+  auto triangle = [&](int f) {
+    std::ostringstream s;
+    if (f < cloth_faces) s << "cloth triangle " << f;
+    else s << "obstacle triangle " << f - cloth_faces;
+    return s.str();
+  };
+  std::ostringstream s;
+  s << name() << ": " << triangle(pair[0]) << " and " << triangle(pair[1])
+    << " intersect at the start of a step (contact needs an intersection-free state)";
+  throw SolverError(s.str());
+}
+
+Eigen::Vector3d PairContactTerm::slip(const FrictionPair& f, const Eigen::VectorXd& x) const {
+  Eigen::Matrix<double, 12, 1> X;
+  for (int k = 0; k < 4; ++k)
+    X.segment<3>(3 * k) = f.v[k] < num_cloth_ ? Eigen::Vector3d(x.segment<3>(3 * f.v[k]))
+                                              : Eigen::Vector3d(obstacle_.row(f.v[k] - num_cloth_).transpose());
+  return f.T * (X - f.start);
+}
+
+void PairContactTerm::friction_kernel(const FrictionPair& f, const Eigen::VectorXd& x, double* value, double* g,
+                                      double* H) const {
+  const Eigen::Vector3d r = slip(f, x);
+  const double u2 = r.squaredNorm(), eps = eps_u_;
+  // D / (mu lambda) = f0(|r|): smooth in u^2 near zero slip (as disk_contact's friction)
+  const bool tiny = u2 < 1e-20 * eps * eps;
+  const double u = std::sqrt(u2);
+  if (value) value[0] = tiny ? eps / 3.0 + u2 / eps : friction_f0(u, eps);
+  double f1_over_u, df1;
+  if (tiny) {
+    f1_over_u = 2.0 / eps;
+    df1 = 2.0 / eps;
+  } else if (u >= eps) {
+    f1_over_u = 1.0 / u;
+    df1 = 0.0;
+  } else {
+    f1_over_u = -u / (eps * eps) + 2.0 / eps;
+    df1 = -2.0 * u / (eps * eps) + 2.0 / eps;
+  }
+  if (g) {
+    Eigen::Map<Eigen::Matrix<double, 12, 1>> gm(g);
+    gm = f.T.transpose() * (f1_over_u * r);
+  }
+  if (H) {
+    // S = f1/u (I - r r^T/u^2) + f1' r r^T/u^2 (PSD); H = T^T S T
+    Eigen::Matrix3d S = f1_over_u * Eigen::Matrix3d::Identity();
+    if (!tiny) S += (df1 - f1_over_u) * r * r.transpose() / u2;
+    Eigen::Map<Eigen::Matrix<double, 12, 12, Eigen::RowMajor>> Hm(H);
+    Hm = f.T.transpose() * S * f.T;
+  }
+}
+
+void PairContactTerm::add_friction_blocks(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double scale,
+                                          Eigen::VectorXd& values) const {
+  const double mu = friction(p);
+  if (mu == 0) return;
+  for (const auto& f : friction_pairs_) {
+    double H[144];
+    friction_kernel(f, x, nullptr, nullptr, H);
+    for (int k = 0; k < 4; ++k) {
+      if (f.v[k] >= num_cloth_) continue;
+      const auto& idx = diagonal_index_[f.v[k]];
+      int m = 0;
+      for (int a = 0; a < 3; ++a)
+        for (int b = a; b < 3; ++b) values[idx[m++]] += scale * mu * f.normal_force * H[12 * (3 * k + a) + 3 * k + b];
+    }
+  }
+}
+
+void PairContactTerm::add_friction_product(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& dir,
+                                           bool offpattern_only, Eigen::VectorXd& out) const {
+  const double mu = friction(p);
+  if (mu == 0) return;
+  for (const auto& f : friction_pairs_) {
+    double H[144];
+    friction_kernel(f, x, nullptr, nullptr, H);
+    const double s = mu * f.normal_force;
+    for (int k = 0; k < 4; ++k) {
+      if (f.v[k] >= num_cloth_) continue;
+      for (int l = 0; l < 4; ++l) {
+        if ((offpattern_only && l == k) || f.v[l] >= num_cloth_) continue;
+        for (int a = 0; a < 3; ++a)
+          for (int b = 0; b < 3; ++b) out[3 * f.v[k] + a] += s * H[12 * (3 * k + a) + 3 * l + b] * dir[3 * f.v[l] + b];
+      }
+    }
+  }
+}
+
+}  // namespace drapelab

@@ -1,0 +1,56 @@
+#include "solver/contact_linear_solve.hpp"
+
+#include <cmath>
+
+namespace drapelab {
+
+bool has_offpattern_terms(const Model& model) {
+  for (const auto& t : model.terms())
+    if (t->has_offpattern_hessian()) return true;
+  return false;
+}
+
+bool solve_with_offpattern(const Model& model, const CholmodSolver& solver, const Eigen::VectorXd& A,
+                           const Eigen::VectorXd& x, const Eigen::VectorXd& p, bool projected,
+                           const Eigen::VectorXd& b, Eigen::VectorXd& y, double tolerance, int max_iterations,
+                           OffpatternSolveStats* stats) {
+  const SparsePattern& pattern = model.pattern();
+  auto remainder = [&](const Eigen::VectorXd& v) {
+    Eigen::VectorXd out = Eigen::VectorXd::Zero(v.size());
+    for (const auto& t : model.terms())
+      if (t->has_offpattern_hessian()) t->add_offpattern_hessian_product(x, p, v, projected, out);
+    return out;
+  };
+  y = solver.solve(b);
+  // r = b - (A + R) y = (b - A y) - R y; b - A y is round-off of the factor's solve. No pair couples vertices
+  // outside the pattern (R y = 0 exactly): y is the direct solve's answer.
+  const Eigen::VectorXd Ry = remainder(y);
+  if (!Ry.any()) return y.allFinite();
+  Eigen::VectorXd r = b - symmetric_multiply(pattern, A, y) - Ry;
+  const double bnorm = b.norm();
+  OffpatternSolveStats local;
+  OffpatternSolveStats& s = stats ? *stats : local;
+  s = {};
+  s.relative_residual = bnorm > 0 ? r.norm() / bnorm : 0.0;
+  if (s.relative_residual <= tolerance || !std::isfinite(s.relative_residual)) return std::isfinite(s.relative_residual);
+  Eigen::VectorXd z = solver.solve(r), d = z;
+  double rz = r.dot(z);
+  for (int it = 0; it < max_iterations; ++it) {
+    const Eigen::VectorXd q = symmetric_multiply(pattern, A, d) + remainder(d);
+    const double dq = d.dot(q);
+    if (!(dq > 0)) return false;  // indefinite operator
+    const double a = rz / dq;
+    y += a * d;
+    r -= a * q;
+    s.iterations = it + 1;
+    s.relative_residual = r.norm() / bnorm;
+    if (s.relative_residual <= tolerance) return true;
+    z = solver.solve(r);
+    const double rz_new = r.dot(z);
+    d = z + (rz_new / rz) * d;
+    rz = rz_new;
+  }
+  return false;
+}
+
+}  // namespace drapelab

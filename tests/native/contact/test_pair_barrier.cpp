@@ -1,0 +1,171 @@
+// The pair barrier kernels (contact/pair_barrier.hpp) against central differences: gradient against energy,
+// Hessian against gradient, the projected Hessian PSD, and the activation-distance derivatives.
+#include <gtest/gtest.h>
+
+#include <Eigen/Geometry>
+
+#include <Eigen/Eigenvalues>
+#include <cmath>
+#include <random>
+
+#include "contact/pair_barrier.hpp"
+
+namespace drapelab {
+namespace {
+
+// A random pair of the kind at a distance in (0.3, 0.7) dhat: for point-triangle, the point over the face, beyond
+// an edge or beyond a vertex (variant 0, 1, 2); for edge-edge, crossing edges offset along their common normal.
+void put(double* x, int k, const Eigen::Vector3d& v) {
+  for (int a = 0; a < 3; ++a) x[k + a] = v[a];
+}
+
+void random_pair(PairKind kind, int variant, std::mt19937& rng, double dhat, double* x) {
+  std::uniform_real_distribution<double> u(-1, 1);
+  auto rv = [&] { return Eigen::Vector3d(u(rng), u(rng), u(rng)); };
+  const double target = (0.5 + 0.2 * u(rng)) * dhat;
+  if (kind == PairKind::kPointTriangle) {
+    const Eigen::Vector3d a = 0.01 * rv(), b = 0.01 * rv(), c = 0.01 * rv();
+    const Eigen::Vector3d n = (b - a).cross(c - a).normalized(), g = (a + b + c) / 3;
+    Eigen::Vector3d p;
+    if (variant == 0) p = g + target * n;
+    else if (variant == 1) p = 0.5 * (a + b) + target * ((a + b) / 2 - c).normalized();
+    else p = a + target * (a - g).normalized();
+    put(x, 0, p);
+    put(x, 3, a);
+    put(x, 6, b);
+    put(x, 9, c);
+  } else {
+    const Eigen::Vector3d a0 = 0.01 * rv(), b0 = 0.01 * rv(), e1 = 0.01 * rv();
+    const Eigen::Vector3d m = (a0 + b0) / 2, n = (b0 - a0).cross(e1).normalized();
+    put(x, 0, a0);
+    put(x, 3, b0);
+    put(x, 6, m + target * n - 0.4 * e1);
+    put(x, 9, m + target * n + 0.6 * e1);
+  }
+}
+
+TEST(PairBarrier, DerivativesMatchCentralDifferences) {
+  std::mt19937 rng(3);
+  std::normal_distribution<double> n01(0, 1);
+  const double dhat = 1e-3, c = 0.7;
+  int tested[2] = {0, 0};
+  for (int trial = 0; trial < 60; ++trial) {
+    const PairKind kind = trial % 2 ? PairKind::kEdgeEdge : PairKind::kPointTriangle;
+    double x[12];
+    random_pair(kind, (trial / 2) % 3, rng, dhat, x);
+    const int type = pair_type(kind, x);
+    double dir[12];
+    for (double& v : dir) v = n01(rng);
+    const double eps = 1e-9;
+    double xp[12], xm[12];
+    for (int i = 0; i < 12; ++i) {
+      xp[i] = x[i] + eps * dir[i];
+      xm[i] = x[i] - eps * dir[i];
+    }
+    // the type must not switch within the difference
+    if (pair_type(kind, xp) != type || pair_type(kind, xm) != type) continue;
+    ++tested[trial % 2];
+    const double kappa = c * dhat;
+    double g[12], gp[12], gm[12], H[144], P[144];
+    pair_barrier_gradient(kind, type, x, dhat, kappa, g);
+    const double fd = (pair_barrier_energy(kind, type, xp, dhat, kappa) - pair_barrier_energy(kind, type, xm, dhat, kappa)) /
+                      (2 * eps);
+    double gd = 0;
+    for (int i = 0; i < 12; ++i) gd += g[i] * dir[i];
+    EXPECT_NEAR(gd, fd, 1e-6 * std::max(std::abs(fd), 1e-12)) << "gradient, trial " << trial;
+    pair_barrier_gradient(kind, type, xp, dhat, kappa, gp);
+    pair_barrier_gradient(kind, type, xm, dhat, kappa, gm);
+    pair_barrier_hessian(kind, type, x, dhat, kappa, false, H);
+    Eigen::Map<Eigen::Matrix<double, 12, 12, Eigen::RowMajor>> Hm(H);
+    Eigen::Map<Eigen::Matrix<double, 12, 1>> dv(dir);
+    Eigen::Matrix<double, 12, 1> fdH;
+    for (int i = 0; i < 12; ++i) fdH[i] = (gp[i] - gm[i]) / (2 * eps);
+    EXPECT_LE((Hm * dv - fdH).norm(), 1e-5 * fdH.norm()) << "Hessian, trial " << trial;
+    EXPECT_LE((Hm - Hm.transpose()).norm(), 1e-12 * Hm.norm());
+    pair_barrier_hessian(kind, type, x, dhat, kappa, true, P);
+    Eigen::Map<Eigen::Matrix<double, 12, 12, Eigen::RowMajor>> Pm(P);
+    Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, 12, 12>> eig(Pm);
+    EXPECT_GE(eig.eigenvalues().minCoeff(), -1e-9 * Pm.norm()) << "projected Hessian PSD";
+    // activation-distance derivatives (kappa = c dhat)
+    const double hd = 1e-9;
+    double dE, dg[12], g1[12], g2[12];
+    pair_barrier_dhat_derivatives(kind, type, x, dhat, c, dE, dg);
+    const double fdE = (pair_barrier_energy(kind, type, x, dhat + hd, c * (dhat + hd)) -
+                        pair_barrier_energy(kind, type, x, dhat - hd, c * (dhat - hd))) / (2 * hd);
+    EXPECT_NEAR(dE, fdE, 1e-6 * std::abs(fdE)) << "dE/ddhat";
+    pair_barrier_gradient(kind, type, x, dhat + hd, c * (dhat + hd), g1);
+    pair_barrier_gradient(kind, type, x, dhat - hd, c * (dhat - hd), g2);
+    for (int i = 0; i < 12; ++i) EXPECT_NEAR(dg[i], (g1[i] - g2[i]) / (2 * hd), 1e-5 * std::abs(dg[i]) + 1e-9);
+  }
+  EXPECT_GT(tested[0], 10);
+  EXPECT_GT(tested[1], 10);
+}
+
+TEST(PairBarrier, MollifiedNearlyParallelEdgesMatchCentralDifferences) {
+  // Edges 1 cm long, 0.5 mm apart, at 0.5-1.5 degrees to each other: |e0 x e1|^2 below eps = 1e-3 |e0|^2 |e1|^2
+  // (the mollifier acts), derivatives of m kappa b against central differences.
+  std::mt19937 rng(11);
+  std::normal_distribution<double> n01(0, 1);
+  std::uniform_real_distribution<double> u(0.5, 1.5);
+  const double dhat = 1e-3, c = 0.7, kappa = c * dhat;
+  int tested = 0;
+  for (int trial = 0; trial < 20; ++trial) {
+    const double angle = u(rng) * M_PI / 180, shift = 0.003 * (u(rng) - 1);
+    double x[12] = {0, 0, 0, 0.01, 0, 0,
+                    shift, -0.005 * std::sin(angle), 5e-4, shift + 0.01 * std::cos(angle), 0.005 * std::sin(angle), 5e-4};
+    const double eps = 1e-3 * 1e-4 * 1e-4;
+    const double m = pair_mollifier(PairKind::kEdgeEdge, x, eps);
+    ASSERT_LT(m, 1.0);
+    ASSERT_GT(m, 0.0);
+    const int type = pair_type(PairKind::kEdgeEdge, x);
+    double dir[12], xp[12], xm[12];
+    for (double& v : dir) v = n01(rng);
+    const double h = 1e-9;
+    for (int i = 0; i < 12; ++i) {
+      xp[i] = x[i] + h * dir[i];
+      xm[i] = x[i] - h * dir[i];
+    }
+    if (pair_type(PairKind::kEdgeEdge, xp) != type || pair_type(PairKind::kEdgeEdge, xm) != type) continue;
+    ++tested;
+    double g[12], gp[12], gm[12], H[144];
+    pair_barrier_gradient(PairKind::kEdgeEdge, type, x, dhat, kappa, g, eps);
+    const double fd = (pair_barrier_energy(PairKind::kEdgeEdge, type, xp, dhat, kappa, eps) -
+                       pair_barrier_energy(PairKind::kEdgeEdge, type, xm, dhat, kappa, eps)) / (2 * h);
+    double gd = 0;
+    for (int i = 0; i < 12; ++i) gd += g[i] * dir[i];
+    EXPECT_NEAR(gd, fd, 1e-6 * std::abs(fd)) << "gradient";
+    pair_barrier_gradient(PairKind::kEdgeEdge, type, xp, dhat, kappa, gp, eps);
+    pair_barrier_gradient(PairKind::kEdgeEdge, type, xm, dhat, kappa, gm, eps);
+    pair_barrier_hessian(PairKind::kEdgeEdge, type, x, dhat, kappa, false, H, eps);
+    Eigen::Map<Eigen::Matrix<double, 12, 12, Eigen::RowMajor>> Hm(H);
+    Eigen::Map<Eigen::Matrix<double, 12, 1>> dv(dir);
+    Eigen::Matrix<double, 12, 1> fdH;
+    for (int i = 0; i < 12; ++i) fdH[i] = (gp[i] - gm[i]) / (2 * h);
+    EXPECT_LE((Hm * dv - fdH).norm(), 1e-5 * fdH.norm()) << "Hessian";
+    double dE, dg[12], g1[12], g2[12];
+    pair_barrier_dhat_derivatives(PairKind::kEdgeEdge, type, x, dhat, c, dE, dg, eps);
+    const double hd = 1e-9;
+    EXPECT_NEAR(dE, (pair_barrier_energy(PairKind::kEdgeEdge, type, x, dhat + hd, c * (dhat + hd), eps) -
+                     pair_barrier_energy(PairKind::kEdgeEdge, type, x, dhat - hd, c * (dhat - hd), eps)) / (2 * hd),
+                1e-6 * std::abs(dE));
+    pair_barrier_gradient(PairKind::kEdgeEdge, type, x, dhat + hd, c * (dhat + hd), g1, eps);
+    pair_barrier_gradient(PairKind::kEdgeEdge, type, x, dhat - hd, c * (dhat - hd), g2, eps);
+    for (int i = 0; i < 12; ++i) EXPECT_NEAR(dg[i], (g1[i] - g2[i]) / (2 * hd), 1e-5 * std::abs(dg[i]) + 1e-9);
+    // the mollified energy is below the plain one, and vanishes for parallel edges
+    EXPECT_LT(pair_barrier_energy(PairKind::kEdgeEdge, type, x, dhat, kappa, eps),
+              pair_barrier_energy(PairKind::kEdgeEdge, type, x, dhat, kappa));
+  }
+  EXPECT_GT(tested, 10);
+  const double parallel[12] = {0, 0, 0, 0.01, 0, 0, 0.002, 0, 5e-4, 0.012, 0, 5e-4};
+  EXPECT_EQ(pair_mollifier(PairKind::kEdgeEdge, parallel, 1e-11), 0.0);
+}
+
+TEST(PairBarrier, ZeroBeyondActivationInfiniteAtContact) {
+  const double x[12] = {0.2, 0.2, 2e-3, 0, 0, 0, 1, 0, 0, 0, 1, 0};
+  EXPECT_EQ(pair_barrier_energy(PairKind::kPointTriangle, pair_type(PairKind::kPointTriangle, x), x, 1e-3, 1.0), 0.0);
+  const double y[12] = {0.2, 0.2, 0, 0, 0, 0, 1, 0, 0, 0, 1, 0};
+  EXPECT_TRUE(std::isinf(pair_barrier_energy(PairKind::kPointTriangle, pair_type(PairKind::kPointTriangle, y), y, 1e-3, 1.0)));
+}
+
+}  // namespace
+}  // namespace drapelab

@@ -1,0 +1,342 @@
+// The self_contact effect (effects/self_contact.cpp over contact/pair_contact.hpp) on two stacked sheets in one
+// mesh: the term's derivatives with pairs active (including the off-pattern Hessian part and the thickness
+// derivatives) against central differences; a sheet thrown onto another stays intersection-free (and falls
+// through without the effect); a rollout's parameter gradient with contact active against central differences;
+// a state that starts intersecting is refused naming the triangles.
+#include <gtest/gtest.h>
+
+#include <random>
+
+#include "../test_support.hpp"
+#include "contact/diagnostics.hpp"
+#include "contact/pair_contact.hpp"
+#include "contact_support.hpp"
+#include "physics/sparse_pattern.hpp"
+#include "solver/cholmod_solver.hpp"
+#include "solver/implicit_euler.hpp"
+#include "solver/static_solve.hpp"
+#include "util/error.hpp"
+
+namespace drapelab {
+namespace {
+
+// Two sheets in one mesh: the lower (n x n, side `size`, z = 0, uv = xy inside the support radius: held by the
+// handle) and the upper (m x m, side `upper_size`, z = gap, uv shifted by 0.5 m: free).
+TriangleMesh stacked_sheets(int n, double size, double gap, int m_upper = 0, double upper_size = 0) {
+  if (m_upper == 0) {
+    m_upper = n;
+    upper_size = size;
+  }
+  const TriangleMesh lower = testing::grid_mesh(n, size, 0.0), upper = testing::grid_mesh(m_upper, upper_size, gap);
+  TriangleMesh m;
+  const int nl = lower.num_vertices(), nu = upper.num_vertices();
+  m.positions.resize(nl + nu, 3);
+  m.uv.resize(nl + nu, 2);
+  m.faces.resize(lower.num_faces() + upper.num_faces(), 3);
+  m.positions << lower.positions, upper.positions;
+  m.uv << lower.uv, upper.uv;
+  m.uv.bottomRows(nu).col(0).array() += 0.5;
+  m.faces << lower.faces, upper.faces.array() + nl;
+  return m;
+}
+
+ModelOptions self_contact_options(double thickness) {
+  ModelOptions o;
+  o.support_radius = 0.09;
+  o.effects["self_contact"] = {{"thickness_m", thickness}};
+  return o;
+}
+
+const Term& term_named(const Model& m, const std::string& name) {
+  for (const auto& t : m.terms())
+    if (t->name() == name) return *t;
+  throw std::runtime_error("no term " + name);
+}
+
+double rel(double a, double b) { return std::abs(a - b) / std::max({std::abs(a), std::abs(b), 1e-300}); }
+
+TEST(SelfContact, TermDerivativesWithActivePairsMatchCentralDifferences) {
+  const TriangleMesh mesh = stacked_sheets(6, 0.05, 6e-4);
+  Model model(mesh, self_contact_options(1e-3));
+  const Eigen::VectorXd p = model.default_parameters();
+  const int n = model.num_dofs();
+  Eigen::VectorXd x = model.rest_positions();
+  std::mt19937 rng(4);
+  std::uniform_real_distribution<double> u(-1, 1);
+  for (int i = 0; i < n; ++i) x[i] += 1e-4 * u(rng);
+  const auto& term = dynamic_cast<const PairContactTerm&>(term_named(model, "self_contact"));
+  const auto pairs = term.active_pairs(x, 1e-3);
+  ASSERT_GT(pairs.size(), 50u);
+  const SparsePattern& pat = model.pattern();
+  for (unsigned s = 0; s < 3; ++s) {
+    const Eigen::VectorXd d = testing::random_vector(n, 40 + s);
+    const double eps = 1e-9;  // distances ~0.5 mm: (eps / d)^2 truncation far below the tolerance
+    Eigen::VectorXd g = Eigen::VectorXd::Zero(n), gp = g, gm = g, Hd = g, rest = g, prest = g;
+    term.add_gradient(x, p, g);
+    const double fd = (term.energy(x + eps * d, p) - term.energy(x - eps * d, p)) / (2 * eps);
+    EXPECT_LT(rel(g.dot(d), fd), 1e-6) << "gradient";
+    term.add_gradient(x + eps * d, p, gp);
+    term.add_gradient(x - eps * d, p, gm);
+    term.add_hessian_product(x, p, d, Hd);
+    const Eigen::VectorXd fdH = (gp - gm) / (2 * eps);
+    EXPECT_LE((Hd - fdH).norm(), 1e-5 * fdH.norm()) << "Hessian product";
+    Eigen::VectorXd H = Eigen::VectorXd::Zero(pat.nnz()), P = H;
+    term.add_hessian(x, p, 1.0, H);
+    term.add_offpattern_hessian_product(x, p, d, false, rest);
+    EXPECT_GT(rest.norm(), 0.0) << "pairs couple vertices outside the pattern";
+    EXPECT_LE((symmetric_multiply(pat, H, d) + rest - Hd).norm(), 1e-10 * Hd.norm()) << "assembled + off-pattern";
+    term.add_projected_hessian(x, p, 1.0, P);
+    term.add_offpattern_hessian_product(x, p, d, true, prest);
+    EXPECT_GE(d.dot(symmetric_multiply(pat, P, d)), 0.0);
+    EXPECT_GE(d.dot(symmetric_multiply(pat, P, d) + prest), -1e-12 * Hd.norm());
+  }
+  // thickness derivatives
+  const int k = model.layout().block("self_contact.thickness_m").offset;
+  const Eigen::VectorXd lambda = testing::random_vector(n, 77);
+  Eigen::VectorXd dEdp = Eigen::VectorXd::Zero(p.size()), dgdp = dEdp;
+  term.add_energy_parameter_gradient(x, p, dEdp);
+  term.add_gradient_parameter_product(x, p, lambda, 1.0, dgdp);
+  const double h = 1e-9;
+  Eigen::VectorXd pp = p, pm = p;
+  pp[k] += h;
+  pm[k] -= h;
+  EXPECT_LT(rel(dEdp[k], (term.energy(x, pp) - term.energy(x, pm)) / (2 * h)), 1e-5);
+  Eigen::VectorXd g1 = Eigen::VectorXd::Zero(n), g2 = g1;
+  term.add_gradient(x, pp, g1);
+  term.add_gradient(x, pm, g2);
+  EXPECT_LT(rel(dgdp[k], lambda.dot(g1 - g2) / (2 * h)), 1e-5);
+}
+
+// The upper sheet thrown at 1 m/s onto the held lower one (5 cm per 0.05 s step against a 3 mm gap).
+Eigen::VectorXd throw_sheet(const Model& model, int first_upper, int steps, ImplicitEuler& sim, const Eigen::VectorXd& p) {
+  Eigen::VectorXd v0 = Eigen::VectorXd::Zero(model.num_dofs());
+  for (int i = first_upper; i < model.num_vertices(); ++i) v0[3 * i + 2] = -1.0;
+  RolloutOptions ro;
+  ro.steps = steps;
+  ro.record = false;
+  const Eigen::VectorXd x0 = model.rest_positions();
+  return sim.forward(p, ro, nullptr, &x0, &v0);
+}
+
+TEST(SelfContact, ThrownSheetStaysIntersectionFreeAndFallsThroughWithout) {
+  // a 5 cm sheet onto a held 12 cm one (frictionless: it stays as long as it does not slide off the edge)
+  const TriangleMesh mesh = stacked_sheets(13, 0.12, 3e-3, 8, 0.05);
+  const int first_upper = 13 * 13;
+  ModelOptions off;
+  off.support_radius = 0.09;
+  Model with(mesh, self_contact_options(1e-3)), without(mesh, off);
+  ImplicitEuler sw(with), so(without);
+  const Eigen::VectorXd xw = throw_sheet(with, first_upper, 10, sw, with.default_parameters());
+  const Eigen::VectorXd xo = throw_sheet(without, first_upper, 10, so, without.default_parameters());
+  const ContactReport rw = contact_report(mesh.faces, xw);
+  EXPECT_EQ(rw.intersecting_pairs, 0);
+  EXPECT_GT(rw.min_distance_m, 0.0);
+  EXPECT_LT(rw.min_distance_m, 1e-3) << "the sheets should rest in contact";
+  double lowest_over = INFINITY, lowest_without = INFINITY;
+  for (int i = first_upper; i < with.num_vertices(); ++i) {
+    lowest_over = std::min(lowest_over, xw[3 * i + 2]);
+    lowest_without = std::min(lowest_without, xo[3 * i + 2]);
+  }
+  EXPECT_GT(lowest_over, 0.0) << "the thrown sheet rests on the held one";
+  EXPECT_LT(lowest_without, -0.05) << "without self contact the sheet falls through";
+  std::printf("thrown sheet: min distance %.3g mm, lowest %.3g mm (without: %.3g mm), %d Newton iterations\n",
+              1e3 * rw.min_distance_m, 1e3 * lowest_over, 1e3 * lowest_without, sw.timing().newton_iterations);
+}
+
+TEST(SelfContact, RolloutParameterGradientMatchesCentralDifferences) {
+  const TriangleMesh mesh = stacked_sheets(5, 0.04, 2e-3);
+  Model model(mesh, self_contact_options(1e-3));
+  const Eigen::VectorXd p = model.default_parameters();
+  ImplicitEuler sim(model);
+  Eigen::VectorXd v0 = Eigen::VectorXd::Zero(model.num_dofs());
+  for (int i = model.num_vertices() / 2; i < model.num_vertices(); ++i) v0[3 * i + 2] = -0.1;
+  const Eigen::VectorXd x0 = model.rest_positions();
+  RolloutOptions ro;
+  ro.steps = 6;
+  ro.time_step = 0.02;
+  ro.contact_force_tolerance = 1e-11;
+  const Eigen::VectorXd w = testing::random_vector(model.num_dofs(), 9);
+  const Eigen::VectorXd xf = sim.forward(p, ro, nullptr, &x0, &v0);
+  // contact is active at the end
+  const auto& term = dynamic_cast<const PairContactTerm&>(term_named(model, "self_contact"));
+  ASSERT_GT(term.active_pairs(xf, 1e-3).size(), 10u);
+  const RolloutGradient g = sim.backward(w);
+  RolloutOptions fo = ro;
+  fo.record = false;
+  // Thickness, density and one bending entry. Step 1e-5 relative: the Newton solves stop at 1e-11 of a vertex
+  // weight, so L carries ~1e-12 relative noise, amplified by 1/h (relative) to ~1e-7; the truncation error is
+  // O(h^2) ~1e-10 relative; both far below the 1e-4 tolerance.
+  for (const char* block : {"self_contact.thickness_m", "density", "bend"}) {
+    const int k = model.layout().block(block).offset;
+    const double h = 1e-5 * std::abs(p[k]);
+    double fd;
+    if (std::string(block) == "self_contact.thickness_m") {
+      // structural: the two sides are models built with the thickness moved (same layout and parameters else)
+      Model mp(mesh, self_contact_options(p[k] + h)), mm(mesh, self_contact_options(p[k] - h));
+      ImplicitEuler sp(mp), sm(mm);
+      fd = (w.dot(sp.forward(mp.default_parameters(), fo, nullptr, &x0, &v0)) -
+            w.dot(sm.forward(mm.default_parameters(), fo, nullptr, &x0, &v0))) / (2 * h);
+    } else {
+      Eigen::VectorXd pp = p, pm = p;
+      pp[k] += h;
+      pm[k] -= h;
+      fd = (w.dot(sim.forward(pp, fo, nullptr, &x0, &v0)) - w.dot(sim.forward(pm, fo, nullptr, &x0, &v0))) / (2 * h);
+    }
+    EXPECT_NEAR(g.parameters[k], fd, 1e-4 * std::abs(fd)) << block;
+    std::printf("rollout gradient %s: adjoint %.9g, central difference %.9g\n", block, g.parameters[k], fd);
+  }
+}
+
+TEST(SelfContact, FrictionDerivativesMatchCentralDifferences) {
+  const TriangleMesh mesh = stacked_sheets(6, 0.05, 6e-4);
+  ModelOptions o = self_contact_options(1e-3);
+  o.effects["self_contact"]["friction"] = 0.4;
+  Model model(mesh, o);
+  const Eigen::VectorXd p = model.default_parameters();
+  const int n = model.num_dofs();
+  Eigen::VectorXd x = model.rest_positions();
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<double> u(-1, 1);
+  for (int i = 0; i < n; ++i) x[i] += 1e-4 * u(rng);
+  Term& term = const_cast<Term&>(term_named(model, "self_contact"));
+  // the step started 0-40 um away in the plane: slips both in the smoothed (< eps_v h = 50 um) and the
+  // sliding regime
+  Eigen::VectorXd start = x;
+  for (int i = 0; i < model.num_vertices(); ++i) {
+    start[3 * i] -= 4e-5 * std::sin(i);
+    start[3 * i + 1] += 4e-5 * std::cos(3 * i);
+  }
+  const double E0 = term.energy(x, p);
+  term.begin_step(start, p, 0.05);
+  const double E1 = term.energy(x, p);
+  EXPECT_GT(E1, E0) << "friction adds dissipation potential";
+  const SparsePattern& pat = model.pattern();
+  for (unsigned s = 0; s < 3; ++s) {
+    const Eigen::VectorXd d = testing::random_vector(n, 60 + s);
+    const double eps = 1e-9;
+    Eigen::VectorXd g = Eigen::VectorXd::Zero(n), gp = g, gm = g, Hd = g, rest = g;
+    term.add_gradient(x, p, g);
+    const double fd = (term.energy(x + eps * d, p) - term.energy(x - eps * d, p)) / (2 * eps);
+    EXPECT_LT(rel(g.dot(d), fd), 1e-6) << "gradient";
+    term.add_gradient(x + eps * d, p, gp);
+    term.add_gradient(x - eps * d, p, gm);
+    term.add_hessian_product(x, p, d, Hd);
+    const Eigen::VectorXd fdH = (gp - gm) / (2 * eps);
+    EXPECT_LE((Hd - fdH).norm(), 1e-5 * fdH.norm()) << "Hessian product";
+    Eigen::VectorXd H = Eigen::VectorXd::Zero(pat.nnz());
+    term.add_hessian(x, p, 1.0, H);
+    term.add_offpattern_hessian_product(x, p, d, false, rest);
+    EXPECT_LE((symmetric_multiply(pat, H, d) + rest - Hd).norm(), 1e-10 * Hd.norm()) << "assembled + off-pattern";
+  }
+  const int k = model.layout().block("self_contact.friction").offset;
+  const Eigen::VectorXd lambda = testing::random_vector(n, 78);
+  Eigen::VectorXd dEdp = Eigen::VectorXd::Zero(p.size()), dgdp = dEdp;
+  term.add_energy_parameter_gradient(x, p, dEdp);
+  term.add_gradient_parameter_product(x, p, lambda, 1.0, dgdp);
+  Eigen::VectorXd pp = p, pm = p;
+  pp[k] += 1e-6;
+  pm[k] -= 1e-6;
+  EXPECT_GT(std::abs(dEdp[k]), 0.0);
+  EXPECT_LT(rel(dEdp[k], (term.energy(x, pp) - term.energy(x, pm)) / 2e-6), 1e-6);
+  Eigen::VectorXd g1 = Eigen::VectorXd::Zero(n), g2 = g1;
+  term.add_gradient(x, pp, g1);
+  term.add_gradient(x, pm, g2);
+  EXPECT_LT(rel(dgdp[k], lambda.dot(g1 - g2) / 2e-6), 1e-6);
+}
+
+TEST(SelfContact, FrictionHoldsASheetOnASlope) {
+  // A 4 cm sheet resting 0.6 mm over a held 12 cm sheet tilted by atan(0.3) = 16.7 deg: without friction it
+  // slides off within the second; with mu = 0.6 > 0.3 it sticks (creeping at most at the smoothing speed,
+  // 1 mm/s).
+  TriangleMesh mesh = stacked_sheets(13, 0.12, 6e-4, 7, 0.04);
+  for (int i = 0; i < mesh.num_vertices(); ++i) mesh.positions(i, 2) += 0.3 * mesh.positions(i, 0);
+  const int first_upper = 13 * 13;
+  auto slide = [&](double mu) {
+    ModelOptions o = self_contact_options(1e-3);
+    o.effects["self_contact"]["friction"] = mu;
+    Model model(mesh, o);
+    ImplicitEuler sim(model);
+    RolloutOptions ro;
+    ro.steps = 20;
+    ro.record = false;
+    const Eigen::VectorXd x = sim.forward(model.default_parameters(), ro);
+    const ContactReport r = contact_report(mesh.faces, x);
+    EXPECT_EQ(r.intersecting_pairs, 0);
+    double moved = 0;
+    for (int i = first_upper; i < model.num_vertices(); ++i) moved += std::abs(x[3 * i] - mesh.positions(i, 0));
+    return moved / (model.num_vertices() - first_upper);
+  };
+  const double stick = slide(0.6), slip = slide(0.0);
+  EXPECT_LT(stick, 3e-3);
+  EXPECT_GT(slip, 3e-2);
+  std::printf("sheet on a 16.7 deg slope, 1 s: mean slide %.3g mm with mu 0.6, %.3g mm without friction\n",
+              1e3 * stick, 1e3 * slip);
+}
+
+TEST(SelfContact, StaticSolveAndAdjointWithActivePairs) {
+  // Two 6 cm sheets 0.6 mm apart, both held at their centres (uv alike, support radius 1.2 cm): their rims droop
+  // together, the upper resting on the lower within the 1 mm thickness (pairs active at the equilibrium).
+  TriangleMesh mesh = stacked_sheets(9, 0.06, 6e-4);
+  mesh.uv.bottomRows(81).col(0).array() -= 0.5;
+  ModelOptions o = self_contact_options(1e-3);
+  o.support_radius = 0.012;
+  Model model(mesh, o);
+  const Eigen::VectorXd p = model.default_parameters();
+  StaticSolver solver(model);
+  StaticOptions tight;
+  tight.force_tolerance = 1e-10;
+  const StaticResult r = solver.solve(p, tight);
+  const auto& term = dynamic_cast<const PairContactTerm&>(term_named(model, "self_contact"));
+  ASSERT_GT(term.active_pairs(r.positions, 1e-3).size(), 20u);
+  const ContactReport report = contact_report(mesh.faces, r.positions);
+  EXPECT_EQ(report.intersecting_pairs, 0);
+  EXPECT_GT(report.min_distance_m, 0.0);
+  const Eigen::VectorXd w = testing::random_vector(model.num_dofs(), 12);
+  const Eigen::VectorXd g = solver.adjoint(w);
+  // Central differences, warm-started on one branch; h = 1e-4 relative: solves stop at 1e-10 of a vertex weight
+  // (noise ~1e-10 relative / h = 1e-6), truncation O(h^2) = 1e-8, both below the 1e-4 tolerance.
+  for (const char* block : {"self_contact.thickness_m", "density"}) {
+    const int k = model.layout().block(block).offset;
+    const double h = 1e-4 * std::abs(p[k]);
+    double fd;
+    if (std::string(block) == "self_contact.thickness_m") {  // structural: models built with it moved
+      ModelOptions op = o, om = o;
+      op.effects["self_contact"]["thickness_m"] = p[k] + h;
+      om.effects["self_contact"]["thickness_m"] = p[k] - h;
+      Model mp(mesh, op), mm(mesh, om);
+      StaticSolver sp(mp), sm(mm);
+      fd = (w.dot(sp.solve(mp.default_parameters(), tight, nullptr, &r.positions).positions) -
+            w.dot(sm.solve(mm.default_parameters(), tight, nullptr, &r.positions).positions)) / (2 * h);
+    } else {
+      Eigen::VectorXd pp = p, pm = p;
+      pp[k] += h;
+      pm[k] -= h;
+      fd = (w.dot(solver.solve(pp, tight, nullptr, &r.positions).positions) -
+            w.dot(solver.solve(pm, tight, nullptr, &r.positions).positions)) / (2 * h);
+    }
+    EXPECT_NEAR(g[k], fd, 1e-4 * std::abs(fd)) << block;
+    std::printf("static gradient %s: adjoint %.9g, central difference %.9g\n", block, g[k], fd);
+  }
+}
+
+TEST(SelfContact, StartingIntersectedIsAnErrorNamingTheTriangles) {
+  TriangleMesh mesh = stacked_sheets(5, 0.04, 1e-3);
+  // tilt the upper sheet through the lower one
+  const int nv = mesh.num_vertices() / 2;
+  for (int i = nv; i < 2 * nv; ++i) mesh.positions(i, 2) = 0.5 * mesh.positions(i, 0);
+  Model model(mesh, self_contact_options(1e-3));
+  ImplicitEuler sim(model);
+  RolloutOptions ro;
+  ro.steps = 1;
+  try {
+    sim.forward(model.default_parameters(), ro);
+    FAIL() << "no error";
+  } catch (const SolverError& e) {
+    EXPECT_NE(std::string(e.what()).find("cloth triangle"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("intersect"), std::string::npos) << e.what();
+  }
+  EXPECT_GT(contact_report(mesh.faces, model.rest_positions()).intersecting_pairs, 0);
+}
+
+}  // namespace
+}  // namespace drapelab
