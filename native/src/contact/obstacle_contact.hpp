@@ -5,7 +5,8 @@
 // The obstacle's vertex positions are data set per time step: set_obstacle(at_t, at_t1). Within a step the
 // obstacle stands at its end position at_t1 and the cloth's motion is swept against it, so the caller must make
 // each obstacle move small enough (substeps) that at_t1 does not reach through the cloth's state at t (checked:
-// the step then fails with a SolverError naming the intersecting triangles). Not an effect: the garment
+// the step fails with a SolverError naming the intersecting triangles, or, when the move sweeps through the cloth
+// or brings a pair within 0.1 % of its distance, the pair it sweeps through). Not an effect: the garment
 // simulator adds it to its model (Model::add_term). Friction: coefficient `friction` (lagged smoothed Coulomb, per
 // pair; the body's own motion over the step drags the cloth).
 #pragma once

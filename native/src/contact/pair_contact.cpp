@@ -19,7 +19,9 @@ constexpr double kSlipSpeed = 1e-3;  // eps_v [m/s]: friction is smoothed below 
 // Candidate pairs are found with boxes inflated by dhat (1 + 2 margin) and reused while no vertex moves more
 // than margin * dhat (line-search trials and Newton iterations near convergence move far less).
 constexpr double kCandidateMargin = 1.0;
-constexpr double kMollifierScale = 1e-3;  // edge-edge mollifier eps = this |e0_rest|^2 |e1_rest|^2 (IPC's choice)
+constexpr double kMollifierScale = 1e-3;
+// An obstacle move that brings a pair within this fraction of its start distance counts as passing through.
+constexpr double kSweepSeparation = 1e-3;  // edge-edge mollifier eps = this |e0_rest|^2 |e1_rest|^2 (IPC's choice)
 
 double segment_parameter(const Eigen::Vector3d& p, const Eigen::Vector3d& a, const Eigen::Vector3d& b) {
   const Eigen::Vector3d e = b - a;
@@ -363,6 +365,7 @@ void PairContactTerm::begin_step(const Eigen::VectorXd& x, const Eigen::VectorXd
     }
   }
   if (!first.empty()) throw_intersection(first[0]);
+  check_obstacle_sweep(x);
   if (!(h > 0)) return;  // a static drape: no friction
   // Lagged friction: each active pair's normal force, closest-point weights and normal at the step's start.
   const double dh = dhat(p);
@@ -389,6 +392,34 @@ void PairContactTerm::begin_step(const Eigen::VectorXd& x, const Eigen::VectorXd
           q.v[k] < num_cloth_ ? Eigen::Vector3d(x.segment<3>(3 * q.v[k])) : Eigen::Vector3d(obstacle_start_.row(q.v[k] - num_cloth_).transpose());
     }
     friction_pairs_.push_back(f);
+  }
+}
+
+void PairContactTerm::check_obstacle_sweep(const Eigen::VectorXd& x) const {
+  if (obstacle_.rows() == 0 || obstacle_start_ == obstacle_) return;
+  // The obstacle's move over the step against the cloth held at x: a pair that comes within kSweepSeparation of
+  // its start distance means the body reaches (or passes) through the cloth within one step.
+  ContactPositions P0 = positions(x);
+  P0.bottomRows(obstacle_.rows()) = obstacle_start_;
+  const ContactPositions P1 = positions(x), D = P1 - P0;
+  const CandidatePairs c = broad_phase(surfaces_, P0, &P1, 0.0, PairFilter::kCross);
+  auto fail = [&](const char* kind, int a, int b) {
+    std::ostringstream s;
+    s << name() << ": the obstacle moves through the cloth within one step (" << kind << " " << a << ", " << b
+      << "); substep the obstacle's motion";
+    throw SolverError(s.str());
+  };
+  for (const auto& pt : c.point_triangle) {
+    const auto& f = surfaces_.faces[pt[1]];
+    if (point_triangle_ccd(P0.row(pt[0]), P0.row(f[0]), P0.row(f[1]), P0.row(f[2]), D.row(pt[0]), D.row(f[0]),
+                           D.row(f[1]), D.row(f[2]), kSweepSeparation) < 1.0)
+      fail("vertex, triangle", pt[0], pt[1]);
+  }
+  for (const auto& ee : c.edge_edge) {
+    const auto &e = surfaces_.edges[ee[0]], &o = surfaces_.edges[ee[1]];
+    if (edge_edge_ccd(P0.row(e[0]), P0.row(e[1]), P0.row(o[0]), P0.row(o[1]), D.row(e[0]), D.row(e[1]), D.row(o[0]),
+                      D.row(o[1]), kSweepSeparation) < 1.0)
+      fail("edges", ee[0], ee[1]);
   }
 }
 

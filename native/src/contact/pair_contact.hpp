@@ -89,7 +89,7 @@ class PairContactTerm : public Term {
                                    Eigen::VectorXd& gp) const override {}
   double max_step(const Eigen::VectorXd& x, const Eigen::VectorXd& dx, const Eigen::VectorXd& p) const override;
   // A state must start free of intersections: begin_step throws SolverError naming the first intersecting
-  // triangle pair (contact/diagnostics.hpp).
+  // triangle pair (contact/diagnostics.hpp), or the pair through which a moving obstacle's step sweeps.
   void begin_step(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double h) override;
 
   // The pairs closer than dhat at x (cached per x).
@@ -118,6 +118,8 @@ class PairContactTerm : public Term {
  private:
   void gather(const ActivePair& q, const ContactPositions& P, double* x12) const;
   [[noreturn]] void throw_intersection(const std::array<int, 2>& faces) const;
+  // SolverError if the obstacle's move over the step (obstacle_start_ -> obstacle_) sweeps through the cloth at x.
+  void check_obstacle_sweep(const Eigen::VectorXd& x) const;
   template <class F>
   void for_each_pair_hessian(const Eigen::VectorXd& x, const Eigen::VectorXd& p, bool project, const F& f) const;
   void add_diagonal_blocks(const Eigen::VectorXd& x, const Eigen::VectorXd& p, bool project, double scale,

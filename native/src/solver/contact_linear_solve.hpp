@@ -1,8 +1,8 @@
 // Linear solves with contact couplings outside the model's sparsity pattern (Term::has_offpattern_hessian,
 // contact/pair_contact.hpp): (A + R) y = b, with A the assembled matrix (pattern values, already factorised by
 // CHOLMOD) and R the terms' remainder, applied as products. Conjugate gradients preconditioned with A's factor:
-// the first iterate is A^-1 b, exact when no pair couples vertices outside the pattern (then R = 0 and the solve
-// ends after one residual check); each further iteration costs one CHOLMOD solve and one operator product.
+// the first iterate is A^-1 b, returned as it is when no pair couples vertices outside the pattern (R y = 0: the
+// direct solve, bit for bit); each further iteration costs one CHOLMOD solve and one operator product.
 // Fails (returns false) if the operator shows a non-positive curvature (an exact Hessian that is indefinite:
 // the caller falls back to a projected matrix) or CG does not reach the tolerance in max_iterations.
 #pragma once

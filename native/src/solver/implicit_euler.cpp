@@ -268,7 +268,9 @@ Eigen::VectorXd ImplicitEuler::contact_step(const Eigen::VectorXd& p, const Roll
         const auto ts = std::chrono::steady_clock::now();
         if (offpattern) {
           Eigen::VectorXd y;
-          factorised = solve_with_offpattern(model_, solver_, A, x, p, kind >= 2, g, y, kOffpatternTolerance);
+          // an indefinite full operator may still let CG finish: a direction that does not descend moves on too
+          factorised = solve_with_offpattern(model_, solver_, A, x, p, kind >= 2, g, y, kOffpatternTolerance) &&
+                       g.dot(y) > 0;
           dx = -y;
         } else {
           dx = -solver_.solve(g);

@@ -177,6 +177,18 @@ TEST(ObstacleContact, MovingObstacleIsSweptAndBadInputRefused) {
   term->set_obstacle(sphere.positions, raised);
   EXPECT_LT(term->max_step(x, dx, p), alpha);
   EXPECT_THROW(term->set_obstacle(sphere.positions, raised.topRows(3)), InputError);
+  // a body passing through the cloth within one step (from 1 cm below to 1 cm above): refused, naming a pair
+  MatrixX3d through = sphere.positions;
+  through.col(2).array() += 0.06;
+  term->set_obstacle(sphere.positions, through);
+  try {
+    term->begin_step(x, p, 0.05);
+    FAIL() << "no error";
+  } catch (const SolverError& e) {
+    EXPECT_NE(std::string(e.what()).find("moves through the cloth"), std::string::npos) << e.what();
+  }
+  term->set_obstacle(sphere.positions, raised);  // close, not through: accepted
+  term->begin_step(x, p, 0.05);
   ObstacleMesh bad = sphere;
   bad.faces(0, 0) = 999;
   EXPECT_THROW(ObstacleContact(cloth, model.area_weights(), o.density, o.gravity, bad, 1e-3), InputError);
