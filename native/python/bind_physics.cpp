@@ -188,7 +188,7 @@ void bind_physics(py::module_& m) {
              std::vector<RevolvedPart> ps;
              for (const auto& [origin, sv, rv] : parts) ps.push_back({origin, sv, rv});
              auto term = std::make_unique<RevolvedBodyContact>(std::move(ps), kappa, activation);
-             return static_cast<RevolvedBodyContact*>(s.add_term(std::move(term)));
+             return s.add_term(std::move(term));
            },
            py::arg("parts"), py::arg("kappa"), py::arg("activation"), py::return_value_policy::reference_internal,
            "Adds contact with a kinematic body of rigid surfaces of revolution (garment/revolved_body.hpp): parts "

@@ -39,7 +39,8 @@ def test_bench_smoke(tmp_path, capsys):
     import json
 
     out = tmp_path / "bench.json"
-    assert cli.main(["bench", "--meshes", "1", "--steps", "2", "--no-static", "--json", str(out)]) == 0
+    assert cli.main(["bench", "--meshes", "1", "--steps", "2", "--no-static", "--contact-draws", "1", "--no-garment",
+                     "--json", str(out)]) == 0
     report = json.loads(out.read_text())
     assert report["threads"] == 1 and report["steps"] == 2
     (mesh,) = report["meshes"]
@@ -53,6 +54,11 @@ def test_bench_smoke(tmp_path, capsys):
         e["name"] for e in sim.effects()]
     for r in effects["rows"]:
         assert r["forward_ms_per_step"] > 0 and r["backward_ms_per_step"] > 0, r
+    # the contact block: the same placement with and without the contact effects, nothing below the disk
+    contact = report["contact"]
+    assert contact["draws"] == 1 and contact["forward_ratio"] > 0 and contact["backward_ratio"] > 0
+    assert contact["vertices_below_disk_max"] == 0 and contact["min_signed_distance_m"] > 0
+    assert "garment" not in report
     assert "circle1" in capsys.readouterr().out
     assert cli.main(["bench", "--meshes", "7", "--json", str(out)]) == 2
 

@@ -134,21 +134,6 @@ Model::Model(const TriangleMesh& mesh, const ModelOptions& options) : mesh_(mesh
   validate_parameters(defaults_);
 }
 
-Term* Model::add_term(std::unique_ptr<Term> term) {
-  for (const auto& stencil : term->stencils())
-    for (int a : stencil)
-      for (int b : stencil)
-        try {
-          if (a < 0 || a >= num_vertices() || b < 0 || b >= num_vertices()) throw std::logic_error("index");
-          pattern_.index(3 * std::min(a, b), 3 * std::max(a, b));
-        } catch (const std::logic_error&) {
-          throw InputError("model: term " + term->name() + " couples vertices outside the sparsity pattern");
-        }
-  term->bind_pattern(pattern_);
-  terms_.push_back(std::move(term));
-  return terms_.back().get();
-}
-
 void Model::set_handle_anchors(const MatrixX3d& anchors) {
   if (anchors.rows() != static_cast<Eigen::Index>(handle_vertices_.size()))
     throw InputError("handle anchors: expected " + std::to_string(handle_vertices_.size()) + " rows, got " +
@@ -237,8 +222,15 @@ void Model::add_gradient(const Eigen::VectorXd& x, const Eigen::VectorXd& p, Eig
 
 void Model::add_term_impl(std::unique_ptr<Term> term) {
   if (!term) throw InputError("model: add_term needs a term");
-  if (!term->stencils().empty())
-    throw InputError("model: term '" + term->name() + "' couples vertices outside the model's pattern (stencils)");
+  for (const auto& stencil : term->stencils())
+    for (int a : stencil)
+      for (int b : stencil)
+        try {
+          if (a < 0 || a >= num_vertices() || b < 0 || b >= num_vertices()) throw std::logic_error("index");
+          pattern_.index(3 * std::min(a, b), 3 * std::max(a, b));
+        } catch (const std::logic_error&) {
+          throw InputError("model: term '" + term->name() + "' couples vertices outside the model's pattern");
+        }
   term->bind_pattern(pattern_);
   terms_.push_back(std::move(term));
 }

@@ -59,9 +59,6 @@ class Model {
   // Moves the handle's anchors (H x 3, metres, in handle_vertices() order): a kinematic attachment (a garment's
   // waistband following the body). Not thread-safe against a running simulation of this model.
   void set_handle_anchors(const MatrixX3d& anchors);
-  // Adds a term after construction (a garment's body contact): its stencils must lie in the model's sparsity
-  // pattern (single vertices always do); returns it. The model owns it.
-  Term* add_term(std::unique_ptr<Term> term);
   // Names of the active effects, in registry order.
   const std::vector<std::string>& active_effects() const { return active_effects_; }
 
@@ -83,10 +80,11 @@ class Model {
   double energy(const Eigen::VectorXd& x, const Eigen::VectorXd& p) const;
   void add_gradient(const Eigen::VectorXd& x, const Eigen::VectorXd& p, Eigen::VectorXd& g) const;
 
-  // Adds a term after construction whose assembled matrices need no new pattern entries (empty stencils: its
-  // couplings outside the pattern come as products, Term::has_offpattern_hessian), e.g. a moving obstacle's
-  // contact (contact/obstacle_contact.hpp); the model keeps it. Returns it, for per-step updates. InputError
-  // if the term has stencils.
+  // Adds a term after construction whose assembled matrices need no new pattern entries: its stencils lie in the
+  // model's sparsity pattern (single vertices always do: a garment's body contact, garment/revolved_body.hpp), or
+  // it has none and gives its couplings outside the pattern as products (Term::has_offpattern_hessian: a moving
+  // mesh obstacle, contact/obstacle_contact.hpp). The model keeps it. Returns it, for per-step updates.
+  // InputError if a stencil couples vertices outside the pattern.
   template <class T>
   T* add_term(std::unique_ptr<T> term) {
     T* raw = term.get();
