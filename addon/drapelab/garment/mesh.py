@@ -20,7 +20,6 @@ simulator's job (``seams``).
 Bad input raises InputError (a ValueError) naming the problem and the first offending index.
 """
 import os
-import tempfile
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -402,26 +401,13 @@ def default_uv(positions, faces, warp_axis=(0.0, 0.0, 1.0)):
 
 # ---------------------------------------------------------------- OBJ
 def _atomic_text_write(path, text, what):
-    path = os.fspath(path)
-    folder = os.path.dirname(os.path.abspath(path))
-    if os.path.isdir(path):
-        raise OSError(f"{path}: cannot write {what}: it is a directory")
-    if not os.path.isdir(folder):
-        raise OSError(f"{path}: cannot write {what}: folder {folder} does not exist")
-    fd, tmp = tempfile.mkstemp(prefix=".tmp_", suffix=os.path.splitext(path)[1], dir=folder)
-    try:
-        with os.fdopen(fd, "w") as fh:
+    """Writes text atomically (measure's temporary-file-and-rename writer)."""
+    from ..measure import _atomic_write
+
+    def write(tmp):
+        with open(tmp, "w") as fh:
             fh.write(text)
-            fh.flush()
-            os.fsync(fh.fileno())
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    _atomic_write(path, what, os.path.splitext(os.fspath(path))[1], write)
 
 
 def write_garment_obj(path, garment):
