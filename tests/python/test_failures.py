@@ -1,4 +1,4 @@
-"""Failure semantics (README "Failure guarantees"): a diverging rollout stops with the state before it, writes are
+"""Failure semantics (docs/failures.md): a diverging rollout stops with the state before it, writes are
 atomic even when the disk fills mid-write, cancelled jobs keep what is complete, out-of-range numbers are refused
 at the boundary naming the field."""
 import json
