@@ -21,7 +21,6 @@ import threading
 
 MOTIONS = ("static", "walk", "twirl", "jump")
 STYLES = ("circle", "flared", "aline")
-WAIST_BAND_M = 0.03  # an OBJ garment's waistband: vertices within this of its highest point
 
 
 def register(subparsers):
@@ -53,9 +52,8 @@ def _garment(args):
         raise ValueError(f"--garment: {args.garment}: no such file (or use 'skirt')")
     g = mesh.read_garment_obj(args.garment)
     if len(g.waist_vertices) == 0:
-        import numpy as np
-        top = g.positions[:, 2].max()
-        g.waist_vertices = np.flatnonzero(g.positions[:, 2] > top - WAIST_BAND_M).astype(np.int32)
+        from ..garment.simulate import top_band_vertices
+        g.waist_vertices = top_band_vertices(g.positions)
     return g
 
 

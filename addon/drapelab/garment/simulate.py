@@ -24,7 +24,7 @@ from .material import GarmentMaterial
 from .mesh import Garment, self_intersections
 from .pc2 import PC2Writer
 
-__all__ = ["drape", "DEFAULT_FPS", "DEFAULT_SUBSTEPS", "BODY_REACH_M", "hem_radius"]
+__all__ = ["drape", "DEFAULT_FPS", "DEFAULT_SUBSTEPS", "BODY_REACH_M", "hem_radius", "top_band_vertices"]
 
 DEFAULT_FPS = 24
 DEFAULT_SUBSTEPS = 2          # implicit steps per frame (1/48 s at 24 fps)
@@ -36,10 +36,18 @@ SEAM_STIFFNESS = 1e3          # N/m per seam pair
 # Newton iterations of each step end when every residual force is below this fraction of the vertex's weight:
 # an animation needs far less than a fit's adjoint (1e-6).
 FORCE_TOLERANCE = 1e-2
+WAIST_BAND_M = 0.03           # a garment without named waist vertices: those within this of its top
 
 
 class Cancelled(Exception):
     """Raised inside the frame loop when cancel_event is set (drape() returns what was done)."""
+
+
+def top_band_vertices(positions, band_m=WAIST_BAND_M):
+    """Indices of the vertices within band_m of the highest one: the waistband of a garment that does not name it
+    (an OBJ, a Blender mesh)."""
+    z = np.asarray(positions, dtype=float).reshape(-1, 3)[:, 2]
+    return np.flatnonzero(z > z.max() - band_m).astype(np.int32)
 
 
 def hem_radius(positions, garment, centre_xy=(0.0, 0.0)):

@@ -301,12 +301,9 @@ class DRAPELAB_OT_show_heat_map(bpy.types.Operator):
 CLASSES = (DRAPELAB_OT_apply_material, DRAPELAB_OT_show_heat_map)
 
 
-WAIST_BAND_M = 0.03  # a garment's waistband: its vertices within this of its highest point
-
-
 def garment_for_simulation(obj, collider):
     """(Garment, source vertex of each garment vertex, Body) for simulate_garment: the mesh in world space with its
-    UV map (triangles only), its waistband (vertices within WAIST_BAND_M of the top), and the bundled dress form,
+    UV map (triangles only), its waistband (simulate.top_band_vertices), and the bundled dress form,
     which the collider must be (other bodies are not supported by the simulator yet)."""
     from ..garment import body as body_module, mesh as mesh_module
     if collider is None:
@@ -327,8 +324,8 @@ def garment_for_simulation(obj, collider):
     faces = np.array(polys, dtype=np.int64).reshape(-1, 3)
     garment = mesh_module.garment_from_arrays(positions, faces, corner_uv=np.array(uv), name=obj.name)
     source = original_vertex_map(garment, positions, faces)
-    top = garment.positions[:, 2].max()
-    garment.waist_vertices = np.flatnonzero(garment.positions[:, 2] > top - WAIST_BAND_M).astype(np.int32)
+    from ..garment.simulate import top_band_vertices
+    garment.waist_vertices = top_band_vertices(garment.positions)
     garment.blender_positions = positions
     return garment, source, body
 
