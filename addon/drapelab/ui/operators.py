@@ -12,7 +12,7 @@ import os
 import numpy as np
 
 import bpy
-from bpy.props import CollectionProperty, FloatProperty, IntProperty, StringProperty
+from bpy.props import CollectionProperty, EnumProperty, FloatProperty, IntProperty, StringProperty
 from bpy_extras.io_utils import ExportHelper, ImportHelper
 
 from .. import infer, measure
@@ -93,11 +93,15 @@ class _JobOperator:
             return {'RUNNING_MODAL'}
         if event.type == 'TIMER':
             _redraw(context)
+            self.poll_job(context)
             if self._job.state.done and not self._job.alive:
                 context.window_manager.event_timer_remove(self._timer)
                 self._timer = None
                 return self._conclude(context, self._job.state)
         return {'PASS_THROUGH'}
+
+    def poll_job(self, context):
+        """Main thread, every timer tick while the job runs: subclasses show partial results (default: nothing)."""
 
     def cancel(self, context):  # Blender closes the window or file while the operator is modal
         if self._job is not None:
@@ -250,7 +254,7 @@ class DRAPELAB_OT_fit(_JobOperator, bpy.types.Operator):
         fabric = {"name": s.fabric_name} if s.fabric_name else {}
         if s.thickness_mm > 0:
             fabric["thickness_mm"] = s.thickness_mm
-        return tasks.fit_work(s.image_paths(), round(s.density, 6), cache_dir(), model=s.model.lower(), epochs=epochs,
+        return jobs.Task(tasks.fit_work, s.image_paths(), round(s.density, 6), cache_dir(), model=s.model.lower(), epochs=epochs,
                               time_budget=budget, seed=s.seed, fabric=fabric or None,
                               effects=s.enabled_effects() or None, calibration=s.calibration(),
                               mesh_level=s.mesh_level or None, calibrate=s.calibrate)
@@ -307,7 +311,7 @@ class DRAPELAB_OT_diagnose(_JobOperator, bpy.types.Operator):
         samples = self.samples or s.diagnose_samples
         if samples < 3:
             raise InputError(f"samples: at least 3 posterior draws, got {samples}")
-        return tasks.diagnose_work(bpy.path.abspath(s.preset_path) if s.preset_path else "", s.image_paths(),
+        return jobs.Task(tasks.diagnose_work, bpy.path.abspath(s.preset_path) if s.preset_path else "", s.image_paths(),
                                    cache_dir(), time_budget=self.time_budget or s.diagnose_budget, samples=samples,
                                    seed=s.seed, history=s.history(),
                                    report_dir=bpy.path.abspath(self.report_dir) if self.report_dir else None)
@@ -518,9 +522,94 @@ def _preset_argument(context, preset):
     raise InputError("no preset: give preset (a name or path), or fit or load one first")
 
 
+MOTIONS = (("static", "Static", "the dress form stands still"),
+           ("walk", "Walk", "the dress form walks on the spot (legs swing, pelvis sways)"),
+           ("twirl", "Twirl", "the dress form turns about its vertical axis"),
+           ("jump", "Jump", "the dress form jumps"))
+
+
+def simulation_job(context, obj, collider, frame_start, frame_end, preset="", seed=0, time_limit=0.0,
+                   motion="static"):
+    """What simulate_garment runs, checked and gathered from bpy on the main thread: (work, target). `work(state)`
+    (drapelab.ui.tasks.simulate_work) bakes on any thread without touching bpy; `target` is what finish_simulation
+    and attach_while_baking need (plain names and paths). Bad input raises before anything is written."""
+    if frame_end <= frame_start:
+        raise InputError(f"frame_end ({frame_end}) must be after frame_start ({frame_start})")
+    if motion not in [m[0] for m in MOTIONS]:
+        raise InputError(f"motion {motion!r}: expected one of {', '.join(m[0] for m in MOTIONS)}")
+    drape = _simulate_function()
+    if drape is None:
+        raise InputError(NOT_AVAILABLE_SIMULATION)
+    s = settings(context)
+    if obj is None or obj.type != 'MESH':
+        raise InputError("pick the garment mesh (Garment field or the active object)")
+    from .garment_ops import garment_for_simulation
+    garment, source, body = garment_for_simulation(obj, collider)
+    if not preset and not s.preset_path and obj.get("drapelab_preset_path"):
+        p = infer.load_preset(obj["drapelab_preset_path"])  # the preset Apply Material used
+    else:
+        p = infer.load_preset(_preset_argument(context, preset))
+    from ..garment import material
+    mat = material.sample_garment_material(p, garment, seed=seed, samples=1)[0]
+    os.makedirs(cache_dir(), exist_ok=True)
+    path = os.path.join(cache_dir(), f"{bpy.path.clean_name(obj.name)}.pc2")
+    collider_path = os.path.join(cache_dir(), f"{bpy.path.clean_name(collider.name)}_{motion}.pc2")
+    if os.path.abspath(collider_path) == os.path.abspath(path):
+        raise InputError(f"the garment and the collider must be two objects ({obj.name})")
+    work = tasks.simulate_work(garment, mat, body, source, garment.blender_positions,
+                               np.linalg.inv(np.array(obj.matrix_world)), path, frame_end - frame_start + 1, drape,
+                               motion=motion, time_limit=time_limit or None, collider_path=collider_path,
+                               collider_world_to_local=np.linalg.inv(np.array(collider.matrix_world)))
+    target = {"object": obj.name, "path": path, "frame_start": frame_start, "collider": collider.name,
+              "collider_path": collider_path, "motion": motion, "attached": False}
+    return work, target
+
+
+def attach_while_baking(target, state):
+    """Main thread, during a bake: once the new cache holds a frame, puts it (and the moving collider's) on the
+    objects, so the timeline plays the frames done while the rest bake (the Mesh Cache modifier rereads the
+    file's header as it grows). Returns True once attached."""
+    if target["attached"] or not state.metrics.get("frames_written"):
+        return target["attached"]
+    _attach(target)
+    target["attached"] = True
+    return True
+
+
+def _attach(target):
+    from .garment_ops import attach_mesh_cache
+    obj, collider = bpy.data.objects.get(target["object"]), bpy.data.objects.get(target["collider"])
+    if obj is None:
+        raise InputError(f"{target['object']}: the garment object was removed during the bake")
+    attach_mesh_cache(obj, target["path"], frame_start=target["frame_start"])
+    if collider is not None:
+        if target["motion"] != "static":
+            attach_mesh_cache(collider, target["collider_path"], frame_start=target["frame_start"])
+        elif collider.modifiers.get("drapelab cache") is not None:  # a static bake: the collider stands still
+            collider.modifiers.remove(collider.modifiers["drapelab cache"])
+
+
+def finish_simulation(target, result):
+    """Main thread, after the bake: the caches onto the objects (nothing changes when no frame was simulated: the
+    previous cache, if any, stays on the object). Returns the report."""
+    if result["frames_written"] == 0:
+        return ("simulate: stopped before the first frame was simulated; nothing changed (the previous cache, if "
+                "any, is kept)")
+    _attach(target)
+    target["attached"] = True
+    how = ""
+    if result["stopped_by_time_limit"]:
+        how = " - stopped at the time limit, frames done kept"
+    elif result["cancelled"]:
+        how = " - cancelled, frames done kept"
+    return (f"simulate: {result['frames_written']} frames ({result['motion']}) into "
+            f"{os.path.basename(result['path'])} ({result['seconds_per_frame']:.2f} s/frame, body penetration "
+            f"{result['max_body_penetration_m'] * 1000:.2f} mm){how}")
+
+
 class DRAPELAB_OT_simulate_garment(_JobOperator, bpy.types.Operator):
-    """Bake the garment's drape on the collider into a PC2 cache played by a Mesh Cache modifier (Esc cancels,
-    keeping the frames done)"""
+    """Bake the garment's drape on the collider into a PC2 cache played by a Mesh Cache modifier, frame by frame
+    (Esc cancels, keeping the frames done)"""
     bl_idname = "drapelab.simulate_garment"
     bl_label = "Simulate"
     bl_options = {'REGISTER', 'UNDO'}
@@ -531,60 +620,29 @@ class DRAPELAB_OT_simulate_garment(_JobOperator, bpy.types.Operator):
     collider: StringProperty(name="Collider", default="", description="collider object name (default: the panel's)")
     preset: StringProperty(name="Preset", default="", description="preset name or path (default: the current)")
     seed: IntProperty(name="Seed", default=0, min=0, description="the material draw (as Apply Material's)")
+    motion: EnumProperty(name="Motion", items=MOTIONS, default="static",
+                         description="the dress form's motion (a moving collider gets its own Mesh Cache)")
+    time_limit: FloatProperty(name="Time limit (s)", default=0.0, min=0.0,
+                              description="stop the bake after this many seconds, keeping the frames done (0: none)")
 
     def make_work(self, context):
-        if self.frame_end <= self.frame_start:
-            raise InputError(f"frame_end ({self.frame_end}) must be after frame_start ({self.frame_start})")
         if self.collider and self.collider not in bpy.data.objects:
             raise InputError(f"no object named {self.collider!r}")
-        drape = _simulate_function()
-        if drape is None:
-            raise InputError(NOT_AVAILABLE_SIMULATION)
         s = settings(context)
-        obj = s.garment or context.active_object
-        if obj is None or obj.type != 'MESH':
-            raise InputError("pick the garment mesh (Garment field or the active object)")
         collider = bpy.data.objects[self.collider] if self.collider else s.collider
-        from .garment_ops import garment_for_simulation
-        garment, source, body = garment_for_simulation(obj, collider)
-        if not self.preset and not s.preset_path and obj.get("drapelab_preset_path"):
-            preset = infer.load_preset(obj["drapelab_preset_path"])  # the preset Apply Material used
-        else:
-            preset = infer.load_preset(_preset_argument(context, self.preset))
-        from ..garment import material
-        mat = material.sample_garment_material(preset, garment, seed=self.seed, samples=1)[0]
-        frames = self.frame_end - self.frame_start + 1
-        os.makedirs(cache_dir(), exist_ok=True)
-        path = os.path.join(cache_dir(), f"{bpy.path.clean_name(obj.name)}.pc2")
-        inverse = np.linalg.inv(np.array(obj.matrix_world))
-        self._target = (obj.name, path, self.frame_start)
-
-        def work(state):
-            # The cache is written in the Blender mesh's vertex order and local coordinates (split seam copies share
-            # their vertex); the simulator's own frames go to a side file, then each frame is mapped.
-            from ..garment.pc2 import PC2Writer
-            sim_path = path + ".sim.pc2"
-            r = drape(garment, mat, body=body, motion="static", frames=frames, cancel_event=state.cancel,
-                      progress=lambda d, n: state.update(d / n, f"frame {d}/{n}"), pc2_path=None, keep_frames=True)
-            with PC2Writer(path, len(source_count_positions), start_frame=1, sample_rate=1.0) as w:
-                for x in r["positions"]:
-                    out = source_count_positions.copy()
-                    out[source] = x
-                    w.write_frame(out @ inverse[:3, :3].T + inverse[:3, 3])
-            return {"frames": r["frames"], "cancelled": r["cancelled"], "seconds_per_frame": r["seconds_per_frame"],
-                    "max_body_penetration_m": r["max_body_penetration_m"], "path": path}
-
-        source_count_positions = garment.blender_positions
+        work, self._target = simulation_job(context, s.garment or context.active_object, collider, self.frame_start,
+                                            self.frame_end, preset=self.preset, seed=self.seed,
+                                            time_limit=self.time_limit, motion=self.motion)
         return work
 
+    def poll_job(self, context):
+        try:
+            attach_while_baking(self._target, self._job.state)
+        except ERRORS as e:  # shown when the bake ends; the bake goes on
+            print(f"drapelab: simulate: the cache could not be shown during the bake: {e}")
+
     def finish(self, context, result):
-        from .garment_ops import attach_mesh_cache
-        name, path, start = self._target
-        attach_mesh_cache(bpy.data.objects[name], path, frame_start=start)
-        return (f"simulate: {result['frames']} frames into {os.path.basename(path)} "
-                f"({result['seconds_per_frame']:.2f} s/frame, body penetration "
-                f"{result['max_body_penetration_m'] * 1000:.2f} mm)" + (" - cancelled, frames done kept"
-                                                                     if result["cancelled"] else ""))
+        return finish_simulation(self._target, result)
 
 
 class DRAPELAB_OT_export_blender_cloth(bpy.types.Operator):

@@ -6,13 +6,16 @@ for an unsaved file) atomically, so a cancelled job leaves the previous files as
 """
 import os
 import re
+import threading
 import time
+
+import numpy as np
 
 from .. import diagnose as diagnose_module
 from .. import infer
 from . import figures
 
-__all__ = ["fit_work", "diagnose_work", "safe_name", "measurement_png"]
+__all__ = ["fit_work", "diagnose_work", "simulate_work", "safe_name", "measurement_png"]
 
 
 def safe_name(text, fallback="fit"):
@@ -148,5 +151,117 @@ def diagnose_work(preset, images, out_dir, time_budget=None, samples=None, seed=
         if result.get("cancelled"):
             state.update(None, "diagnosis cancelled: the report holds what was done")
         return out
+
+    return work
+
+
+def _read_pc2_frame(f, frame, num_points):
+    """Frame `frame` of an open PC2 file, (num_points, 3) float64 (the frame must be complete: its writer counted
+    it in the header before the caller asked)."""
+    from ..garment.pc2 import HEADER_SIZE
+    size = num_points * 12
+    f.seek(HEADER_SIZE + frame * size)
+    data = f.read(size)
+    if len(data) != size:
+        raise OSError(f"{f.name}: frame {frame} is not complete in the simulator's cache")
+    return np.frombuffer(data, dtype="<f4").reshape(num_points, 3).astype(np.float64)
+
+
+def simulate_work(garment, material, body, source, rest_positions, world_to_local, path, frames, drape,
+                  motion="static", time_limit=None, collider_path=None, collider_world_to_local=None):
+    """Work of a garment bake (drapelab.simulate_garment): `drape` (garment.simulate.drape) of `garment` with
+    `material` on `body` for `frames` frames, written to the PC2 cache `path` in the Blender mesh's vertex order
+    (`source[i]`: the Blender vertex of garment vertex i; `rest_positions` (V, 3) world: the Blender vertices,
+    which split seam copies share) and its local coordinates (`world_to_local` 4x4), frame by frame as the
+    simulator finishes each, so that playback can start during the bake.
+
+    The cache at `path` is replaced only once the first simulated frame (frame 1; frame 0 is the rest placement)
+    is complete (garment.pc2.PC2Writer: an existing cache stays playable until then, and a reader never sees a
+    partial frame); a bake cancelled or failing before that leaves the previous cache as it was. Cancel
+    (state.cancel, checked between substeps) and `time_limit` (seconds from the start of the work) stop the bake
+    keeping the frames done. A moving `motion` also writes the body's frames to `collider_path` (the collider's
+    vertex order is the Body's; `collider_world_to_local` its local coordinates) so the collider moves with it.
+    Returns {"frames": frames simulated (with frame 0), "frames_written": frames in the cache, "cancelled",
+    "stopped_by_time_limit", "seconds_per_frame", "max_body_penetration_m", "path", "collider_path"}."""
+    from ..garment.pc2 import PC2Writer
+    if isinstance(frames, bool) or int(frames) != frames or frames < 2:
+        raise infer.InputError(f"frames: at least 2, got {frames}")
+    if time_limit is not None and not float(time_limit) > 0:
+        raise infer.InputError(f"time_limit: must be > 0 seconds, got {time_limit}")
+    folder = os.path.dirname(os.path.abspath(path))
+    rest = np.asarray(rest_positions, dtype=np.float64)
+    source = np.asarray(source, dtype=np.int64)
+    m = np.asarray(world_to_local, dtype=np.float64)
+    moving = motion != "static"
+    if moving and collider_path is None:
+        raise infer.InputError(f"motion {motion}: the collider's cache path is needed")
+
+    def local(x, matrix):
+        return x @ matrix[:3, :3].T + matrix[:3, 3]
+
+    def work(state):
+        os.makedirs(folder, exist_ok=True)
+        base = os.path.splitext(os.path.abspath(path))[0]
+        side = base + ".simulator_order.pc2"  # the simulator's own frames (its vertex order), removed at the end
+        stopped = []
+        timer = None
+        if time_limit:
+            def stop():
+                stopped.append(True)
+                state.cancel.set()
+            timer = threading.Timer(float(time_limit), stop)
+            timer.daemon = True
+            timer.start()
+        writer = collider_writer = collider_frames = None
+        handle = []
+
+        def copy_frames(done):
+            """Copies the simulator's frames up to `done` (complete in the side cache) into the Blender cache (and
+            the body's frames into the collider's, in step)."""
+            if done < 2:
+                return  # nothing simulated yet: the previous cache stays
+            if not handle:
+                handle.append(open(side, "rb"))
+            while writer.frames_written < done:
+                k = writer.frames_written
+                x = _read_pc2_frame(handle[0], k, garment.num_vertices)
+                out = rest.copy()
+                out[source] = x
+                if collider_writer is not None:
+                    collider_writer.write_frame(collider_frames[k])
+                writer.write_frame(local(out, m))
+
+        def progress(done, total):
+            copy_frames(done)
+            state.update(0.99 * done / total, f"frame {done}/{total}", frames_done=done,
+                         frames_written=writer.frames_written)
+
+        try:
+            writer = PC2Writer(path, len(rest), start_frame=1, sample_rate=1.0)
+            if moving:
+                from ..garment.body import body_frames
+                collider_frames = local(body_frames(body, motion, int(frames)),
+                                        np.asarray(collider_world_to_local, dtype=np.float64))
+                collider_writer = PC2Writer(collider_path, len(body.positions), start_frame=1, sample_rate=1.0)
+            state.update(0.0, f"baking {frames} frames ({motion})")
+            r = drape(garment, material, body=body, motion=motion, frames=int(frames), cancel_event=state.cancel,
+                      progress=progress, pc2_path=side, keep_frames=False)
+            copy_frames(r["frames"])
+        finally:
+            if timer is not None:
+                timer.cancel()
+            for f in handle:
+                f.close()
+            for w in (writer, collider_writer):
+                if w is not None:
+                    w.close()
+            try:
+                os.unlink(side)
+            except OSError:
+                pass
+        return {"frames": r["frames"], "frames_written": writer.frames_written, "cancelled": r["cancelled"],
+                "stopped_by_time_limit": bool(stopped), "seconds_per_frame": r["seconds_per_frame"],
+                "max_body_penetration_m": r["max_body_penetration_m"], "path": path,
+                "collider_path": collider_path if moving else None, "motion": motion}
 
     return work
