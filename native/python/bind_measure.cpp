@@ -103,7 +103,17 @@ void bind_measure(py::module_& m) {
       .def("__repr__", [](const Calibration& c) {
         return "Calibration(px_per_m=" + std::to_string(c.px_per_m) + ", cx=" + std::to_string(c.cx) +
                ", cy=" + std::to_string(c.cy) + ")";
-      });
+      })
+      // a value: pickled as its three numbers (the add-on's worker processes receive it)
+      .def(py::pickle([](const Calibration& c) { return py::make_tuple(c.px_per_m, c.cx, c.cy); },
+                      [](const py::tuple& t) {
+                        if (t.size() != 3) throw InputError("Calibration: pickled state must hold 3 numbers");
+                        Calibration c;
+                        c.px_per_m = t[0].cast<double>();
+                        c.cx = t[1].cast<double>();
+                        c.cy = t[2].cast<double>();
+                        return c;
+                      }));
   m.attr("DATASET_PX_PER_M") = kDatasetPxPerM;
 
   m.def("resolve_calibration", &resolve_calibration, py::arg("calibration"), py::arg("width"), py::arg("height"),

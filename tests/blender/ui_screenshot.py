@@ -69,6 +69,9 @@ def step():
         fail(f"timed out in step {state['step']}")
     win, area, regions = view3d()
     s = bpy.context.scene.drapelab
+    if state.get("printed") != state["step"]:  # where a crash happened, in the log
+        print(f"STEP {state['step']} at {time.monotonic() - t0:.1f} s", flush=True)
+        state["printed"] = state["step"]
     if state["step"] == "sidebar":
         with bpy.context.temp_override(window=win, area=area):
             assert bpy.ops.drapelab.import_images(filepath=IMAGE) == {'FINISHED'}

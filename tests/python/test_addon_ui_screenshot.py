@@ -28,9 +28,12 @@ def test_drape_tab_in_a_real_window_during_and_after_a_fit(tmp_path):
                            "--enable-event-simulate", "--python", os.path.join(ROOT, "tests", "blender", "ui_screenshot.py"),
                            "--", ARTIFACTS], env=env, capture_output=True, text=True, timeout=400)
     log = done.stdout + done.stderr
+    crash = tmp_path / "blender.crash.txt"  # Blender's own backtrace when it dies of a signal
+    if crash.exists():
+        log += "\n== blender.crash.txt\n" + crash.read_text(errors="replace")
     with open(os.path.join(ARTIFACTS, "addon_ui_screenshot.log"), "w") as f:
         f.write(log)
-    assert done.returncode == 0 and "UI DONE" in done.stdout, log[-4000:]
+    assert done.returncode == 0 and "UI DONE" in done.stdout, log[-6000:]
     assert "Traceback" not in log and "Error: Python" not in log and "UI FAILED" not in log, log[-4000:]
     assert "job=RUNNING" in done.stdout and "epoch" in done.stdout
     assert "CANCELLED job=CANCELLED" in done.stdout  # Esc stopped the running fit

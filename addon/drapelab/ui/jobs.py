@@ -1,21 +1,35 @@
-"""Background jobs of the add-on: a worker thread that never touches bpy and one small shared state object.
+"""Background jobs of the add-on: a worker that never touches bpy and one small shared state object.
 
 The pattern (FLIP Fluids' bake): the operator gathers everything the job needs from bpy on the main thread
-(paths, numbers, arrays), starts a Job whose `work(state)` runs on a worker thread and reports through
-`state` only; a modal timer operator copies the state into the UI; Cancel (button, Esc) sets
-`state.cancel`, which the facade's long calls check between simulation steps (their `cancel_event`). Under
-`blender --background` timers and modal operators never run, so the same Job runs synchronously
-(`Job.run_sync`). Nothing here is stored in the .blend: a file saved while a job runs reopens idle.
+(paths, numbers, arrays), starts a job whose `work(state)` reports through `state` only; a modal timer operator
+copies the state into the UI; Cancel (button, Esc) sets `state.cancel`, which the facade's long calls check
+between simulation steps (their `cancel_event`). Under `blender --background` timers and modal operators never
+run, so the same work runs synchronously (`Job.run_sync`). Nothing here is stored in the .blend: a file saved
+while a job runs reopens idle.
 
-Every Job started is tracked; `cancel_all(timeout)` (called by unregister and at exit) sets every cancel flag
-and joins the workers.
+Two backends:
+- `Task(factory, *args, **kwargs)` (what the operators start from the UI) runs in a worker *process*
+  (`drapelab.ui.worker`, the system Python Blender embeds): Blender's Python is not thread safe, and a Python
+  thread left running beside Blender's event loop crashes it at random (Blender's "Troubleshooting Errors &
+  Crashes": threads must finish before the script does). The process reports over a pipe that the main thread
+  drains without blocking (`ProcessJob.poll`, called by `current()`, `alive` and the modal operator's timer);
+  Cancel writes to the process's stdin, and a process that does not stop is killed at exit.
+- A plain callable runs on a worker thread (`Job`): scripts and tests that join it before they return.
+
+Every job started is tracked; `cancel_all(timeout)` (called by unregister and at exit) sets every cancel flag
+and waits for the workers (processes still running after that are killed).
 """
 import atexit
+import os
+import pickle
+import struct
+import subprocess
+import sys
 import threading
 import time
 import traceback
 
-__all__ = ["JobState", "Job", "IDLE", "RUNNING", "DONE", "FAILED", "CANCELLED", "current", "start", "cancel_all",
+__all__ = ["JobState", "Job", "Task", "ProcessJob", "IDLE", "RUNNING", "DONE", "FAILED", "CANCELLED", "current", "start", "cancel_all",
            "running_jobs"]
 
 IDLE, RUNNING, DONE, FAILED, CANCELLED = "IDLE", "RUNNING", "DONE", "FAILED", "CANCELLED"
@@ -138,6 +152,167 @@ class Job:
         return self.thread is not None and self.thread.is_alive()
 
 
+class Task:
+    """A job's work as a module-level factory and its arguments, so that a worker process can rebuild it:
+    `factory(*args, **kwargs)` checks the arguments (bad input is an error here, at once) and returns
+    `work(state)`. Calling the Task runs that work in this process."""
+
+    def __init__(self, factory, *args, **kwargs):
+        self.factory, self.args, self.kwargs = factory, args, kwargs
+        self.work = factory(*args, **kwargs)
+
+    def __call__(self, state):
+        return self.work(state)
+
+    def __getstate__(self):  # the worker process gets the recipe, not the closure
+        return {"factory": (self.factory.__module__, self.factory.__qualname__), "args": self.args,
+                "kwargs": self.kwargs}
+
+    def __setstate__(self, d):
+        import importlib
+        module, name = d["factory"]
+        self.factory = getattr(importlib.import_module(module), name)
+        self.args, self.kwargs = d["args"], d["kwargs"]
+        self.work = self.factory(*self.args, **self.kwargs)
+
+
+def worker_python():
+    """The interpreter for worker processes: $DRAPELAB_PYTHON, else the system Python Blender embeds
+    (sys.executable inside Blender is Blender itself or whatever `python3` a shell would find)."""
+    if os.environ.get("DRAPELAB_PYTHON"):
+        return os.environ["DRAPELAB_PYTHON"]
+    v = sys.version_info
+    for candidate in (os.path.join(sys.base_prefix, "bin", f"python{v.major}.{v.minor}"),
+                      os.path.join(sys.base_prefix, "bin", "python3"), "/usr/bin/python3"):
+        if os.access(candidate, os.X_OK):
+            return candidate
+    return sys.executable
+
+
+def write_message(stream, message):
+    """One length-prefixed pickle on `stream` (the worker's reports)."""
+    data = pickle.dumps(message, protocol=pickle.HIGHEST_PROTOCOL)
+    stream.write(struct.pack("<I", len(data)) + data)
+    stream.flush()
+
+
+class ProcessJob(Job):
+    """A Task run by `python -m drapelab.ui.worker`: the same state, filled from the worker's messages
+    ("update", "record", then "end" with status, result and error) as poll() reads them."""
+
+    def __init__(self, kind, task):
+        super().__init__(kind, task)
+        self.process = None
+        self._buffer = b""
+        self._ended = False
+
+    def start(self):
+        if self.process is not None:
+            raise RuntimeError(f"{self.state.kind}: job already started")
+        package_parent = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+        env = dict(os.environ)
+        env["PYTHONPATH"] = os.pathsep.join([package_parent] + [p for p in (env.get("PYTHONPATH") or "").split(os.pathsep) if p])
+        try:  # what cannot travel to a process is the caller's error, before anything starts
+            request = pickle.dumps({"kind": self.state.kind, "task": self.work}, protocol=pickle.HIGHEST_PROTOCOL)
+        except Exception as e:  # noqa: BLE001 - pickle raises TypeError, AttributeError, PicklingError...
+            raise RuntimeError(f"{self.state.kind}: the job cannot be sent to a worker process: {e}") from e
+        with self.state.lock:
+            self.state.status, self.state.started = RUNNING, time.monotonic()
+        self.process = subprocess.Popen([worker_python(), "-m", "drapelab.ui.worker"], stdin=subprocess.PIPE,
+                                        stdout=subprocess.PIPE, env=env, close_fds=True)
+        os.set_blocking(self.process.stdout.fileno(), False)
+        _track(self)
+        try:
+            self.process.stdin.write(struct.pack("<I", len(request)) + request)
+            self.process.stdin.flush()
+        except OSError as e:  # the interpreter did not start (its reason is on the console)
+            self.process.kill()
+            self.process.wait()
+            self._end({"status": FAILED, "error": f"the worker process ({worker_python()}) did not start: {e}"})
+        return self
+
+    def run_sync(self):
+        return Job(self.state.kind, self.work).run_sync()
+
+    def _end(self, message):
+        s = self.state
+        with s.lock:
+            s.status = message["status"]
+            s.error = message.get("error")
+            s.result = message.get("result")
+            if message.get("message"):
+                s.message = message["message"]
+            if message.get("fraction") is not None:
+                s.fraction = message["fraction"]
+            s.traceback = message.get("traceback")
+            s.finished = message.get("finished") or time.monotonic()
+        self._ended = True
+
+    def poll(self):
+        """Reads what the worker reported so far (never blocks); returns True while the job runs."""
+        if self.process is None:
+            return False
+        if self._ended:
+            self.process.poll()  # reaps the process once it has exited
+            return False
+        exited = self.process.poll() is not None
+        while True:
+            try:
+                chunk = self.process.stdout.read()
+            except (BlockingIOError, InterruptedError):
+                chunk = None
+            if not chunk:
+                break
+            self._buffer += chunk
+        while len(self._buffer) >= 4:
+            (size,) = struct.unpack("<I", self._buffer[:4])
+            if len(self._buffer) < 4 + size:
+                break
+            message = pickle.loads(self._buffer[4:4 + size])
+            self._buffer = self._buffer[4 + size:]
+            if message.get("type") == "update":
+                self.state.update(message.get("fraction"), message.get("message"), **message.get("metrics", {}))
+            elif message.get("type") == "record":
+                self.state.record(message["value"])
+            elif message.get("type") == "end":
+                self._end(message)
+        if exited and not self._ended:
+            code = self.process.returncode
+            status = CANCELLED if self.state.cancel.is_set() else FAILED
+            self._end({"status": status, "error": None if status == CANCELLED else
+                       f"the worker process ended without a result (exit code {code}; its messages are on "
+                       f"Blender's console)"})
+        return not self._ended
+
+    def cancel(self):
+        self.state.request_cancel()
+        if self.process is not None and self.process.poll() is None:
+            try:
+                self.process.stdin.write(b"c")
+                self.process.stdin.flush()
+            except (BrokenPipeError, OSError):
+                pass
+
+    def join(self, timeout=None):
+        deadline = None if timeout is None else time.monotonic() + timeout
+        while self.poll() or (self.process is not None and self.process.poll() is None):
+            if deadline is not None and time.monotonic() >= deadline:
+                return not self.poll()  # the job ended (its process is still closing)
+            time.sleep(0.02)
+        return True
+
+    def kill(self):
+        """Ends the worker process at once (Blender closing with a job that did not stop when asked)."""
+        if self.process is not None and self.process.poll() is None:
+            self.process.kill()
+            self.process.wait()
+        self.poll()
+
+    @property
+    def alive(self):
+        return self.poll()
+
+
 _jobs_lock = threading.Lock()
 _jobs = {}  # kind -> the latest Job of that kind
 
@@ -148,7 +323,13 @@ def _track(job):
 
 
 def current(kind=None):
-    """The latest job of `kind` (or the latest running one of any kind), or None."""
+    """The latest job of `kind` (or the latest running one of any kind), or None. Worker processes' reports
+    are read first."""
+    with _jobs_lock:
+        jobs = list(_jobs.values())
+    for j in jobs:
+        if isinstance(j, ProcessJob):
+            j.poll()
     with _jobs_lock:
         if kind is not None:
             return _jobs.get(kind)
@@ -163,11 +344,12 @@ def running_jobs():
 
 def start(kind, work, synchronous=False):
     """Starts a job of `kind` unless one of any kind is running (RuntimeError naming it: one long job at a time,
-    they share the cores); synchronous runs it on this thread. Returns the Job."""
+    they share the cores); synchronous runs it on this thread, else a Task in a worker process and a plain
+    callable on a worker thread. Returns the job."""
     busy = running_jobs()
     if busy:
         raise RuntimeError(f"a {busy[0].state.kind} job is running; cancel it or wait for it to finish")
-    job = Job(kind, work)
+    job = ProcessJob(kind, work) if isinstance(work, Task) and not synchronous else Job(kind, work)
     if synchronous:
         job.run_sync()
     else:
@@ -184,8 +366,11 @@ def cancel_all(timeout=5.0):
         if j.alive:
             j.cancel()
     deadline = time.monotonic() + timeout
-    stuck = [j.state.kind for j in jobs if not j.join(max(0.0, deadline - time.monotonic()))]
-    return stuck
+    stuck = [j for j in jobs if not j.join(max(0.0, deadline - time.monotonic()))]
+    for j in stuck:
+        if isinstance(j, ProcessJob):
+            j.kill()
+    return [j.state.kind for j in stuck]
 
 
 def forget_finished():
