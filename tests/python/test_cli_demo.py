@@ -1,4 +1,4 @@
-"""Smoke test of `drapelab demo` on circle1 (in-process CLI)."""
+"""Smoke test of `drapelab demo --specimen-only` on circle1 (in-process CLI); the whole demo: test_demo_story.py."""
 import numpy as np
 import pytest
 
@@ -7,7 +7,7 @@ from drapelab import cli, measure, sim
 
 def test_demo_writes_mesh_and_silhouette(tmp_path, capsys):
     out = tmp_path / "demo"
-    assert cli.main(["demo", "--mesh-level", "1", "--out", str(out)]) == 0
+    assert cli.main(["demo", "--specimen-only", "--mesh-level", "1", "--out", str(out)]) == 0
     text = capsys.readouterr().out
     assert "drape coefficient" in text and "specimen circle1" in text
     assert text.count("step ") <= 6  # a few progress lines, not one per step
@@ -24,13 +24,13 @@ def test_demo_writes_mesh_and_silhouette(tmp_path, capsys):
 
 
 def test_demo_rejects_bad_steps(tmp_path, capsys):
-    assert cli.main(["demo", "--mesh-level", "1", "--steps", "0", "--out", str(tmp_path)]) == 2
+    assert cli.main(["demo", "--specimen-only", "--mesh-level", "1", "--steps", "0", "--out", str(tmp_path)]) == 2
     assert "--steps" in capsys.readouterr().err
 
 
 def test_demo_static_mode(tmp_path, capsys):
     out = tmp_path / "static"
-    assert cli.main(["demo", "--mesh-level", "1", "--mode", "static", "--out", str(out)]) == 0
+    assert cli.main(["demo", "--specimen-only", "--mesh-level", "1", "--mode", "static", "--out", str(out)]) == 0
     assert "Newton iterations" in capsys.readouterr().out
     assert (out / "drape.obj").exists() and (out / "silhouette.png").exists()
 

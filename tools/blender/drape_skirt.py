@@ -7,11 +7,34 @@ the script says so and renders the skirt at its rest placement with the heat map
 
     blender --background --factory-startup --python-exit-code 1 --python tools/blender/drape_skirt.py -- \
         --preset fabric_02_cotton_blue_bdp --out out/skirt.png [--style circle] [--vertices 4000] \
-        [--heat bend_warp] [--samples 32] [--size 800x800] [--seed 0] [--blend out/skirt.blend]
+        [--heat bend_warp] [--samples 32] [--size 800x800] [--seed 0] [--frames 48] [--motion static] \
+        [--time-limit SECONDS] [--blend out/skirt.blend]
+
+--blend saves the scene there before the bake, so the bake's PC2 caches go beside it (drapelab_cache/) and the
+saved file plays the drape. --time-limit bounds the whole Blender run (from Blender's start): the bake stops early, keeping the frames done,
+so that the render still fits (RENDER_RESERVE_S), and the render shows the last frame done.
 """
 import math
 import os
 import sys
+import time
+
+
+
+def _process_age():
+    """Seconds since this process (Blender) started, from /proc on Linux (0 elsewhere): --time-limit counts
+    Blender's own start-up, which comes before this script runs."""
+    try:
+        with open("/proc/self/stat") as f:
+            start_ticks = float(f.read().rsplit(")", 1)[1].split()[19])
+        with open("/proc/uptime") as f:
+            uptime = float(f.read().split()[0])
+        return max(0.0, uptime - start_ticks / os.sysconf("SC_CLK_TCK"))
+    except (OSError, ValueError, IndexError):
+        return 0.0
+
+
+T0 = time.monotonic() - _process_age()
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 REPO = os.path.dirname(os.path.dirname(HERE))
@@ -30,6 +53,7 @@ WORLD_COLOUR = (0.85, 0.85, 0.85, 1.0)
 CAMERA_LENS_MM = 50.0
 SUN_ROTATION_DEG = (50.0, 10.0, 30.0)
 BODY_COLOUR = (0.55, 0.55, 0.58, 1.0)
+RENDER_RESERVE_S = 8.0   # --time-limit: kept for the scene, the render and saving (measured 1-3 s at 400x400, 8 samples)
 
 
 def arguments(p):
@@ -42,6 +66,10 @@ def arguments(p):
     p.add_argument("--size", default="800x800", metavar="WxH")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--frames", type=int, default=48, help="frames of the drape (when the simulator exists)")
+    p.add_argument("--motion", default="static", choices=["static", "walk", "twirl", "jump"],
+                   help="the dress form's motion during the drape")
+    p.add_argument("--time-limit", type=float, default=0.0, metavar="SECONDS",
+                   help="the whole script's time (0: none): the bake stops early, keeping the frames done")
     p.add_argument("--blend", default=None, metavar="FILE.blend", help="also save the scene")
 
 
@@ -106,10 +134,19 @@ def main():
     skirt.data.materials.append(material("skirt heat map", attribute=garment_ops.HEAT_ATTRIBUTE))
 
     draped = False
-    if operators._simulate_function() is not None:
-        headless.run("simulate_garment", frame_start=1, frame_end=args.frames, collider=body_obj.name)
-        bpy.context.scene.frame_set(args.frames)
-        draped = True
+    if args.blend:  # saved first, so that the bake's caches go beside it and the saved file plays them
+        bpy.context.preferences.filepaths.save_version = 0  # no FILE.blend1 backup when it is saved again
+        bpy.ops.wm.save_as_mainfile(filepath=os.path.abspath(args.blend))
+    bake_limit = args.time_limit - (time.monotonic() - T0) - RENDER_RESERVE_S if args.time_limit else 0.0
+    if operators._simulate_function() is not None and args.time_limit and bake_limit < 1.0:
+        print(f"drape_skirt: no time left for the bake within --time-limit {args.time_limit:g} s: rendering the "
+              "skirt at its rest placement", flush=True)
+    elif operators._simulate_function() is not None:
+        headless.run("simulate_garment", frame_start=1, frame_end=args.frames, collider=body_obj.name,
+                     motion=args.motion, time_limit=max(0.0, bake_limit))
+        from drapelab.garment import pc2
+        draped = pc2.read_pc2_header(skirt.modifiers["drapelab cache"].filepath)["num_samples"]
+        bpy.context.scene.frame_set(draped)
     else:
         print(f"drape_skirt: {operators.NOT_AVAILABLE_SIMULATION}: rendering the skirt at its rest placement "
               "with the stiffness heat map", flush=True)
@@ -144,8 +181,9 @@ def main():
         raise RuntimeError(f"drape_skirt: the render was not written to {out}")
     if args.blend:
         bpy.ops.wm.save_as_mainfile(filepath=os.path.abspath(args.blend))
-    print(f"drape_skirt: wrote {out} ({'draped' if draped else 'rest placement'}, heat map drapelab_{args.heat}, "
-          f"{len(skirt.data.vertices)} skirt vertices)", flush=True)
+    what = f"draped, {draped} of {args.frames} frames, {args.motion}" if draped else "rest placement"
+    print(f"drape_skirt: wrote {out} ({what}, heat map drapelab_{args.heat}, {len(skirt.data.vertices)} skirt "
+          f"vertices, {time.monotonic() - T0:.1f} s)", flush=True)
 
 
 main()

@@ -537,8 +537,7 @@ def simulation_job(context, obj, collider, frame_start, frame_end, preset="", se
         raise InputError(f"frame_end ({frame_end}) must be after frame_start ({frame_start})")
     if motion not in [m[0] for m in MOTIONS]:
         raise InputError(f"motion {motion!r}: expected one of {', '.join(m[0] for m in MOTIONS)}")
-    drape = _simulate_function()
-    if drape is None:
+    if _simulate_function() is None:
         raise InputError(NOT_AVAILABLE_SIMULATION)
     s = settings(context)
     if obj is None or obj.type != 'MESH':
@@ -557,7 +556,7 @@ def simulation_job(context, obj, collider, frame_start, frame_end, preset="", se
     if os.path.abspath(collider_path) == os.path.abspath(path):
         raise InputError(f"the garment and the collider must be two objects ({obj.name})")
     work = tasks.simulate_work(garment, mat, body, source, garment.blender_positions,
-                               np.linalg.inv(np.array(obj.matrix_world)), path, frame_end - frame_start + 1, drape,
+                               np.linalg.inv(np.array(obj.matrix_world)), path, frame_end - frame_start + 1,
                                motion=motion, time_limit=time_limit or None, collider_path=collider_path,
                                collider_world_to_local=np.linalg.inv(np.array(collider.matrix_world)))
     target = {"object": obj.name, "path": path, "frame_start": frame_start, "collider": collider.name,

@@ -167,9 +167,9 @@ def _read_pc2_frame(f, frame, num_points):
     return np.frombuffer(data, dtype="<f4").reshape(num_points, 3).astype(np.float64)
 
 
-def simulate_work(garment, material, body, source, rest_positions, world_to_local, path, frames, drape,
-                  motion="static", time_limit=None, collider_path=None, collider_world_to_local=None):
-    """Work of a garment bake (drapelab.simulate_garment): `drape` (garment.simulate.drape) of `garment` with
+def simulate_work(garment, material, body, source, rest_positions, world_to_local, path, frames, motion="static",
+                  time_limit=None, collider_path=None, collider_world_to_local=None):
+    """Work of a garment bake (drapelab.simulate_garment): garment.simulate.drape of `garment` with
     `material` on `body` for `frames` frames, written to the PC2 cache `path` in the Blender mesh's vertex order
     (`source[i]`: the Blender vertex of garment vertex i; `rest_positions` (V, 3) world: the Blender vertices,
     which split seam copies share) and its local coordinates (`world_to_local` 4x4), frame by frame as the
@@ -182,7 +182,8 @@ def simulate_work(garment, material, body, source, rest_positions, world_to_loca
     keeping the frames done. A moving `motion` also writes the body's frames to `collider_path` (the collider's
     vertex order is the Body's; `collider_world_to_local` its local coordinates) so the collider moves with it.
     Returns {"frames": frames simulated (with frame 0), "frames_written": frames in the cache, "cancelled",
-    "stopped_by_time_limit", "seconds_per_frame", "max_body_penetration_m", "path", "collider_path"}."""
+    "stopped_by_time_limit", "seconds_per_frame", "max_body_penetration_m", "path", "collider_path"}. The
+    arguments are plain values and numpy arrays (picklable: the work can be rebuilt in a worker process)."""
     from ..garment.pc2 import PC2Writer
     if isinstance(frames, bool) or int(frames) != frames or frames < 2:
         raise infer.InputError(f"frames: at least 2, got {frames}")
@@ -200,6 +201,7 @@ def simulate_work(garment, material, body, source, rest_positions, world_to_loca
         return x @ matrix[:3, :3].T + matrix[:3, 3]
 
     def work(state):
+        from ..garment.simulate import drape
         os.makedirs(folder, exist_ok=True)
         base = os.path.splitext(os.path.abspath(path))[0]
         side = base + ".simulator_order.pc2"  # the simulator's own frames (its vertex order), removed at the end
