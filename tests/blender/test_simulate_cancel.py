@@ -2,8 +2,9 @@
 its first frame, and unregistered while it runs; a moving collider. Run by ./drapelab test as
     blender --background --factory-startup --python-exit-code 1 --python tests/blender/test_simulate_cancel.py
 
-The bake runs on a worker thread as the operator's invoke starts it (operators.simulation_job gathers it from bpy,
-jobs.start runs it), since modal operators never run under --background. Checked after each stop: the PC2 cache is
+The bake runs as the operator's invoke starts it, in a worker process (operators.simulation_job gathers a jobs.Task
+from bpy, jobs.start runs it; the test polls it as the modal operator's timer would), since modal operators never
+run under --background. Checked after each stop: the PC2 cache is
 valid (its header counts exactly the frames in the file, all complete), holds the frames done, plays in the Mesh
 Cache modifier, and the scene is not left half-set (one cache modifier, the mesh itself untouched, no temporary or
 side files); a bake stopped before its first simulated frame leaves the previous cache byte for byte.
@@ -106,6 +107,7 @@ path = os.path.join(tmp, "cache", "skirt.pc2")
 # -- 1. a bake cancelled after a few frames: the frames done are kept, the cache is valid and plays, also mid-bake
 work, target = operators.simulation_job(bpy.context, skirt, body_obj, 1, FRAMES)
 job = jobs.start("simulate", work)
+assert isinstance(job, jobs.ProcessJob)
 wait_for(job, 2)
 h = pc2.read_pc2_header(path)  # mid-bake: the cache is already at its path, complete frames only
 assert 2 <= h["num_samples"] and h["file_size"] >= pc2.HEADER_SIZE + h["num_samples"] * h["num_points"] * 12

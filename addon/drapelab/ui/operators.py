@@ -19,7 +19,7 @@ from .. import infer, measure
 from .._native import InputError, SolverError
 from . import figures, jobs, previews, tasks
 from . import presets as preset_files
-from .properties import cache_dir, user_presets_dir
+from .properties import MOTIONS, cache_dir, user_presets_dir
 
 POLL_SECONDS = 0.2   # timer interval of the modal poll (cancel latency is the worker's, not this)
 ERRORS = (InputError, SolverError, ValueError, OSError, RuntimeError)
@@ -522,17 +522,12 @@ def _preset_argument(context, preset):
     raise InputError("no preset: give preset (a name or path), or fit or load one first")
 
 
-MOTIONS = (("static", "Static", "the dress form stands still"),
-           ("walk", "Walk", "the dress form walks on the spot (legs swing, pelvis sways)"),
-           ("twirl", "Twirl", "the dress form turns about its vertical axis"),
-           ("jump", "Jump", "the dress form jumps"))
-
-
 def simulation_job(context, obj, collider, frame_start, frame_end, preset="", seed=0, time_limit=0.0,
                    motion="static"):
-    """What simulate_garment runs, checked and gathered from bpy on the main thread: (work, target). `work(state)`
-    (drapelab.ui.tasks.simulate_work) bakes on any thread without touching bpy; `target` is what finish_simulation
-    and attach_while_baking need (plain names and paths). Bad input raises before anything is written."""
+    """What simulate_garment runs, checked and gathered from bpy on the main thread: (work, target). `work` is a
+    jobs.Task of drapelab.ui.tasks.simulate_work (bpy-free, picklable: jobs.start runs it in a worker process,
+    run_sync on this thread); `target` is what finish_simulation and attach_while_baking need (plain names and
+    paths). Bad input raises before anything is written."""
     if frame_end <= frame_start:
         raise InputError(f"frame_end ({frame_end}) must be after frame_start ({frame_start})")
     if motion not in [m[0] for m in MOTIONS]:
@@ -555,10 +550,10 @@ def simulation_job(context, obj, collider, frame_start, frame_end, preset="", se
     collider_path = os.path.join(cache_dir(), f"{bpy.path.clean_name(collider.name)}_{motion}.pc2")
     if os.path.abspath(collider_path) == os.path.abspath(path):
         raise InputError(f"the garment and the collider must be two objects ({obj.name})")
-    work = tasks.simulate_work(garment, mat, body, source, garment.blender_positions,
-                               np.linalg.inv(np.array(obj.matrix_world)), path, frame_end - frame_start + 1,
-                               motion=motion, time_limit=time_limit or None, collider_path=collider_path,
-                               collider_world_to_local=np.linalg.inv(np.array(collider.matrix_world)))
+    work = jobs.Task(tasks.simulate_work, garment, mat, body, source, garment.blender_positions,
+                     np.linalg.inv(np.array(obj.matrix_world)), path, frame_end - frame_start + 1, motion=motion,
+                     time_limit=time_limit or None, collider_path=collider_path,
+                     collider_world_to_local=np.linalg.inv(np.array(collider.matrix_world)))
     target = {"object": obj.name, "path": path, "frame_start": frame_start, "collider": collider.name,
               "collider_path": collider_path, "motion": motion, "attached": False}
     return work, target

@@ -252,8 +252,9 @@ class DRAPELAB_PT_garment(_Panel, bpy.types.Panel):
         row = layout.row(align=True)
         row.prop(s, "frame_start")
         row.prop(s, "frame_end")
+        layout.prop(s, "motion")
         op = layout.operator("drapelab.simulate_garment", icon='PHYSICS')
-        op.frame_start, op.frame_end = s.frame_start, s.frame_end
+        op.frame_start, op.frame_end, op.motion = s.frame_start, s.frame_end, s.motion
         op.collider = s.collider.name if s.collider else ""
         layout.operator("drapelab.export_blender_cloth", icon='MOD_CLOTH')
 

@@ -11,6 +11,10 @@ from bpy.props import (BoolProperty, CollectionProperty, EnumProperty, FloatProp
 from .. import measure, sim
 from . import presets as preset_files
 
+MOTIONS = [("static", "Static", "the dress form stands still"),
+           ("walk", "Walk", "walking in place: the legs swing +-25 degrees about the hips, the pelvis sways"),
+           ("twirl", "Twirl", "turning about the vertical axis, up to 1 turn/s"),
+           ("jump", "Jump", "a 10 cm hop after 6 frames of rest")]
 MODELS = [("HOMO", "HOMO", "one bending table for the whole specimen"),
           ("HETER", "HETER", "a bending table per bending edge (point estimate)"),
           ("BDP", "BDP", "Bayesian differentiable physics: a posterior over per-edge tables, drape-calibrated")]
@@ -145,6 +149,8 @@ class DRAPELAB_PG_settings(bpy.types.PropertyGroup):
     heat_attribute: EnumProperty(name="Heat map", items=_heat_items)
     frame_start: IntProperty(name="Start", default=1, min=0)
     frame_end: IntProperty(name="End", default=60, min=1)
+    motion: EnumProperty(name="Motion", items=MOTIONS, default="static",
+                         description="the dress form's motion during Simulate (it gets its own Mesh Cache)")
 
     def metrics(self):
         try:
