@@ -11,8 +11,9 @@ the script says so and renders the skirt at its rest placement with the heat map
         [--time-limit SECONDS] [--blend out/skirt.blend]
 
 --blend saves the scene there before the bake, so the bake's PC2 caches go beside it (drapelab_cache/) and the
-saved file plays the drape. --time-limit bounds the whole Blender run (from Blender's start): the bake stops early, keeping the frames done,
-so that the render still fits (RENDER_RESERVE_S), and the render shows the last frame done.
+saved file plays the drape. --time-limit bounds the whole Blender run (from Blender's start): the bake stops
+early, keeping the frames done, so that the render still fits (RENDER_RESERVE_S); the render shows the last frame
+done.
 """
 import math
 import os
@@ -53,7 +54,7 @@ WORLD_COLOUR = (0.85, 0.85, 0.85, 1.0)
 CAMERA_LENS_MM = 50.0
 SUN_ROTATION_DEG = (50.0, 10.0, 30.0)
 BODY_COLOUR = (0.55, 0.55, 0.58, 1.0)
-RENDER_RESERVE_S = 8.0   # --time-limit: kept for the scene, the render and saving (measured 1-3 s at 400x400, 8 samples)
+RENDER_RESERVE_S = 8.0  # --time-limit: kept for the scene, the render and saving (measured 1-3 s: 400x400, 8 samples)
 
 
 def arguments(p):

@@ -303,8 +303,8 @@ CLASSES = (DRAPELAB_OT_apply_material, DRAPELAB_OT_show_heat_map)
 
 def garment_for_simulation(obj, collider):
     """(Garment, source vertex of each garment vertex, Body) for simulate_garment: the mesh in world space with its
-    UV map (triangles only), its waistband (simulate.top_band_vertices), and the bundled dress form,
-    which the collider must be (other bodies are not supported by the simulator yet)."""
+    UV map (triangles only), its waistband (simulate.top_band_vertices) and hem (the bottom band), and the bundled
+    dress form, which the collider must be (other bodies are not supported by the simulator yet)."""
     from ..garment import body as body_module, mesh as mesh_module
     if collider is None:
         raise ValueError("pick the collider (the dress form made by drapelab.garment.body.make_body)")
@@ -324,8 +324,11 @@ def garment_for_simulation(obj, collider):
     faces = np.array(polys, dtype=np.int64).reshape(-1, 3)
     garment = mesh_module.garment_from_arrays(positions, faces, corner_uv=np.array(uv), name=obj.name)
     source = original_vertex_map(garment, positions, faces)
-    from ..garment.simulate import top_band_vertices
+    from ..garment.simulate import WAIST_BAND_M, top_band_vertices
     garment.waist_vertices = top_band_vertices(garment.positions)
+    # the hem (the simulator's hem radius statistic): the vertices within the same band of the lowest one
+    z = np.asarray(garment.positions)[:, 2]
+    garment.hem_vertices = np.flatnonzero(z < z.min() + WAIST_BAND_M).astype(np.int32)
     garment.blender_positions = positions
     return garment, source, body
 

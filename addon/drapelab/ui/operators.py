@@ -598,7 +598,8 @@ def finish_simulation(target, result):
         how = " - cancelled, frames done kept"
     return (f"simulate: {result['frames_written']} frames ({result['motion']}) into "
             f"{os.path.basename(result['path'])} ({result['seconds_per_frame']:.2f} s/frame, body penetration "
-            f"{result['max_body_penetration_m'] * 1000:.2f} mm){how}")
+            f"{result['max_body_penetration_m'] * 1000:.2f} mm, hem radius {result['hem_radius_m'] * 1000:.0f} mm)"
+            f"{how}")
 
 
 class DRAPELAB_OT_simulate_garment(_JobOperator, bpy.types.Operator):

@@ -182,7 +182,8 @@ def simulate_work(garment, material, body, source, rest_positions, world_to_loca
     keeping the frames done. A moving `motion` also writes the body's frames to `collider_path` (the collider's
     vertex order is the Body's; `collider_world_to_local` its local coordinates) so the collider moves with it.
     Returns {"frames": frames simulated (with frame 0), "frames_written": frames in the cache, "cancelled",
-    "stopped_by_time_limit", "seconds_per_frame", "max_body_penetration_m", "path", "collider_path"}. The
+    "stopped_by_time_limit", "seconds_per_frame", "max_body_penetration_m", "hem_radius_m", "path",
+    "collider_path"}. The
     arguments are plain values and numpy arrays (picklable: the work can be rebuilt in a worker process)."""
     from ..garment.pc2 import PC2Writer
     if isinstance(frames, bool) or int(frames) != frames or frames < 2:
@@ -263,7 +264,8 @@ def simulate_work(garment, material, body, source, rest_positions, world_to_loca
                 pass
         return {"frames": r["frames"], "frames_written": writer.frames_written, "cancelled": r["cancelled"],
                 "stopped_by_time_limit": bool(stopped), "seconds_per_frame": r["seconds_per_frame"],
-                "max_body_penetration_m": r["max_body_penetration_m"], "path": path,
+                "max_body_penetration_m": r["max_body_penetration_m"], "hem_radius_m": r["hem_radius_m"],
+                "path": path,
                 "collider_path": collider_path if moving else None, "motion": motion}
 
     return work
