@@ -83,3 +83,14 @@ def test_demo_bad_output_folder_and_budget(tmp_path, capsys):
     assert cli.main(["demo", "--time-budget", "nan", "--out", str(tmp_path / "d")]) == 2
     assert time.monotonic() - t < 5.0  # refused before any work
     assert not (tmp_path / "d").exists()
+
+
+def test_demo_fit_share_too_small_is_named(tmp_path):
+    """A fit share the machine cannot use (the fit times a drape and refuses) names the demo's option."""
+    clock = demo._Clock(100.0)
+    try:
+        with pytest.raises(infer.InputError, match="give the demo a larger --time-budget"):
+            demo.fit_step(str(tmp_path / "fit.json"), 1.0, clock)
+    finally:
+        clock.stop()
+    assert not (tmp_path / "fit.json").exists()

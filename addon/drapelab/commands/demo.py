@@ -334,8 +334,11 @@ def fit_step(out, budget_s, clock):
         except infer.Cancelled:
             raise _Stop("during the fit (no preset written)") from None
         except infer.InputError as e:
-            if not (calibrate and "too small" in str(e)):
+            if "too small" not in str(e):
                 raise
+            if not calibrate:
+                raise infer.InputError(f"--time-budget {clock.budget:g} s leaves the fit {budget_s:.0f} s, too little "
+                                       f"on this machine now ({e}); give the demo a larger --time-budget") from None
             print(f"  the drape calibration does not fit in this budget on this machine now ({e}); fitting without "
                   "it", flush=True)
             calibrate = False
