@@ -9,8 +9,9 @@ import pytest
 
 from drapelab import cli, diagnose, fit_effects, infer, measure, render, sim
 
-from fit_support import SHIPPED_PRESET as PRESET, small_config
+from fit_support import ROOT, SHIPPED_PRESET as PRESET, small_config
 
+SCHEMA = os.path.join(ROOT, "addon", "drapelab", "schemas", "diagnosis.schema.json")
 BASE_KEYS = {"mse", "iou", "dc_error", "node_error", "amplitude_error", "loss"}
 RANKING_KEYS = {"effect", "statistic", "p_value", "refit", "gain", "explanation"}
 
@@ -140,6 +141,7 @@ def test_cli_writes_the_report_the_contract_and_a_refit(images, tmp_path, capsys
     with open(os.path.join(out, "diagnosis.json")) as f:
         d = json.load(f)
     assert {"base", "ranking", "recommended", "threshold", "history"} <= set(d)
+    validate(d)
     assert set(d["base"]) == BASE_KEYS and all(np.isfinite(v) for v in d["base"].values())
     (entry,) = d["ranking"]
     assert RANKING_KEYS <= set(entry) and entry["effect"] == "tilt" and d["threshold"] == 1.0
@@ -196,5 +198,30 @@ def test_cancel_writes_what_is_done(images, tmp_path):
                           candidates=["tilt"], threads=1, out_dir=out, progress=progress, cancel_event=cancel)
     assert d["cancelled"] and d["draws_used"] == 3 and d["ranking"][0]["p_value"] is not None
     with open(os.path.join(out, "diagnosis.json")) as f:
-        assert json.load(f)["cancelled"] is True
+        written = json.load(f)
+    assert written["cancelled"] is True
+    validate(written)
     assert os.path.getsize(os.path.join(out, "index.html")) > 0
+
+
+def validate(d):
+    """diagnosis.json against the schema shipped in the add-on (addon/drapelab/schemas/)."""
+    import jsonschema
+    with open(SCHEMA) as f:
+        jsonschema.Draft202012Validator(json.load(f)).validate(d)
+
+
+def test_the_schema_refuses_a_broken_diagnosis():
+    import jsonschema
+    with open(SCHEMA) as f:
+        schema = json.load(f)
+    jsonschema.Draft202012Validator.check_schema(schema)
+    good = {"preset": "p.json", "model": "bdp", "images": ["a.png"], "samples": 4, "seed": 0, "candidates": ["tilt"],
+            "base": {k: 0.1 for k in BASE_KEYS}, "ranking": [], "recommended": None, "threshold": 0.01,
+            "threshold_rule": "alpha", "switches": [], "test": "T2", "history": [], "cancelled": False,
+            "seconds": {"total": 1.0}}
+    validate(good)
+    for key, value in (("recommended", 3), ("threshold", 0), ("base", {"mse": 0.1}), ("images", []),
+                       ("ranking", [{"effect": "tilt"}])):
+        with pytest.raises(jsonschema.ValidationError):
+            validate(dict(good, **{key: value}))
