@@ -1,8 +1,8 @@
 """drapelab.* operators: the add-on's actions and the headless API.
 
-Long operators (fit, diagnose; simulate_garment when the simulator exists) follow one pattern (_JobOperator):
-execute() runs the job synchronously (scripts, `blender --background`: errors through self.report and
-{'CANCELLED'}); invoke() from the UI starts it on a worker thread (drapelab.ui.jobs) and polls it with a
+Long operators (fit, diagnose, simulate_garment) follow one pattern (_JobOperator): execute() runs the job
+synchronously (scripts, `blender --background`: errors through self.report and {'CANCELLED'}); invoke() from the
+UI starts it in a worker process (a drapelab.ui.jobs.Task: Blender's Python is not thread safe) and polls it with a
 window-manager timer in a modal operator that copies its state into the panel; Esc or drapelab.cancel sets
 the job's cancel flag, which the facade checks between simulation steps.
 """
