@@ -1,0 +1,132 @@
+#!/usr/bin/python3
+"""The diagnosis's confusion table and null-case rate (issue 18's targets), measured as CONVENTIONS.md
+"Diagnosing against a reference" prescribes: a reference preset is fitted on control drapes (synthetic, no
+effect, placement seed --reference-seed); then, for every seed of --seeds (seeds not used in any tuning run),
+6 drapes of the same material are made per case and diagnosed with the reference:
+    each registered effect whose primary parameter is not structural, at its registry moderate strength,
+    `control` (no effect) and `weak` (a 4 degree tilt, 0.07 rad: below the re-drape noise),
+recording what the diagnosis ranks first (smallest p), what it recommends (or null), and, where a refit ran,
+how much of the gap between the reference on these drapes and the reference on control drapes of the same seed
+the recommended refit closes (MSE; 1 = all of it).
+
+Usage (from the repository root):
+    PYTHONPATH=addon:build/python OPENBLAS_NUM_THREADS=1 /usr/bin/python3 tools/confusion_table.py --out DIR \
+        [--seeds 401,402] [--effects tilt,...] [--count 6] [--mesh-level 1] [--samples 16] [--time-budget 150]
+Writes DIR/confusion.json after every case (a run stopped midway keeps what is done) and prints markdown tables.
+"""
+import argparse
+import copy
+import glob
+import json
+import os
+import sys
+import time
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "addon"))
+
+from drapelab import diagnose, infer, measure, sim, synth  # noqa: E402
+
+DENSITY = 0.192       # Cotton Blue (kg/m^2): synth's default material
+WEAK_TILT_RAD = 0.07  # 4 degrees: changes the drape less than re-draping does (issue 18's null case)
+
+
+def images_of(folder):
+    return sorted(glob.glob(os.path.join(folder, "fabric_00", "silhouettes", "*.png")))
+
+
+def cases(names, registry):
+    out = []
+    for name in names:
+        primary = registry[name]["parameters"][0]
+        out.append((name, {name: {primary["name"]: primary["moderate"]}}))
+    return out + [("control", None), ("weak", {"tilt": {"angle_rad": WEAK_TILT_RAD}})]
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--out", required=True)
+    ap.add_argument("--seeds", default="401,402")
+    ap.add_argument("--reference-seed", type=int, default=101)
+    ap.add_argument("--effects", default=None, help="comma-separated (default: every registered non-switch effect)")
+    ap.add_argument("--count", type=int, default=6)
+    ap.add_argument("--mesh-level", type=int, default=1)
+    ap.add_argument("--epochs", type=int, default=15)
+    ap.add_argument("--samples", type=int, default=16)
+    ap.add_argument("--time-budget", type=float, default=150.0)
+    args = ap.parse_args()
+    registry = {e["name"]: e for e in sim.effects()}
+    names = args.effects.split(",") if args.effects else [
+        n for n, e in registry.items() if not e["parameters"][0].get("structural")]
+    config = copy.deepcopy(infer.load_config())
+    config["mesh_level"] = args.mesh_level
+    config["calibration"]["enabled"] = False
+    os.makedirs(args.out, exist_ok=True)
+    reference_path = os.path.join(args.out, "reference.json")
+    if not os.path.isfile(reference_path):
+        control_dir = os.path.join(args.out, "reference_control")
+        synth.synth(control_dir, DENSITY, count=args.count, seed=args.reference_seed, mesh_level=args.mesh_level,
+                    force=True)
+        t0 = time.monotonic()
+        infer.fit(images_of(control_dir), DENSITY, model="bdp", epochs=args.epochs, seed=args.reference_seed + 1,
+                  config=config, out=reference_path)
+        print(f"reference fitted on control drapes in {time.monotonic() - t0:.0f} s", file=sys.stderr, flush=True)
+    result_path = os.path.join(args.out, "confusion.json")
+    rows = json.load(open(result_path))["rows"] if os.path.isfile(result_path) else []
+    done = {(r["case"], r["seed"]) for r in rows}
+    for seed in [int(s) for s in args.seeds.split(",")]:
+        for case, effects in cases(names, registry):
+            if (case, seed) in done:
+                continue
+            folder = os.path.join(args.out, f"seed{seed}", case)
+            synth.synth(folder, DENSITY, effects=effects, count=args.count, seed=seed, mesh_level=args.mesh_level,
+                        force=True)
+            t0 = time.monotonic()
+            d = diagnose.diagnose(reference_path, images_of(folder), time_budget=args.time_budget,
+                                  samples=args.samples, seed=seed, config=config, mesh_level=args.mesh_level,
+                                  out_dir=os.path.join(folder, "report"))
+            tested = [e for e in d["ranking"] if e.get("p_value") is not None]
+            first = min(tested, key=lambda e: (e["p_value"], -(e["statistic"] or 0))) if tested else None
+            rec = next((e for e in d["ranking"] if e["effect"] == d["recommended"]), None)
+            row = {"case": case, "seed": seed, "first": first["effect"] if first else None,
+                   "first_p": first["p_value"] if first else None, "recommended": d["recommended"],
+                   "threshold": d["threshold"], "base_mse": d["base"]["mse"],
+                   "refit_mse": rec["refit"]["mse"] if rec and rec.get("refit") else None,
+                   "p_values": {e["effect"]: e["p_value"] for e in tested},
+                   "seconds": time.monotonic() - t0}
+            rows.append(row)
+            print(f"seed {seed} {case}: first {row['first']} (p {row['first_p']}), recommended {row['recommended']}, "
+                  f"MSE {row['base_mse']:.4f} -> {row['refit_mse']} ({row['seconds']:.0f} s)", file=sys.stderr,
+                  flush=True)
+            measure.write_json(result_path, {"settings": vars(args), "rows": rows})
+    report(rows, names)
+
+
+def report(rows, names):
+    control_mse = {r["seed"]: r["base_mse"] for r in rows if r["case"] == "control"}
+    print("| true case | seeds | ranked first | recommended | MSE gap closed by the recommended refit |")
+    print("|---|---|---|---|---|")
+    for case in names + ["control", "weak"]:
+        rs = [r for r in rows if r["case"] == case]
+        if not rs:
+            continue
+        firsts = ", ".join(f"{r['first']} ({r['first_p']:.2g})" if r["first"] else "-" for r in rs)
+        recs = ", ".join(str(r["recommended"]) for r in rs)
+        closed = []
+        for r in rs:
+            c = control_mse.get(r["seed"])
+            if r["refit_mse"] is None or c is None or abs(r["base_mse"] - c) < 1e-12:
+                closed.append("-")
+            else:
+                closed.append(f"{(r['base_mse'] - r['refit_mse']) / (r['base_mse'] - c):.2f}")
+        print(f"| {case} | {len(rs)} | {firsts} | {recs} | {', '.join(closed)} |")
+    eff = [r for r in rows if r["case"] in names]
+    null = [r for r in rows if r["case"] in ("control", "weak")]
+    if eff:
+        print(f"\ntrue effect ranked first: {sum(r['first'] == r['case'] for r in eff)} of {len(eff)}; "
+              f"recommended: {sum(r['recommended'] == r['case'] for r in eff)} of {len(eff)}")
+    if null:
+        print(f"null cases with nothing recommended: {sum(r['recommended'] is None for r in null)} of {len(null)}")
+
+
+if __name__ == "__main__":
+    main()
