@@ -34,7 +34,7 @@ from ._native import Cancelled, InputError, SolverError, native
 
 __all__ = [
     "InputError", "SolverError", "Cancelled", "ClothModel", "effects", "effect_values", "parse_effects_arg", "cusick_specimen", "cusick_template_path",
-    "default_template_dir", "simulate", "backward", "read_obj", "write_obj", "MODES",
+    "default_template_dir", "simulate", "backward", "read_obj", "write_obj", "contact_report", "MODES",
     "DEFAULT_DENSITY", "DEFAULT_HANDLE_STIFFNESS", "DEFAULT_SUPPORT_RADIUS", "DEFAULT_TIME_STEP", "DEFAULT_STEPS",
 ]
 
@@ -145,6 +145,27 @@ def parse_effects_arg(text, bare="moderate", registry=None):
 
 
 # ---------------------------------------------------------------- meshes
+def contact_report(faces, positions, obstacle=None, search_radius=0.0, max_listed=8):
+    """Contact diagnostics of a state (native contact/diagnostics.hpp): ``{"min_distance_m", "search_radius_m",
+    "intersecting_pairs", "first_pairs"}``. faces (F, 3); positions (V, 3) or flat 3V (m); obstacle: None or
+    (positions (W, 3), faces (G, 3)), a mesh whose pairs with the cloth count too (its faces numbered after the
+    cloth's in first_pairs). min_distance_m is the smallest distance between primitives sharing no vertex within
+    search_radius (0: the mean edge length), +inf when none is that close; intersecting_pairs counts the triangle
+    pairs sharing no vertex that cross."""
+    f = np.ascontiguousarray(faces, dtype=np.int32)
+    if f.ndim != 2 or f.shape[1] != 3:
+        raise InputError(f"contact_report: faces must be (F, 3), got {f.shape}")
+    x = np.ascontiguousarray(positions, dtype=np.float64).reshape(-1)
+    kwargs = {}
+    if obstacle is not None:
+        op, of = obstacle
+        kwargs = {"obstacle_positions": np.ascontiguousarray(op, dtype=np.float64).reshape(-1, 3),
+                  "obstacle_faces": np.ascontiguousarray(of, dtype=np.int32).reshape(-1, 3)}
+    r = native.contact_report(f, x, search_radius=float(search_radius), max_listed=int(max_listed), **kwargs)
+    r["first_pairs"] = [tuple(p) for p in r["first_pairs"]]
+    return r
+
+
 def default_template_dir():
     """The bundled Cusick template meshes (``paths.template_dir()``: assets/cusick/template_meshes)."""
     return paths.template_dir()

@@ -17,6 +17,7 @@
 #include <mutex>
 #include <optional>
 
+#include "contact/diagnostics.hpp"
 #include "geometry/mesh.hpp"
 #include "garment/revolved_body.hpp"
 #include "physics/model.hpp"
@@ -143,6 +144,49 @@ void bind_physics(py::module_& m) {
            py::arg("start"), py::arg("end"), "Rigid 4x4 poses per part at the start and end of the next step.")
       .def("clearance", [](const RevolvedBodyContact& b, const Vector& x) { return Vector(b.clearance(x)); },
            py::arg("positions"), "Clearance (m, < 0 inside) of each vertex (flat 3V) at the end pose.");
+  m.def(
+      "contact_report",
+      [](const MatrixX3i& faces, const Vector& positions, std::optional<MatrixX3d> obstacle_positions,
+         std::optional<MatrixX3i> obstacle_faces, double search_radius, int max_listed) {
+        if (faces.rows() == 0) throw InputError("contact_report: no faces");
+        if (positions.size() % 3 != 0) throw InputError("contact_report: positions must be 3V values");
+        check_finite(positions, "contact_report: positions");
+        const int nv = static_cast<int>(positions.size() / 3);
+        if (faces.minCoeff() < 0 || faces.maxCoeff() >= nv)
+          throw InputError("contact_report: a face names a vertex outside 0.." + std::to_string(nv - 1));
+        if (obstacle_positions.has_value() != obstacle_faces.has_value())
+          throw InputError("contact_report: give both obstacle_positions and obstacle_faces, or neither");
+        if (search_radius < 0 || !std::isfinite(search_radius))
+          throw InputError("contact_report: search_radius must be >= 0 m (0: the mean edge length)");
+        ObstacleMesh obstacle;
+        if (obstacle_positions) {
+          obstacle.positions = *obstacle_positions;
+          obstacle.faces = *obstacle_faces;
+          if (!obstacle.positions.allFinite()) throw InputError("contact_report: obstacle positions are not finite");
+          if (obstacle.faces.rows() > 0 &&
+              (obstacle.faces.minCoeff() < 0 || obstacle.faces.maxCoeff() >= obstacle.positions.rows()))
+            throw InputError("contact_report: an obstacle face names a vertex it does not have");
+        }
+        ContactReport r;
+        {
+          py::gil_scoped_release no_gil;
+          r = contact_report(faces, positions, obstacle_positions ? &obstacle : nullptr, search_radius, max_listed);
+        }
+        py::dict d;
+        d["min_distance_m"] = r.min_distance_m;
+        d["search_radius_m"] = r.search_radius_m;
+        d["intersecting_pairs"] = r.intersecting_pairs;
+        py::list pairs;
+        for (const auto& p : r.first_pairs) pairs.append(py::make_tuple(p[0], p[1]));
+        d["first_pairs"] = pairs;
+        return d;
+      },
+      py::arg("faces"), py::arg("positions"), py::arg("obstacle_positions") = py::none(),
+      py::arg("obstacle_faces") = py::none(), py::arg("search_radius") = 0.0, py::arg("max_listed") = 8,
+      "Contact diagnostics of a state (contact/diagnostics.hpp): {min_distance_m (between non-adjacent "
+      "primitives within search_radius, +inf when none is that close), search_radius_m, intersecting_pairs "
+      "(triangle pairs sharing no vertex that cross), first_pairs (up to max_listed (face, face); obstacle faces "
+      "numbered after the cloth's)}. positions: flat 3V; with an obstacle mesh, cloth-obstacle pairs count too.");
   m.def(
       "effects", effect_list,
       "The effect registry (physics/effect.hpp): a list of {name, explanation, signature, parameters: [{name, "
