@@ -27,24 +27,12 @@ import drapelab  # noqa: E402
 
 drapelab.register()
 from drapelab.garment import body as body_module, pc2, skirt as skirt_module  # noqa: E402
-from drapelab.ui import jobs, operators  # noqa: E402
+from drapelab.ui import headless, jobs, operators  # noqa: E402
 
 tmp = tempfile.mkdtemp(prefix="drapelab_bake_test_")
 operators.cache_dir = lambda: os.path.join(tmp, "cache")  # the operator module's view of the cache folder
 CANCEL_LIMIT_S = 1.0   # the bound for Cancel (checked between substeps)
 FRAMES = 60            # far more than any stopped bake reaches
-
-
-def mesh_object(name, positions, faces, corner_uv=None):
-    me = bpy.data.meshes.new(name)
-    me.from_pydata(np.asarray(positions).tolist(), [], np.asarray(faces).tolist())
-    if corner_uv is not None:
-        layer = me.uv_layers.new(name="UVMap")
-        layer.data.foreach_set("uv", np.asarray(corner_uv, dtype=np.float64).reshape(-1))
-    me.update()
-    obj = bpy.data.objects.new(name, me)
-    bpy.context.scene.collection.objects.link(obj)
-    return obj
 
 
 def local_positions(obj, evaluated=True):
@@ -91,11 +79,11 @@ for obj in list(bpy.data.objects):
     bpy.data.objects.remove(obj)
 body = body_module.make_body()
 g = skirt_module.make_skirt("circle", vertices=500, body=body)
-body_obj = mesh_object("body", body.positions, body.faces)
+body_obj = headless.mesh_object("body", body.positions, body.faces)
 point = g.point_index()
 points = np.zeros((int(point.max()) + 1, 3))
 points[point] = g.positions
-skirt = mesh_object("skirt", points, point[g.faces], g.uv[g.faces])
+skirt = headless.mesh_object("skirt", points, point[g.faces], g.uv[g.faces])
 bpy.context.view_layer.objects.active = skirt
 skirt.select_set(True)
 assert bpy.ops.drapelab.apply_material(preset="fabric_02_cotton_blue_bdp") == {'FINISHED'}

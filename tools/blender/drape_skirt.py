@@ -74,20 +74,6 @@ def arguments(p):
     p.add_argument("--blend", default=None, metavar="FILE.blend", help="also save the scene")
 
 
-def mesh_object(name, positions, faces, corner_uv=None):
-    me = bpy.data.meshes.new(name)
-    me.from_pydata(np.asarray(positions).tolist(), [], np.asarray(faces).tolist())
-    if corner_uv is not None:
-        layer = me.uv_layers.new(name="UVMap")
-        layer.data.foreach_set("uv", np.asarray(corner_uv, dtype=np.float64).reshape(-1))
-    me.update()
-    for p in me.polygons:
-        p.use_smooth = True
-    obj = bpy.data.objects.new(name, me)
-    bpy.context.scene.collection.objects.link(obj)
-    return obj
-
-
 def material(name, colour=None, attribute=None):
     mat = bpy.data.materials.new(name)
     mat.use_nodes = True
@@ -120,13 +106,13 @@ def main():
 
     body = body_module.make_body()
     garment = skirt_module.make_skirt(args.style, vertices=args.vertices, body=body)
-    body_obj = mesh_object("body", body.positions, body.faces)
+    body_obj = headless.mesh_object("body", body.positions, body.faces, smooth=True)
     body_obj.data.materials.append(material("body", BODY_COLOUR))
     # the skirt as Blender sees a sewn garment: seam copies welded into one point, the pattern as its UV map
     point = garment.point_index()
     points = np.zeros((int(point.max()) + 1, 3))
     points[point] = garment.positions
-    skirt = mesh_object("skirt", points, point[garment.faces], garment.uv[garment.faces])
+    skirt = headless.mesh_object("skirt", points, point[garment.faces], garment.uv[garment.faces], smooth=True)
     bpy.context.view_layer.objects.active = skirt
     skirt.select_set(True)
     headless.run("apply_material", preset=preset_path, seed=args.seed)

@@ -5,6 +5,7 @@ import argparse
 import sys
 
 import bpy
+import numpy as np
 
 
 def script_args(description, add_arguments):
@@ -29,3 +30,20 @@ def run(operator, **kwargs):
     if result != {'FINISHED'}:
         raise RuntimeError(f"drapelab.{operator} returned {sorted(result)} (see the messages above)")
     return result
+
+
+def mesh_object(name, positions, faces, corner_uv=None, smooth=False):
+    """A new mesh object `name` linked to the scene: vertices (V, 3), triangles (F, 3), optionally a UV map
+    "UVMap" from per-corner uv (F, 3, 2) and smooth shading."""
+    me = bpy.data.meshes.new(name)
+    me.from_pydata(np.asarray(positions).tolist(), [], np.asarray(faces).tolist())
+    if corner_uv is not None:
+        layer = me.uv_layers.new(name="UVMap")
+        layer.data.foreach_set("uv", np.asarray(corner_uv, dtype=np.float64).reshape(-1))
+    me.update()
+    if smooth:
+        for poly in me.polygons:
+            poly.use_smooth = True
+    obj = bpy.data.objects.new(name, me)
+    bpy.context.scene.collection.objects.link(obj)
+    return obj
