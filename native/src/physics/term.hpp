@@ -90,6 +90,12 @@ class Term {
   virtual void add_offpattern_hessian_product(const Eigen::VectorXd& /*x*/, const Eigen::VectorXd& /*p*/,
                                               const Eigen::VectorXd& /*dir*/, bool /*projected*/,
                                               Eigen::VectorXd& /*out*/) const {}
+  // The same for the step matrix (add_step_matrix): out += (K - K_assembled) dir.
+  virtual void add_offpattern_step_matrix_product(const Eigen::VectorXd& /*x*/, const Eigen::VectorXd& /*p*/,
+                                                  const Eigen::VectorXd& /*dir*/, Eigen::VectorXd& /*out*/) const {}
+  // False if add_step_matrix_derivatives is not provided (then a rollout's adjoint through linearised contact
+  // steps, solver/implicit_euler.hpp, refuses to run).
+  virtual bool provides_step_matrix_derivatives() const { return true; }
 
   // Optional, for speed (defaults are correct for every term):
   // out += scale * K(x; p) dir without assembling K. Returns false if the term does not provide it (the
