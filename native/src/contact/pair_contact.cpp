@@ -610,6 +610,28 @@ void PairContactTerm::add_step_matrix_derivatives(const Eigen::VectorXd& x, cons
     }
     if (k_dhat >= 0) gp[k_dhat] += scale * gdhat;
   }
+  add_friction_step_matrix_derivatives(x, p, lambda, w, scale, gx, &gp);
+}
+
+void PairContactTerm::add_step_start_adjoint(const Eigen::VectorXd& x, const Eigen::VectorXd& p,
+                                             const Eigen::VectorXd& lambda, const Eigen::VectorXd& w, double c,
+                                             Eigen::VectorXd& gxt) const {
+  if (friction_pairs_.empty() || friction(p) == 0) return;
+  // the friction energy is a function of x - x_t: minus its x-derivatives
+  Eigen::VectorXd d = Eigen::VectorXd::Zero(gxt.size());
+  add_friction_product(x, p, lambda, false, d);
+  if (c != 0) add_friction_step_matrix_derivatives(x, p, lambda, w, c, d, nullptr);
+  gxt -= d;
+}
+
+void PairContactTerm::add_friction_step_matrix_derivatives(const Eigen::VectorXd& x, const Eigen::VectorXd& p,
+                                                           const Eigen::VectorXd& lambda, const Eigen::VectorXd& w,
+                                                           double scale, Eigen::VectorXd& gx,
+                                                           Eigen::VectorXd* gp) const {
+  auto pair_vector = [&](const std::array<int, 4>& v, const Eigen::VectorXd& src, double* out12) {
+    for (int k = 0; k < 4; ++k)
+      for (int a = 0; a < 3; ++a) out12[3 * k + a] = v[k] < num_cloth_ ? src[3 * v[k] + a] : 0.0;
+  };
   // Friction: phi = mu lambda_f (T l)^T S(u) (T w), u = T (X - X_t) (lagged lambda_f, T held constant).
   const double mu = friction(p);
   for (const auto& f : friction_pairs_) {
@@ -631,7 +653,7 @@ void PairContactTerm::add_step_matrix_derivatives(const Eigen::VectorXd& x, cons
     for (int k = 0; k < 4; ++k)
       if (f.v[k] < num_cloth_)
         for (int a = 0; a < 3; ++a) gx[3 * f.v[k] + a] += scale * mu * f.normal_force * dphi[3 * k + a];
-    if (friction_index() >= 0) gp[friction_index()] += scale * f.normal_force * phi.a;
+    if (gp && friction_index() >= 0) (*gp)[friction_index()] += scale * f.normal_force * phi.a;
   }
 }
 

@@ -91,6 +91,9 @@ class PairContactTerm : public Term {
   void add_step_matrix_derivatives(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& lambda,
                                    const Eigen::VectorXd& w, double scale, Eigen::VectorXd& gx,
                                    Eigen::VectorXd& gp) const override;
+  // The friction's slip starts at x_t: its part of the x_t-derivative (Term::add_step_start_adjoint).
+  void add_step_start_adjoint(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& lambda,
+                              const Eigen::VectorXd& w, double c, Eigen::VectorXd& gxt) const override;
   double max_step(const Eigen::VectorXd& x, const Eigen::VectorXd& dx, const Eigen::VectorXd& p) const override;
   // A state must start free of intersections: begin_step throws SolverError naming the first intersecting
   // triangle pair (contact/diagnostics.hpp), or the pair through which a moving obstacle's step sweeps.
@@ -143,6 +146,10 @@ class PairContactTerm : public Term {
   void add_friction_blocks(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double scale, Eigen::VectorXd& values) const;
   void add_friction_product(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& dir,
                             bool offpattern_only, Eigen::VectorXd& out) const;
+  // The friction part of add_step_matrix_derivatives (gp: none if null).
+  void add_friction_step_matrix_derivatives(const Eigen::VectorXd& x, const Eigen::VectorXd& p,
+                                            const Eigen::VectorXd& lambda, const Eigen::VectorXd& w, double scale,
+                                            Eigen::VectorXd& gx, Eigen::VectorXd* gp) const;
   std::vector<FrictionPair> friction_pairs_;
   double eps_u_ = 0;
   std::vector<std::array<int, 6>> diagonal_index_;  // per cloth vertex: the upper-triangle entries of its block

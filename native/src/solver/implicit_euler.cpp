@@ -404,9 +404,12 @@ void ImplicitEuler::contact_step_adjoint(const StepRecord& r, Eigen::VectorXd& g
   for (int i = 0; i < nv; ++i)
     gdensity -= inv_h2 * w[i] * lambda.segment<3>(3 * i).dot(x_next.segment<3>(3 * i) - x_hat.segment<3>(3 * i));
   gp[density_block.offset] += gdensity;
+  // The lagged friction's slip starts at x_t: dL/dx_t -= lambda . d(grad E)/dx_t.
+  Eigen::VectorXd start_bar = Eigen::VectorXd::Zero(lambda.size());
+  for (const auto& t : model_.terms()) t->add_step_start_adjoint(x_next, p_, lambda, lambda, 0.0, start_bar);
   Eigen::VectorXd Ml(lambda.size());
   for (int i = 0; i < nv; ++i) Ml.segment<3>(3 * i) = m[i] * lambda.segment<3>(3 * i);
-  gx = inv_h2 * Ml - gv / h;
+  gx = inv_h2 * Ml - gv / h - start_bar;
   gv = Ml / h;
 }
 
@@ -534,6 +537,7 @@ void ImplicitEuler::linear_contact_step_adjoint(const StepRecord& r, Eigen::Vect
   const bool offpattern = has_offpattern_terms(model_);
   for (const auto& t : model_.terms()) t->begin_step(r.x, p_, h);  // the step's lagged friction state
   Eigen::VectorXd xbar = gx + gv / h, xt_bar = -gv / h, xhat_bar = Eigen::VectorXd::Zero(n);
+  Eigen::VectorXd start_bar = Eigen::VectorXd::Zero(n);  // d(sum_k lambda_k . (g_k + A_k dx_k))/dx_t at fixed x_k
   Eigen::VectorXd A, g, lambda, unused(n);
   for (int k = static_cast<int>(r.iterates.size()) - 1; k >= 0; --k) {
     const ContactIterate& it = r.iterates[k];
@@ -554,7 +558,10 @@ void ImplicitEuler::linear_contact_step_adjoint(const StepRecord& r, Eigen::Vect
     }
     Eigen::VectorXd xbar_prev = xbar;
     unused.setZero();
-    for (const auto& t : model_.terms()) t->add_step_adjoint(it.x, p_, lambda, it.dx, 1.0, xbar_prev, unused, gp);
+    for (const auto& t : model_.terms()) {
+      t->add_step_adjoint(it.x, p_, lambda, it.dx, 1.0, xbar_prev, unused, gp);
+      t->add_step_start_adjoint(it.x, p_, lambda, it.dx, 1.0, start_bar);  // the lagged friction's slip start
+    }
     double gdensity = 0;
     for (int i = 0; i < nv; ++i) {
       const Eigen::Vector3d l = lambda.segment<3>(3 * i);
@@ -566,7 +573,7 @@ void ImplicitEuler::linear_contact_step_adjoint(const StepRecord& r, Eigen::Vect
     gp[density_block.offset] += gdensity;
     xbar = std::move(xbar_prev);
   }
-  gx = xt_bar + xbar + xhat_bar;
+  gx = xt_bar + xbar + xhat_bar - start_bar;
   gv = h * xhat_bar;
 }
 
