@@ -558,9 +558,9 @@ class ClothModel:
         velocities0 (V, 3): initial velocities of a dynamic rollout (default at rest).
         factor_memory_mb: memory (MB) for the per-step factorisations kept for backward (default 1024);
         steps beyond it are refactorised during backward (same result, slower).
-        contact_step: with a contact effect (or a garment's body), "linearised": each step is the
+        contact_step: with a contact effect (or a garment's body), "linearised" (default): each step is the
         linearised implicit step with the contact terms included, its moves cut by collision detection (another
-        iteration while a move was cut; its adjoint is not yet right with self contact); "newton" (default): each step minimises IPC's incremental potential, its Newton
+        iteration while a move was cut); "newton": each step minimises IPC's incremental potential, its Newton
         iterations ending when each residual force is below contact_force_tolerance of the vertex's weight
         (default 1e-6). See docs/contact.md.
         A dynamic rollout that diverges (a vertex faster than max_speed m/s, or a non-finite or indefinite step)

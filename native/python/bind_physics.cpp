@@ -277,11 +277,11 @@ void bind_physics(py::module_& m) {
           py::arg("record") = true, py::arg("progress") = nullptr, py::arg("x0") = py::none(),
           py::arg("v0") = py::none(), py::arg("factor_memory_mb") = RolloutOptions{}.factor_memory_mb,
           py::arg("contact_force_tolerance") = RolloutOptions{}.contact_force_tolerance,
-          py::arg("contact_step") = "newton",
+          py::arg("contact_step") = "linearised",
           "Rolls out from (x0, v0) (default: rest, at rest); returns final positions (3V). Factors for the adjoint "
           "are kept up to factor_memory_mb (MB); later steps are refactorised in the backward. With contact terms, "
-          "contact_step 'linearised' takes the linearised step with the contact terms, its moves cut by "
-          "collision detection (another iteration while a move was cut); 'newton' (default) minimises the incremental "
+          "contact_step 'linearised' (default) takes the linearised step with the contact terms, its moves cut by "
+          "collision detection (another iteration while a move was cut); 'newton' minimises the incremental "
           "potential until every residual force is below contact_force_tolerance (of each vertex's weight).")
       .def(
           "backward",

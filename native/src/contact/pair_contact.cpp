@@ -344,25 +344,27 @@ double PairContactTerm::max_step(const Eigen::VectorXd& x, const Eigen::VectorXd
   return alpha;
 }
 
-void PairContactTerm::begin_step(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double h) {
+void PairContactTerm::start_step(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double h, bool check) {
   friction_pairs_.clear();
   eps_u_ = kSlipSpeed * h;
   if (!(dhat(p) > 0)) return;
   const ContactPositions P = positions(x);
   std::vector<std::array<int, 2>> first;
-  for (const auto& q : triangle_pairs(surfaces_, P, 0.0, filter_)) {
-    Eigen::Vector3d t0[3], t1[3];
-    for (int k = 0; k < 3; ++k) {
-      t0[k] = P.row(surfaces_.faces[q[0]][k]);
-      t1[k] = P.row(surfaces_.faces[q[1]][k]);
-    }
-    if (triangles_intersect(t0, t1)) {
-      first.push_back(q);
-      break;
+  if (check) {  // the state must be free of intersections (the adjoint resumes accepted states unchecked)
+    for (const auto& q : triangle_pairs(surfaces_, P, 0.0, filter_)) {
+      Eigen::Vector3d t0[3], t1[3];
+      for (int k = 0; k < 3; ++k) {
+        t0[k] = P.row(surfaces_.faces[q[0]][k]);
+        t1[k] = P.row(surfaces_.faces[q[1]][k]);
+      }
+      if (triangles_intersect(t0, t1)) {
+        first.push_back(q);
+        break;
+      }
     }
   }
   if (!first.empty()) throw_intersection(first[0]);
-  check_obstacle_sweep(x);
+  if (check) check_obstacle_sweep(x);
   if (!(h > 0)) return;  // a static drape: no friction
   // Lagged friction: each active pair's normal force, closest-point weights and normal at the step's start.
   const double dh = dhat(p);

@@ -97,7 +97,9 @@ class PairContactTerm : public Term {
   double max_step(const Eigen::VectorXd& x, const Eigen::VectorXd& dx, const Eigen::VectorXd& p) const override;
   // A state must start free of intersections: begin_step throws SolverError naming the first intersecting
   // triangle pair (contact/diagnostics.hpp), or the pair through which a moving obstacle's step sweeps.
-  void begin_step(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double h) override;
+  void begin_step(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double h) override { start_step(x, p, h, true); }
+  // The lagged friction state only (Term::resume_step: no intersection or sweep check).
+  void resume_step(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double h) override { start_step(x, p, h, false); }
 
   // The pairs closer than dhat at x (cached per x).
   std::vector<ActivePair> active_pairs(const Eigen::VectorXd& x, double dhat) const;
@@ -127,6 +129,7 @@ class PairContactTerm : public Term {
   [[noreturn]] void throw_intersection(const std::array<int, 2>& faces) const;
   // SolverError if the obstacle's move over the step (obstacle_start_ -> obstacle_) sweeps through the cloth at x.
   void check_obstacle_sweep(const Eigen::VectorXd& x) const;
+  void start_step(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double h, bool check);
   template <class F>
   void for_each_pair_gauss_newton(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const F& f) const;
   template <class F>

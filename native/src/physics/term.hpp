@@ -79,6 +79,9 @@ class Term {
   // Moving obstacles (a garment's body): moves the step's first iterate x (the start state) so that it is clear
   // of the obstacle at its end-of-step pose (cloth near a part is carried along with it).
   virtual void carry_start(Eigen::VectorXd& /*x*/) const {}
+  // The adjoint's return to a step that the forward began (begin_step) and accepted: the same lagged state,
+  // without begin_step's checks (which that state passed). Default: begin_step.
+  virtual void resume_step(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double h) { begin_step(x, p, h); }
   // Contact between surfaces (self contact, a moving obstacle: contact/pair_contact.hpp) couples vertices that
   // are not neighbours in the mesh, outside the model's fixed sparsity pattern. Such a term assembles only the
   // part of its matrices that lies in the pattern (add_hessian, add_projected_hessian, add_step_matrix) and

@@ -376,7 +376,7 @@ void ImplicitEuler::contact_step_adjoint(const StepRecord& r, Eigen::VectorXd& g
   const Eigen::VectorXd v_next = r.v + r.y;
   const Eigen::VectorXd x_next = r.x + h * v_next, x_hat = r.x + h * r.v;
   // The lagged friction state of this step, as the forward had it.
-  for (const auto& t : model_.terms()) t->begin_step(r.x, p_, h);
+  for (const auto& t : model_.terms()) t->resume_step(r.x, p_, h);
   const Eigen::VectorXd gbar = gx + gv / h;
   // The exact Hessian of the potential; where the minimiser is only a saddle of its quadratic model (the
   // Newton iterations then ran on a definite substitute, see contact_step), the same substitutes in turn: the
@@ -535,7 +535,7 @@ void ImplicitEuler::linear_contact_step_adjoint(const StepRecord& r, Eigen::Vect
   const auto& density_block = model_.layout().block("density");
   const Eigen::VectorXd& w = model_.area_weights();
   const bool offpattern = has_offpattern_terms(model_);
-  for (const auto& t : model_.terms()) t->begin_step(r.x, p_, h);  // the step's lagged friction state
+  for (const auto& t : model_.terms()) t->resume_step(r.x, p_, h);  // the step's lagged friction state
   Eigen::VectorXd xbar = gx + gv / h, xt_bar = -gv / h, xhat_bar = Eigen::VectorXd::Zero(n);
   Eigen::VectorXd start_bar = Eigen::VectorXd::Zero(n);  // d(sum_k lambda_k . (g_k + A_k dx_k))/dx_t at fixed x_k
   Eigen::VectorXd A, g, lambda, unused(n);

@@ -8,14 +8,14 @@
 // potential (Li et al. 2020, sec. 3), of which the step above is one Newton iteration from x_t:
 //   Phi(x) = 1/(2h^2) (x - x_hat)^T M (x - x_hat) + E(x),   x_hat = x_t + h v_t,  v_{t+1} = (x_{t+1} - x_t)/h.
 // RolloutOptions::contact_step chooses how:
-// - kLinearised: the step above with the contact terms' step matrices and forces included, in position
+// - kLinearised (default): the step above with the contact terms' step matrices and forces included, in position
 //   form, x_{k+1} = x_k - alpha_k (M/h^2 + K(x_k))^-1 grad Phi(x_k) from x_0 = x_t, each move cut to what
 //   continuous collision detection allows (alpha_k = min over terms of Term::max_step, so no iterate crosses a
 //   contact); when the cut shortened the move (alpha_k < 1), another such iteration from x_{k+1}, up to
 //   contact_max_iterations; the step ends with the first uncut move. Its adjoint differentiates exactly this
 //   map (as the contact-free step's, through Term::add_step_adjoint, the alphas held constant: they are
 //   piecewise constant in the inputs), iteration by iteration.
-// - kNewton (default): the minimiser of Phi, found by Newton iterations whose every step is first bounded by collision
+// - kNewton: the minimiser of Phi, found by Newton iterations whose every step is first bounded by collision
 //   detection and then by an Armijo line search on the potential; converged when every vertex's residual force
 //   is below RolloutOptions::contact_force_tolerance of its weight. Its adjoint is the implicit function theorem
 //   at the minimiser (exact Hessian of the potential, lagged friction quantities held constant).
@@ -43,7 +43,7 @@ struct RolloutOptions {
   // Contact steps: linearised (one Newton iteration of the incremental potential, more only while collision
   // detection cuts the move) or Newton to the potential's minimiser (IPC); see the header.
   enum class ContactStep { kLinearised, kNewton };
-  ContactStep contact_step = ContactStep::kNewton;
+  ContactStep contact_step = ContactStep::kLinearised;
   // kNewton: iterations end when every residual force is below this fraction of the vertex's weight, or after
   // contact_max_iterations (then the last collision-free iterate is kept). kLinearised: at most
   // contact_max_iterations cut iterations (then the last, collision-free, iterate is kept).
