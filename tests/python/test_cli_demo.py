@@ -58,6 +58,7 @@ def test_bench_smoke(tmp_path, capsys):
     contact = report["contact"]
     assert contact["draws"] == 1 and contact["forward_ratio"] > 0 and contact["backward_ratio"] > 0
     assert contact["vertices_below_disk_max"] == 0 and contact["min_signed_distance_m"] > 0
+    assert contact["intersecting_pairs_max"] == 0
     assert "garment" not in report
     assert "circle1" in capsys.readouterr().out
     assert cli.main(["bench", "--meshes", "7", "--json", str(out)]) == 2

@@ -30,7 +30,8 @@ values (disk_contact: 2 cm clamp) beside the same placements without contact, fo
   contact: draws, effects, forward_ratio, backward_ratio (contact / contact-free, means over the draws, one run),
            forward_ms_per_step, backward_ms_per_step, base_forward_ms_per_step, base_backward_ms_per_step,
            min_signed_distance_m (the smallest clearance of a free vertex over the disk),
-           vertices_below_disk_max, intersecting_pairs_max (null until self-contact diagnostics are bound)
+           vertices_below_disk_max, intersecting_pairs_max (intersecting triangle pairs of a final state,
+           garment.mesh.self_intersections)
 Garments (issue 21), unless --no-garment: the bundled skirt (--garment-vertices, default 6000, flared) on the walking
 dress form for --garment-frames (default 48) with our simulator (drapelab.garment.simulate; the stiffest and the
 softest shipped presets, wool fabric 5 and viscose fabric 3) and with Blender's own cloth modifier at its default
@@ -492,6 +493,7 @@ def child_contact(task):
     import numpy as np
 
     from .. import infer, sim, tables
+    from ..garment.mesh import self_intersections
 
     level, steps, draws = task["level"], task["steps"], task["draws"]
     contact_names = [e["name"] for e in sim.effects() if e["name"] in ("disk_contact", "self_contact")]
@@ -510,7 +512,8 @@ def child_contact(task):
                if q["name"] == "rim_radius_m")
     weights = np.random.default_rng(0).standard_normal((base.num_vertices, 3))
     times = {"base_f": 0.0, "base_b": 0.0, "f": 0.0, "b": 0.0}
-    clearances, below = [], []
+    clearances, below, intersecting = [], [], []
+    faces = np.asarray(mesh.faces)
     for seed in range(draws):
         v0 = infer.placement_velocities(rest, np.random.default_rng([seed, 7]), float(placement.get("velocity_m_s", 0.0)),
                                         int(placement.get("angular_modes", 0)))
@@ -526,6 +529,7 @@ def child_contact(task):
             c = disk_clearance(x, rest_radius, clamp, rim)
             clearances.append(float(c.min()))
             below.append(int((c <= 0).sum()))
+        intersecting.append(len(self_intersections(x, faces)))  # of the contact drape's final state
     n = draws * steps
     return {"mesh": f"circle{level}", "draws": draws, "steps": steps, "effects": effects,
             "forward_ratio": times["f"] / times["base_f"], "backward_ratio": times["b"] / times["base_b"],
@@ -534,7 +538,7 @@ def child_contact(task):
             "base_backward_ms_per_step": 1000 * times["base_b"] / n,
             "min_signed_distance_m": min(clearances) if clearances else None,
             "vertices_below_disk_max": max(below) if below else None,
-            "intersecting_pairs_max": None}
+            "intersecting_pairs_max": max(intersecting) if intersecting else None}
 
 
 GARMENT_STYLE = "flared"
