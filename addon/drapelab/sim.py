@@ -39,6 +39,7 @@ __all__ = [
 ]
 
 MODES = ("dynamic", "static")
+CONTACT_STEPS = ("linearised", "newton")  # how a rollout with contact takes its steps (docs/contact.md)
 DEFAULT_DENSITY = tables.COTTON_BLUE.density  # kg/m^2
 DEFAULT_HANDLE_STIFFNESS = 1e3                # N/m (paper)
 DEFAULT_SUPPORT_RADIUS = 0.09                 # m: half the 18 cm Cusick support disk
@@ -568,7 +569,7 @@ class ClothModel:
     def simulate(self, params, mode="dynamic", steps=DEFAULT_STEPS, time_step=DEFAULT_TIME_STEP, progress=None,
                  cancel_event=None, force_tolerance=DEFAULT_FORCE_TOLERANCE, max_iterations=DEFAULT_MAX_ITERATIONS,
                  max_speed=DEFAULT_MAX_SPEED, record=True, positions0=None, velocities0=None, factor_memory_mb=None,
-                 contact_force_tolerance=None):
+                 contact_force_tolerance=None, contact_step=None):
         """Drapes the cloth from its flat rest state; returns the final positions (V, 3).
 
         mode "dynamic": ``steps`` implicit Euler steps of ``time_step`` seconds (record=False skips what
@@ -578,8 +579,11 @@ class ClothModel:
         velocities0 (V, 3): initial velocities of a dynamic rollout (default at rest).
         factor_memory_mb: memory (MB) for the per-step factorisations kept for backward (default 1024);
         steps beyond it are refactorised during backward (same result, slower).
-        contact_force_tolerance: with a contact effect (or a garment's body), every step is an IPC step whose
-        Newton iterations end when each residual force is below this fraction of the vertex's weight (default 1e-6).
+        contact_step: with a contact effect (or a garment's body), "linearised" (default): each step is the
+        linearised implicit step with the contact terms included, its moves cut by collision detection (another
+        iteration while a move was cut); "newton": each step minimises IPC's incremental potential, its Newton
+        iterations ending when each residual force is below contact_force_tolerance of the vertex's weight
+        (default 1e-6). See docs/contact.md.
         A dynamic rollout that diverges (a vertex faster than max_speed m/s, or a non-finite or indefinite step)
         raises SolverError naming the step, with the state before that step attached: ``e.step`` (0-based, the
         number of steps completed), ``e.positions`` and ``e.velocities`` (V, 3), all finite.
@@ -593,6 +597,10 @@ class ClothModel:
             max_speed = _scalar(max_speed, "max_speed", 0.0, strictly=True, unit="m/s")
             memory = {} if factor_memory_mb is None else {
                 "factor_memory_mb": _scalar(factor_memory_mb, "factor_memory_mb", 0.0, unit="MB")}
+            if contact_step is not None:
+                if contact_step not in CONTACT_STEPS:
+                    raise InputError(f"contact_step: expected one of {CONTACT_STEPS}, got {contact_step!r}")
+                memory["contact_step"] = contact_step
             if contact_force_tolerance is not None:
                 memory["contact_force_tolerance"] = _scalar(contact_force_tolerance, "contact_force_tolerance", 0.0,
                                                             strictly=True)

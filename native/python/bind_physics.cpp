@@ -301,8 +301,12 @@ void bind_physics(py::module_& m) {
           "forward",
           [](PyImplicitEuler& s, const Vector& p, double time_step, int steps, double max_speed, bool record,
              std::shared_ptr<PyProgress> progress, std::optional<Vector> x0, std::optional<Vector> v0,
-             double factor_memory_mb, double contact_force_tolerance) {
+             double factor_memory_mb, double contact_force_tolerance, const std::string& contact_step) {
             RolloutOptions o;
+            if (contact_step == "newton") o.contact_step = RolloutOptions::ContactStep::kNewton;
+            else if (contact_step == "linearised") o.contact_step = RolloutOptions::ContactStep::kLinearised;
+            else
+              throw InputError("contact_step: expected 'linearised' or 'newton', got '" + contact_step + "'");
             o.contact_force_tolerance = contact_force_tolerance;
             o.time_step = time_step;
             o.steps = steps;
@@ -317,9 +321,12 @@ void bind_physics(py::module_& m) {
           py::arg("record") = true, py::arg("progress") = nullptr, py::arg("x0") = py::none(),
           py::arg("v0") = py::none(), py::arg("factor_memory_mb") = RolloutOptions{}.factor_memory_mb,
           py::arg("contact_force_tolerance") = RolloutOptions{}.contact_force_tolerance,
+          py::arg("contact_step") = "linearised",
           "Rolls out from (x0, v0) (default: rest, at rest); returns final positions (3V). Factors for the adjoint "
           "are kept up to factor_memory_mb (MB); later steps are refactorised in the backward. With contact terms, "
-          "each step's Newton iterations end below contact_force_tolerance (of each vertex's weight).")
+          "contact_step 'linearised' (default) takes the linearised step with the contact terms, its moves cut by "
+          "collision detection (another iteration while a move was cut); 'newton' minimises the incremental "
+          "potential until every residual force is below contact_force_tolerance (of each vertex's weight).")
       .def(
           "backward",
           [](PyImplicitEuler& s, const Vector& dL_dx, std::optional<Vector> dL_dv, std::shared_ptr<PyProgress> progress) {
@@ -355,6 +362,9 @@ void bind_physics(py::module_& m) {
         out["newton_iterations"] = t.newton_iterations;
         out["factorizations"] = t.factorizations;
         out["inexact_adjoint_steps"] = t.inexact_adjoint_steps;
+        out["collision"] = t.collision;
+        out["cg_iterations"] = t.cg_iterations;
+        out["cut_iterations"] = t.cut_iterations;
         return out;
       }, "Seconds spent in assembly, factorisation and solves during the last forward; with contact (IPC steps) "
          "also the Newton iterations and factorisations, and the steps whose adjoint used a definite substitute.")

@@ -141,7 +141,7 @@ def drape(garment, material, body=None, motion="static", frames=48, fps=DEFAULT_
                 contact.set_poses(list(transforms[k]), list(transforms[k + 1]))
                 try:
                     x = model.simulate(params, steps=1, time_step=h, record=False, positions0=x, velocities0=v,
-                                       contact_force_tolerance=FORCE_TOLERANCE)
+                                       contact_force_tolerance=FORCE_TOLERANCE, contact_step="newton")
                 except sim.SolverError as e:
                     raise sim.SolverError(f"garment: frame {frame} substep {j}: {e}") from None
                 v = model.velocities.copy()

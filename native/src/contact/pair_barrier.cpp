@@ -28,6 +28,12 @@ T barrier_slope_in(double d, const T& dhat) {
   const T e = d - dhat;
   return (-2.0 * e * log_of(d / dhat) - e * e / d) / (dhat * dhat);
 }
+// b''(d; dhat) / dhat^2, templated in d and dhat (the Gauss-Newton matrix's derivatives).
+template <class T>
+T barrier_curvature_in(const T& d, const T& dhat) {
+  const T e = d - dhat;
+  return (-2.0 * log_of(d / dhat) - 4.0 * e / d + e * e / (d * d)) / (dhat * dhat);
+}
 }  // namespace
 
 int pair_type(PairKind kind, const double* x) {
@@ -164,6 +170,67 @@ void pair_barrier_dhat_derivatives(PairKind kind, int type, const double* x, dou
   // d(m E)/ddhat = m dE; d(grad(m E))/ddhat = m dg + dE grad m
   for (int i = 0; i < 12; ++i) dg[i] = m.a * dg[i] + dE * m.v[i];
   dE *= m.a;
+}
+
+void pair_barrier_gauss_newton(PairKind kind, int type, const double* x, double dhat, double kappa, double* r,
+                               double& s, double eps) {
+  using J = Jet<double, 12>;
+  J xs[12];
+  for (int i = 0; i < 12; ++i) xs[i] = J(x[i], i);
+  const J d2 = distance2_of(kind, type, xs);
+  s = 0;
+  for (int i = 0; i < 12; ++i) r[i] = 0;
+  const double d = std::sqrt(d2.a);
+  if (!(d > 0) || d >= dhat) return;
+  double b, db, d2b;
+  barrier_derivatives(d, dhat, b, db, d2b);
+  s = kappa * d2b * pair_mollifier(kind, x, eps);
+  for (int i = 0; i < 12; ++i) r[i] = d2.v[i] / (2 * d);
+}
+
+void pair_barrier_gauss_newton_derivatives(PairKind kind, int type, const double* x, double dhat, double c,
+                                           const double* l, const double* w, double* dphi, double& dphi_ddhat,
+                                           double eps) {
+  for (int i = 0; i < 12; ++i) dphi[i] = 0;
+  dphi_ddhat = 0;
+  double d2, g2[12], H2[144];
+  distance_gradient_hessian<12>([&](const auto* y) { return distance2_of(kind, type, y); }, x, d2, g2, H2);
+  const double d = std::sqrt(d2);
+  if (!(d > 0) || d >= dhat) return;
+  // phi = s (l.r)(w.r), s = m c dhat b''(d; dhat), r = grad d = g2 / (2d), Hess d = H2 / (2d) - g2 g2^T / (4 d^3):
+  // dphi = ds (l.r)(w.r) + s ((w.r) Hess d l + (l.r) Hess d w),  ds = c dhat (b''(d) grad m + m b'''(d) r).
+  using J = Jet<double, 2>;
+  const J curvature = barrier_curvature_in(J(d, 0), J(dhat, 1));
+  double m = 1.0, gm[12] = {0};
+  if (kind == PairKind::kEdgeEdge && eps > 0) {
+    using M = Jet<double, 12>;
+    M xs[12];
+    for (int i = 0; i < 12; ++i) xs[i] = M(x[i], i);
+    const M mj = mollifier_of(xs, eps);
+    m = mj.a;
+    for (int i = 0; i < 12; ++i) gm[i] = mj.v[i];
+  }
+  double r[12], lr = 0, wr = 0;
+  for (int i = 0; i < 12; ++i) {
+    r[i] = g2[i] / (2 * d);
+    lr += l[i] * r[i];
+    wr += w[i] * r[i];
+  }
+  const double s = m * c * dhat * curvature.a;
+  double Hl[12], Hw[12];
+  for (int i = 0; i < 12; ++i) {
+    double a = 0, b = 0;
+    for (int j = 0; j < 12; ++j) {
+      const double Hd = H2[12 * i + j] / (2 * d) - g2[i] * g2[j] / (4 * d2 * d);
+      a += Hd * l[j];
+      b += Hd * w[j];
+    }
+    Hl[i] = a;
+    Hw[i] = b;
+  }
+  for (int i = 0; i < 12; ++i)
+    dphi[i] = c * dhat * (curvature.a * gm[i] + m * curvature.v[0] * r[i]) * lr * wr + s * (wr * Hl[i] + lr * Hw[i]);
+  dphi_ddhat = m * c * (curvature.a + dhat * curvature.v[1]) * lr * wr;
 }
 
 }  // namespace drapelab

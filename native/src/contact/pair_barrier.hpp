@@ -39,6 +39,16 @@ void pair_barrier_hessian(PairKind kind, int type, const double* x, double dhat,
 // With kappa = c dhat: dE/ddhat and dg (12) = d(dE/dx)/ddhat at fixed x.
 void pair_barrier_dhat_derivatives(PairKind kind, int type, const double* x, double dhat, double c, double& dE,
                                    double* dg, double mollifier_eps = 0);
+// The barrier's Gauss-Newton step matrix (the PSD matrix of linearised implicit steps, solver/implicit_euler.hpp):
+//   K = s r r^T,  r = grad d (12),  s = m kappa b''(d) >= 0   (b'' >= 0 on (0, dhat); m the mollifier),
+// dropping kappa b'(d) Hess d and the mollifier's derivatives from the exact Hessian. Fills r and s (r = 0, s = 0
+// beyond dhat).
+void pair_barrier_gauss_newton(PairKind kind, int type, const double* x, double dhat, double kappa, double* r,
+                               double& s, double mollifier_eps = 0);
+// With kappa = c dhat, for fixed l and w (12 each): phi = l^T K(x, dhat) w; dphi (12) = dphi/dx, dphi_ddhat.
+void pair_barrier_gauss_newton_derivatives(PairKind kind, int type, const double* x, double dhat, double c,
+                                           const double* l, const double* w, double* dphi, double& dphi_ddhat,
+                                           double mollifier_eps = 0);
 // The edge-edge mollifier m(x) in [0, 1] (1 for point-triangle pairs or mollifier_eps <= 0).
 double pair_mollifier(PairKind kind, const double* x, double mollifier_eps);
 

@@ -11,6 +11,7 @@
 #include "contact/diagnostics.hpp"
 #include "physics/sparse_pattern.hpp"
 #include "util/error.hpp"
+#include "util/jet.hpp"
 
 namespace drapelab {
 
@@ -236,10 +237,6 @@ void PairContactTerm::add_diagonal_blocks(const Eigen::VectorXd& x, const Eigen:
   add_friction_blocks(x, p, scale, values);
 }
 
-void PairContactTerm::add_step_matrix(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double scale,
-                                      Eigen::VectorXd& values) const {
-  add_diagonal_blocks(x, p, true, scale, values);
-}
 void PairContactTerm::add_hessian(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double scale,
                                   Eigen::VectorXd& values) const {
   add_diagonal_blocks(x, p, false, scale, values);
@@ -347,25 +344,27 @@ double PairContactTerm::max_step(const Eigen::VectorXd& x, const Eigen::VectorXd
   return alpha;
 }
 
-void PairContactTerm::begin_step(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double h) {
+void PairContactTerm::start_step(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double h, bool check) {
   friction_pairs_.clear();
   eps_u_ = kSlipSpeed * h;
   if (!(dhat(p) > 0)) return;
   const ContactPositions P = positions(x);
   std::vector<std::array<int, 2>> first;
-  for (const auto& q : triangle_pairs(surfaces_, P, 0.0, filter_)) {
-    Eigen::Vector3d t0[3], t1[3];
-    for (int k = 0; k < 3; ++k) {
-      t0[k] = P.row(surfaces_.faces[q[0]][k]);
-      t1[k] = P.row(surfaces_.faces[q[1]][k]);
-    }
-    if (triangles_intersect(t0, t1)) {
-      first.push_back(q);
-      break;
+  if (check) {  // the state must be free of intersections (the adjoint resumes accepted states unchecked)
+    for (const auto& q : triangle_pairs(surfaces_, P, 0.0, filter_)) {
+      Eigen::Vector3d t0[3], t1[3];
+      for (int k = 0; k < 3; ++k) {
+        t0[k] = P.row(surfaces_.faces[q[0]][k]);
+        t1[k] = P.row(surfaces_.faces[q[1]][k]);
+      }
+      if (triangles_intersect(t0, t1)) {
+        first.push_back(q);
+        break;
+      }
     }
   }
   if (!first.empty()) throw_intersection(first[0]);
-  check_obstacle_sweep(x);
+  if (check) check_obstacle_sweep(x);
   if (!(h > 0)) return;  // a static drape: no friction
   // Lagged friction: each active pair's normal force, closest-point weights and normal at the step's start.
   const double dh = dhat(p);
@@ -511,6 +510,152 @@ void PairContactTerm::add_friction_product(const Eigen::VectorXd& x, const Eigen
           for (int b = 0; b < 3; ++b) out[3 * f.v[k] + a] += s * H[12 * (3 * k + a) + 3 * l + b] * dir[3 * f.v[l] + b];
       }
     }
+  }
+}
+
+// The step matrix (Gauss-Newton barrier + exact friction Hessian, both PSD per pair): K = sum s r r^T + friction.
+template <class F>
+void PairContactTerm::for_each_pair_gauss_newton(const Eigen::VectorXd& x, const Eigen::VectorXd& p,
+                                                 const F& f) const {
+  const double dh = dhat(p);
+  const ContactPositions P = positions(x);
+  for (const auto& q : active_pairs(x, dh)) {
+    double x12[12], r[12], s;
+    gather(q, P, x12);
+    pair_barrier_gauss_newton(q.kind, q.type, x12, dh, q.c * dh, r, s, q.mollifier_eps);
+    if (s != 0) f(q, r, s);
+  }
+}
+
+void PairContactTerm::add_step_matrix(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double scale,
+                                      Eigen::VectorXd& values) const {
+  for_each_pair_gauss_newton(x, p, [&](const ActivePair& q, const double* r, double s) {
+    for (int k = 0; k < 4; ++k) {
+      if (q.v[k] >= num_cloth_) continue;
+      const auto& idx = diagonal_index_[q.v[k]];
+      int m = 0;
+      for (int a = 0; a < 3; ++a)
+        for (int b = a; b < 3; ++b) values[idx[m++]] += scale * s * r[3 * k + a] * r[3 * k + b];
+    }
+  });
+  add_friction_blocks(x, p, scale, values);
+}
+
+void PairContactTerm::add_offpattern_step_matrix_product(const Eigen::VectorXd& x, const Eigen::VectorXd& p,
+                                                         const Eigen::VectorXd& dir, Eigen::VectorXd& out) const {
+  for_each_pair_gauss_newton(x, p, [&](const ActivePair& q, const double* r, double s) {
+    double rd[4] = {0, 0, 0, 0};  // r_k . dir_k per vertex
+    for (int k = 0; k < 4; ++k)
+      if (q.v[k] < num_cloth_)
+        for (int a = 0; a < 3; ++a) rd[k] += r[3 * k + a] * dir[3 * q.v[k] + a];
+    const double total = rd[0] + rd[1] + rd[2] + rd[3];
+    for (int k = 0; k < 4; ++k)
+      if (q.v[k] < num_cloth_)
+        for (int a = 0; a < 3; ++a) out[3 * q.v[k] + a] += s * r[3 * k + a] * (total - rd[k]);
+  });
+  add_friction_product(x, p, dir, true, out);  // the friction part of K is its exact (PSD) Hessian
+}
+
+namespace {
+// The friction kernel's curvature S(u) (3 x 3, PairContactTerm::friction_kernel), templated on the slip u for
+// the step matrix's derivatives.
+template <class T>
+void friction_curvature(const T* u, double eps, T* S) {
+  const T u2 = u[0] * u[0] + u[1] * u[1] + u[2] * u[2];
+  const bool tiny = value_of(u2) < 1e-20 * eps * eps;
+  for (int k = 0; k < 9; ++k) S[k] = T(0.0);
+  if (tiny) {
+    for (int a = 0; a < 3; ++a) S[4 * a] = T(2.0 / eps);
+    return;
+  }
+  using std::sqrt;
+  const T un = sqrt(u2);
+  T f1_over_u, df1;
+  if (value_of(un) >= eps) {
+    f1_over_u = 1.0 / un;
+    df1 = T(0.0);
+  } else {
+    f1_over_u = -un / (eps * eps) + 2.0 / eps;
+    df1 = -2.0 * un / (eps * eps) + 2.0 / eps;
+  }
+  for (int a = 0; a < 3; ++a)
+    for (int b = 0; b < 3; ++b) {
+      const T rr = u[a] * u[b] / u2;
+      S[3 * a + b] = f1_over_u * ((a == b ? 1.0 : 0.0) - rr) + df1 * rr;
+    }
+}
+}  // namespace
+
+void PairContactTerm::add_step_matrix_derivatives(const Eigen::VectorXd& x, const Eigen::VectorXd& p,
+                                                  const Eigen::VectorXd& lambda, const Eigen::VectorXd& w,
+                                                  double scale, Eigen::VectorXd& gx, Eigen::VectorXd& gp) const {
+  const double dh = dhat(p);
+  const int k_dhat = dhat_index();
+  auto pair_vector = [&](const std::array<int, 4>& v, const Eigen::VectorXd& src, double* out12) {
+    for (int k = 0; k < 4; ++k)
+      for (int a = 0; a < 3; ++a) out12[3 * k + a] = v[k] < num_cloth_ ? src[3 * v[k] + a] : 0.0;
+  };
+  if (dh > 0) {
+    const ContactPositions P = positions(x);
+    double gdhat = 0;
+    for (const auto& q : active_pairs(x, dh)) {
+      double x12[12], l12[12], w12[12], dphi[12], dphi_ddhat;
+      gather(q, P, x12);
+      pair_vector(q.v, lambda, l12);
+      pair_vector(q.v, w, w12);
+      pair_barrier_gauss_newton_derivatives(q.kind, q.type, x12, dh, q.c, l12, w12, dphi, dphi_ddhat,
+                                            q.mollifier_eps);
+      for (int k = 0; k < 4; ++k)
+        if (q.v[k] < num_cloth_)
+          for (int a = 0; a < 3; ++a) gx[3 * q.v[k] + a] += scale * dphi[3 * k + a];
+      gdhat += dphi_ddhat;
+    }
+    if (k_dhat >= 0) gp[k_dhat] += scale * gdhat;
+  }
+  add_friction_step_matrix_derivatives(x, p, lambda, w, scale, gx, &gp);
+}
+
+void PairContactTerm::add_step_start_adjoint(const Eigen::VectorXd& x, const Eigen::VectorXd& p,
+                                             const Eigen::VectorXd& lambda, const Eigen::VectorXd& w, double c,
+                                             Eigen::VectorXd& gxt) const {
+  if (friction_pairs_.empty() || friction(p) == 0) return;
+  // the friction energy is a function of x - x_t: minus its x-derivatives
+  Eigen::VectorXd d = Eigen::VectorXd::Zero(gxt.size());
+  add_friction_product(x, p, lambda, false, d);
+  if (c != 0) add_friction_step_matrix_derivatives(x, p, lambda, w, c, d, nullptr);
+  gxt -= d;
+}
+
+void PairContactTerm::add_friction_step_matrix_derivatives(const Eigen::VectorXd& x, const Eigen::VectorXd& p,
+                                                           const Eigen::VectorXd& lambda, const Eigen::VectorXd& w,
+                                                           double scale, Eigen::VectorXd& gx,
+                                                           Eigen::VectorXd* gp) const {
+  auto pair_vector = [&](const std::array<int, 4>& v, const Eigen::VectorXd& src, double* out12) {
+    for (int k = 0; k < 4; ++k)
+      for (int a = 0; a < 3; ++a) out12[3 * k + a] = v[k] < num_cloth_ ? src[3 * v[k] + a] : 0.0;
+  };
+  // Friction: phi = mu lambda_f (T l)^T S(u) (T w), u = T (X - X_t) (lagged lambda_f, T held constant).
+  const double mu = friction(p);
+  for (const auto& f : friction_pairs_) {
+    double l12[12], w12[12];
+    pair_vector(f.v, lambda, l12);
+    pair_vector(f.v, w, w12);
+    const Eigen::Vector3d tl = f.T * Eigen::Map<const Eigen::Matrix<double, 12, 1>>(l12);
+    const Eigen::Vector3d tw = f.T * Eigen::Map<const Eigen::Matrix<double, 12, 1>>(w12);
+    const Eigen::Vector3d r = slip(f, x);
+    using J = Jet<double, 3>;
+    J u[3], S[9];
+    for (int a = 0; a < 3; ++a) u[a] = J(r[a], a);
+    friction_curvature(u, eps_u_, S);
+    J phi(0.0);
+    for (int a = 0; a < 3; ++a)
+      for (int b = 0; b < 3; ++b) phi = phi + S[3 * a + b] * (tl[a] * tw[b]);
+    const Eigen::Vector3d dphi_du(phi.v[0], phi.v[1], phi.v[2]);
+    const Eigen::Matrix<double, 12, 1> dphi = f.T.transpose() * dphi_du;
+    for (int k = 0; k < 4; ++k)
+      if (f.v[k] < num_cloth_)
+        for (int a = 0; a < 3; ++a) gx[3 * f.v[k] + a] += scale * mu * f.normal_force * dphi[3 * k + a];
+    if (gp && friction_index() >= 0) (*gp)[friction_index()] += scale * f.normal_force * phi.a;
   }
 }
 

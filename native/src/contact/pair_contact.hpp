@@ -11,7 +11,7 @@
 //
 // The model's sparsity pattern is fixed when it is built, but pairs couple vertices far apart in the mesh. The
 // term therefore assembles only each pair's diagonal 3x3 vertex blocks (of the exact Hessian in add_hessian, of
-// the per-pair PSD projection in add_projected_hessian and add_step_matrix; the diagonal blocks of a PSD
+// the per-pair PSD projection in add_projected_hessian, of the Gauss-Newton step matrix in add_step_matrix; the diagonal blocks of a PSD
 // matrix are PSD, so the assembled matrices stay definite) and gives the rest, the off-diagonal blocks, as a
 // product (add_offpattern_hessian_product); add_hessian_product is the full exact product. Solvers combine them
 // by conjugate gradients preconditioned with the assembled matrix's factor (solver/contact_linear_solve.hpp).
@@ -82,15 +82,24 @@ class PairContactTerm : public Term {
                                      Eigen::VectorXd& gp) const override;
   void add_gradient_parameter_product(const Eigen::VectorXd& x, const Eigen::VectorXd& p,
                                       const Eigen::VectorXd& lambda, double scale, Eigen::VectorXd& gp) const override;
-  // K = the diagonal blocks of the projected Hessian: its x-derivative is not provided (rollouts with contact
-  // take IPC steps, whose adjoint uses the exact Hessian, never d(lambda^T K w)/dx); adds nothing.
+  // The step matrix K (linearised contact steps, solver/implicit_euler.hpp): per pair the barrier's Gauss-Newton
+  // matrix s r r^T (contact/pair_barrier.hpp) plus the friction Hessian (PSD). add_step_matrix assembles its
+  // diagonal blocks, add_offpattern_step_matrix_product gives the rest, add_step_matrix_derivatives the full
+  // K's derivatives in x, dhat and friction (lagged friction quantities held constant).
+  void add_offpattern_step_matrix_product(const Eigen::VectorXd& x, const Eigen::VectorXd& p,
+                                          const Eigen::VectorXd& dir, Eigen::VectorXd& out) const override;
   void add_step_matrix_derivatives(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& lambda,
                                    const Eigen::VectorXd& w, double scale, Eigen::VectorXd& gx,
-                                   Eigen::VectorXd& gp) const override {}
+                                   Eigen::VectorXd& gp) const override;
+  // The friction's slip starts at x_t: its part of the x_t-derivative (Term::add_step_start_adjoint).
+  void add_step_start_adjoint(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& lambda,
+                              const Eigen::VectorXd& w, double c, Eigen::VectorXd& gxt) const override;
   double max_step(const Eigen::VectorXd& x, const Eigen::VectorXd& dx, const Eigen::VectorXd& p) const override;
   // A state must start free of intersections: begin_step throws SolverError naming the first intersecting
   // triangle pair (contact/diagnostics.hpp), or the pair through which a moving obstacle's step sweeps.
-  void begin_step(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double h) override;
+  void begin_step(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double h) override { start_step(x, p, h, true); }
+  // The lagged friction state only (Term::resume_step: no intersection or sweep check).
+  void resume_step(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double h) override { start_step(x, p, h, false); }
 
   // The pairs closer than dhat at x (cached per x).
   std::vector<ActivePair> active_pairs(const Eigen::VectorXd& x, double dhat) const;
@@ -120,6 +129,9 @@ class PairContactTerm : public Term {
   [[noreturn]] void throw_intersection(const std::array<int, 2>& faces) const;
   // SolverError if the obstacle's move over the step (obstacle_start_ -> obstacle_) sweeps through the cloth at x.
   void check_obstacle_sweep(const Eigen::VectorXd& x) const;
+  void start_step(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double h, bool check);
+  template <class F>
+  void for_each_pair_gauss_newton(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const F& f) const;
   template <class F>
   void for_each_pair_hessian(const Eigen::VectorXd& x, const Eigen::VectorXd& p, bool project, const F& f) const;
   void add_diagonal_blocks(const Eigen::VectorXd& x, const Eigen::VectorXd& p, bool project, double scale,
@@ -137,6 +149,10 @@ class PairContactTerm : public Term {
   void add_friction_blocks(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double scale, Eigen::VectorXd& values) const;
   void add_friction_product(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& dir,
                             bool offpattern_only, Eigen::VectorXd& out) const;
+  // The friction part of add_step_matrix_derivatives (gp: none if null).
+  void add_friction_step_matrix_derivatives(const Eigen::VectorXd& x, const Eigen::VectorXd& p,
+                                            const Eigen::VectorXd& lambda, const Eigen::VectorXd& w, double scale,
+                                            Eigen::VectorXd& gx, Eigen::VectorXd* gp) const;
   std::vector<FrictionPair> friction_pairs_;
   double eps_u_ = 0;
   std::vector<std::array<int, 6>> diagonal_index_;  // per cloth vertex: the upper-triangle entries of its block

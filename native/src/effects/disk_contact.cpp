@@ -181,6 +181,16 @@ class DiskFrictionTerm : public ElementTerm<DiskFrictionTerm, 1, 1, 3> {
     }
   }
 
+  // The energy is a function of x - x_t (lagged normal force and projector held): minus its x-derivatives.
+  void add_step_start_adjoint(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& lambda,
+                              const Eigen::VectorXd& w, double c, Eigen::VectorXd& gxt) const override {
+    if (p[friction_] == 0) return;
+    Eigen::VectorXd d = Eigen::VectorXd::Zero(gxt.size()), unused = Eigen::VectorXd::Zero(p.size());
+    add_hessian_product(x, p, lambda, d);
+    if (c != 0) add_step_matrix_derivatives(x, p, lambda, w, c, d, unused);
+    gxt -= d;
+  }
+
   template <class T>
   T element_energy(int e, const T* x, const T* p) const {
     if (normal_force_[e] == 0) return T(0.0);

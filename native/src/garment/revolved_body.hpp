@@ -38,6 +38,7 @@ class RevolvedBodyContact : public Term {
   RevolvedBodyContact(std::vector<RevolvedPart> parts, Eigen::VectorXd kappa, double activation);
   std::string name() const override { return "body_contact"; }
   bool is_contact() const override { return true; }
+  bool provides_step_matrix_derivatives() const override { return false; }
   // The poses at the start and the end of the next step (one per part).
   void set_poses(const std::vector<RigidPose>& start, const std::vector<RigidPose>& end);
   // Clearance of each point (N x 3 flat) against the body at its end pose (min over parts), metres.

@@ -79,6 +79,9 @@ class Term {
   // Moving obstacles (a garment's body): moves the step's first iterate x (the start state) so that it is clear
   // of the obstacle at its end-of-step pose (cloth near a part is carried along with it).
   virtual void carry_start(Eigen::VectorXd& /*x*/) const {}
+  // The adjoint's return to a step that the forward began (begin_step) and accepted: the same lagged state,
+  // without begin_step's checks (which that state passed). Default: begin_step.
+  virtual void resume_step(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double h) { begin_step(x, p, h); }
   // Contact between surfaces (self contact, a moving obstacle: contact/pair_contact.hpp) couples vertices that
   // are not neighbours in the mesh, outside the model's fixed sparsity pattern. Such a term assembles only the
   // part of its matrices that lies in the pattern (add_hessian, add_projected_hessian, add_step_matrix) and
@@ -90,6 +93,19 @@ class Term {
   virtual void add_offpattern_hessian_product(const Eigen::VectorXd& /*x*/, const Eigen::VectorXd& /*p*/,
                                               const Eigen::VectorXd& /*dir*/, bool /*projected*/,
                                               Eigen::VectorXd& /*out*/) const {}
+  // The same for the step matrix (add_step_matrix): out += (K - K_assembled) dir.
+  virtual void add_offpattern_step_matrix_product(const Eigen::VectorXd& /*x*/, const Eigen::VectorXd& /*p*/,
+                                                  const Eigen::VectorXd& /*dir*/, Eigen::VectorXd& /*out*/) const {}
+  // False if add_step_matrix_derivatives is not provided (then a rollout's adjoint through linearised contact
+  // steps, solver/implicit_euler.hpp, refuses to run).
+  virtual bool provides_step_matrix_derivatives() const { return true; }
+  // Terms whose energy depends on the step's start x_t (begin_step) through x - x_t (lagged friction's slip
+  // u = T (x - x_t); the lagged normal forces and tangent planes are held constant, IPC's lagging): the
+  // x_t-derivative of lambda . grad E(x) + c lambda^T K(x) w at fixed x, added to gxt. For such a term it is
+  // -(Hess E lambda + c d(lambda^T K w)/dx) of its x_t-dependent part. Default: no x_t dependence.
+  virtual void add_step_start_adjoint(const Eigen::VectorXd& /*x*/, const Eigen::VectorXd& /*p*/,
+                                      const Eigen::VectorXd& /*lambda*/, const Eigen::VectorXd& /*w*/, double /*c*/,
+                                      Eigen::VectorXd& /*gxt*/) const {}
 
   // Optional, for speed (defaults are correct for every term):
   // out += scale * K(x; p) dir without assembling K. Returns false if the term does not provide it (the

@@ -21,9 +21,20 @@ struct OffpatternSolveStats {
   double relative_residual = 0;
 };
 
+// Which matrix the assembled part belongs to, hence which remainder R is: the exact Hessian's
+// (Term::add_offpattern_hessian_product, projected = false), the projected Hessian's (projected = true), or the
+// step matrix's (Term::add_offpattern_step_matrix_product).
+enum class OffpatternOperator { kExactHessian, kProjectedHessian, kStepMatrix };
+
 // y = (A + R(x, p))^-1 b. A: the assembled values that `solver` has factorised (the caller's
-// matrix, including whatever diagonal it added); R: the sum over terms of add_offpattern_hessian_product at
-// (x, p) with `projected`.
+// matrix, including whatever diagonal it added), or whose factor `factor` is (kept by the solver earlier);
+// R: the sum over terms of the remainder of `op` at (x, p).
+bool solve_with_offpattern(const Model& model, const CholmodSolver& solver, const Eigen::VectorXd& A,
+                           const Eigen::VectorXd& x, const Eigen::VectorXd& p, OffpatternOperator op,
+                           const Eigen::VectorXd& b, Eigen::VectorXd& y, double tolerance = 1e-10,
+                           int max_iterations = 200, OffpatternSolveStats* stats = nullptr,
+                           const CholmodSolver::Factor* factor = nullptr);
+// The Hessians' form: projected ? kProjectedHessian : kExactHessian.
 bool solve_with_offpattern(const Model& model, const CholmodSolver& solver, const Eigen::VectorXd& A,
                            const Eigen::VectorXd& x, const Eigen::VectorXd& p, bool projected,
                            const Eigen::VectorXd& b, Eigen::VectorXd& y, double tolerance = 1e-10,

@@ -63,6 +63,15 @@ Eigen::VectorXd ImplicitEuler::forward(const Eigen::VectorXd& p, const RolloutOp
   double kept_bytes = 0;
   const bool contact = has_contact();
   for (int step = 0; step < options.steps; ++step) {
+    if (contact && options.contact_step == RolloutOptions::ContactStep::kLinearised) {
+      std::vector<ContactIterate> iterates;
+      Eigen::VectorXd v_next = linear_contact_step(p, options, step, options.record ? &iterates : nullptr, kept_bytes);
+      if (options.record) tape_.push_back({x_, v_, v_next - v_, CholmodSolver::Factor(), true, std::move(iterates)});
+      x_ = x_ + h_ * v_next;
+      v_ = std::move(v_next);
+      if (progress) progress->step(step + 1, options.steps);
+      continue;
+    }
     if (contact) {
       Eigen::VectorXd v_next = contact_step(p, options, step);
       if (options.record) tape_.push_back({x_, v_, v_next - v_, CholmodSolver::Factor(), true});
@@ -128,10 +137,19 @@ RolloutGradient ImplicitEuler::backward(const Eigen::VectorXd& dL_dx, const Eige
   Eigen::VectorXd gp = Eigen::VectorXd::Zero(p_.size());
   Eigen::VectorXd K, tmp;
   const int T = static_cast<int>(tape_.size());
+  for (const auto& r : tape_)
+    if (!r.iterates.empty()) {
+      for (const auto& term : model_.terms())
+        if (!term->provides_step_matrix_derivatives())
+          throw InputError("backward: term " + term->name() + " cannot differentiate linearised contact steps "
+                           "(roll out with contact_step = newton)");
+      break;
+    }
   for (int t = T - 1; t >= 0; --t) {
     const StepRecord& r = tape_[t];
     if (r.contact) {
-      contact_step_adjoint(r, gx, gv, gp);
+      if (r.iterates.empty()) contact_step_adjoint(r, gx, gv, gp);
+      else linear_contact_step_adjoint(r, gx, gv, gp);
       if (progress) progress->step(T - t, T);
       continue;
     }
@@ -199,6 +217,15 @@ constexpr double kNegligibleMove = 1e-9;
 // Relative residual of the preconditioned CG solves with off-pattern contact couplings (Newton directions and
 // adjoints): far below the Newton iterations' own accuracy.
 constexpr double kOffpatternTolerance = 1e-10;
+constexpr int kOffpatternMaxIterations = 200;
+// Linearised contact steps: the shortest cut move (a fraction of the linearised move) before the step gives up.
+constexpr double kMinCut = 1.0 / (1 << 30);
+// The remainder that goes with contact_matrix's kind.
+OffpatternOperator offpattern_operator(int kind) {
+  return kind == 0 || kind == 1 ? OffpatternOperator::kExactHessian
+         : kind == 2            ? OffpatternOperator::kProjectedHessian
+                                : OffpatternOperator::kStepMatrix;
+}
 }  // namespace
 
 Eigen::VectorXd ImplicitEuler::contact_step(const Eigen::VectorXd& p, const RolloutOptions& options, int step) {
@@ -269,7 +296,8 @@ Eigen::VectorXd ImplicitEuler::contact_step(const Eigen::VectorXd& p, const Roll
         if (offpattern) {
           Eigen::VectorXd y;
           // an indefinite full operator may still let CG finish: a direction that does not descend moves on too
-          factorised = solve_with_offpattern(model_, solver_, A, x, p, kind >= 2, g, y, kOffpatternTolerance) &&
+          factorised = solve_with_offpattern(model_, solver_, A, x, p, offpattern_operator(kind), g, y,
+                                             kOffpatternTolerance) &&
                        g.dot(y) > 0;
           dx = -y;
         } else {
@@ -348,7 +376,7 @@ void ImplicitEuler::contact_step_adjoint(const StepRecord& r, Eigen::VectorXd& g
   const Eigen::VectorXd v_next = r.v + r.y;
   const Eigen::VectorXd x_next = r.x + h * v_next, x_hat = r.x + h * r.v;
   // The lagged friction state of this step, as the forward had it.
-  for (const auto& t : model_.terms()) t->begin_step(r.x, p_, h);
+  for (const auto& t : model_.terms()) t->resume_step(r.x, p_, h);
   const Eigen::VectorXd gbar = gx + gv / h;
   // The exact Hessian of the potential; where the minimiser is only a saddle of its quadratic model (the
   // Newton iterations then ran on a definite substitute, see contact_step), the same substitutes in turn: the
@@ -362,8 +390,8 @@ void ImplicitEuler::contact_step_adjoint(const StepRecord& r, Eigen::VectorXd& g
     contact_matrix(kind, x_next, p_, inv_h2, m, H);
     solved = solver_.factorize(H);
     if (solved) {
-      if (offpattern) solved = solve_with_offpattern(model_, solver_, H, x_next, p_, kind >= 2, gbar, lambda,
-                                                     kOffpatternTolerance);
+      if (offpattern) solved = solve_with_offpattern(model_, solver_, H, x_next, p_, offpattern_operator(kind), gbar,
+                                                     lambda, kOffpatternTolerance);
       else lambda = solver_.solve(gbar);
     }
     if (solved && kind > 0) ++timing_.inexact_adjoint_steps;
@@ -376,10 +404,177 @@ void ImplicitEuler::contact_step_adjoint(const StepRecord& r, Eigen::VectorXd& g
   for (int i = 0; i < nv; ++i)
     gdensity -= inv_h2 * w[i] * lambda.segment<3>(3 * i).dot(x_next.segment<3>(3 * i) - x_hat.segment<3>(3 * i));
   gp[density_block.offset] += gdensity;
+  // The lagged friction's slip starts at x_t: dL/dx_t -= lambda . d(grad E)/dx_t.
+  Eigen::VectorXd start_bar = Eigen::VectorXd::Zero(lambda.size());
+  for (const auto& t : model_.terms()) t->add_step_start_adjoint(x_next, p_, lambda, lambda, 0.0, start_bar);
   Eigen::VectorXd Ml(lambda.size());
   for (int i = 0; i < nv; ++i) Ml.segment<3>(3 * i) = m[i] * lambda.segment<3>(3 * i);
-  gx = inv_h2 * Ml - gv / h;
+  gx = inv_h2 * Ml - gv / h - start_bar;
   gv = Ml / h;
+}
+
+void ImplicitEuler::linear_contact_system(const Eigen::VectorXd& x, const Eigen::VectorXd& x_hat,
+                                          const Eigen::VectorXd& p, double inv_h2, const Eigen::VectorXd& m,
+                                          Eigen::VectorXd& A, Eigen::VectorXd& g) const {
+  const SparsePattern& pattern = model_.pattern();
+  const int n = model_.num_dofs();
+  A.setZero(pattern.nnz());
+  g.setZero(n);
+  // The terms' fused passes (Term::add_step_system) with v = 0: K(x) and grad E(x).
+  const Eigen::VectorXd zero = Eigen::VectorXd::Zero(n);
+  Eigen::VectorXd unused = Eigen::VectorXd::Zero(n);
+  for (const auto& t : model_.terms())
+    if (!t->add_step_system(x, p, zero, 1.0, A, unused, g)) {
+      t->add_step_matrix(x, p, 1.0, A);
+      t->add_gradient(x, p, g);
+    }
+  for (int i = 0; i < model_.num_vertices(); ++i)
+    for (int k = 0; k < 3; ++k) {
+      A[pattern.diagonal(3 * i + k)] += inv_h2 * m[i];
+      g[3 * i + k] += inv_h2 * m[i] * (x[3 * i + k] - x_hat[3 * i + k]);
+    }
+}
+
+Eigen::VectorXd ImplicitEuler::linear_contact_step(const Eigen::VectorXd& p, const RolloutOptions& options, int step,
+                                                   std::vector<ContactIterate>* iterates, double& kept_bytes) {
+  const int nv = model_.num_vertices();
+  const double h = h_, inv_h2 = 1.0 / (h * h);
+  const Eigen::VectorXd m = model_.masses(p);
+  for (const auto& t : model_.terms()) t->begin_step(x_, p, h);
+  const Eigen::VectorXd x_hat = x_ + h * v_;
+  Eigen::VectorXd x = x_, A, g, dx;
+  for (const auto& t : model_.terms()) t->carry_start(x);
+  if (!std::isfinite(model_.energy(x, p))) {
+    std::ostringstream s;
+    s << "rollout: step " << step << " starts in contact (a vertex touches an obstacle or the cloth itself, or a "
+      << "moving obstacle passed through the cloth: use shorter steps)";
+    throw SolverError(s.str());
+  }
+  const bool offpattern = has_offpattern_terms(model_);
+  for (int it = 0; it < std::max(1, options.contact_max_iterations); ++it) {
+    auto t0 = std::chrono::steady_clock::now();
+    linear_contact_system(x, x_hat, p, inv_h2, m, A, g);
+    timing_.assemble += seconds_since(t0);
+    t0 = std::chrono::steady_clock::now();
+    if (!solver_.factorize(A)) {
+      std::ostringstream s;
+      s << "rollout: step " << step << " matrix is not positive definite (stiffness tables invalid?)";
+      throw SolverError(s.str());
+    }
+    ++timing_.factorizations;
+    timing_.factorize += seconds_since(t0);
+    t0 = std::chrono::steady_clock::now();
+    if (offpattern) {
+      Eigen::VectorXd y;
+      OffpatternSolveStats stats;
+      if (!solve_with_offpattern(model_, solver_, A, x, p, OffpatternOperator::kStepMatrix, g, y,
+                                 kOffpatternTolerance, kOffpatternMaxIterations, &stats)) {
+        std::ostringstream s;
+        s << "rollout: step " << step << " contact solve did not converge";
+        throw SolverError(s.str());
+      }
+      timing_.cg_iterations += stats.iterations;
+      dx = -y;
+    } else {
+      dx = -solver_.solve(g);
+    }
+    timing_.solve += seconds_since(t0);
+    t0 = std::chrono::steady_clock::now();
+    double bound = 1.0;
+    for (const auto& t : model_.terms()) bound = std::min(bound, t->max_step(x, dx, p));
+    // The largest power-of-two fraction within the bound: piecewise constant in the step's inputs (the bound
+    // itself varies continuously), so that holding it constant is the exact adjoint almost everywhere.
+    double alpha = 1.0;
+    while (alpha > bound && alpha > kMinCut) alpha *= 0.5;
+    if (alpha > bound) {
+      std::ostringstream s;
+      s << "rollout: step " << step << " collision detection allows no move (a contact closed to round-off)";
+      throw SolverError(s.str());
+    }
+    timing_.collision += seconds_since(t0);
+    ++timing_.newton_iterations;
+    if (std::getenv("DRAPELAB_DEBUG_CONTACT"))
+      std::fprintf(stderr, "step %d linear it %d cap %.3g |dx| %.3g\n", step, it, alpha, dx.lpNorm<Eigen::Infinity>());
+    if (iterates) {
+      ContactIterate r{x, dx, alpha, CholmodSolver::Factor(), Eigen::VectorXd()};
+      const double bytes = static_cast<double>(solver_.kept_factor_bytes()) + (offpattern ? 8.0 * A.size() : 0.0);
+      if (kept_bytes + bytes <= options.factor_memory_mb * 1048576.0) {
+        r.factor = solver_.keep_factor();
+        if (offpattern) r.matrix = A;
+        kept_bytes += bytes;
+      }
+      iterates->push_back(std::move(r));
+    }
+    x += alpha * dx;
+    if (alpha >= 1.0) break;
+    ++timing_.cut_iterations;
+  }
+  Eigen::VectorXd v_next = (x - x_) / h;
+  double max_speed = 0;
+  for (int i = 0; i < nv; ++i) max_speed = std::max(max_speed, v_next.segment<3>(3 * i).norm());
+  if (!v_next.allFinite() || max_speed > options.max_speed) {
+    std::ostringstream s;
+    s << "rollout: step " << step << " diverged (max vertex speed " << max_speed << " m/s > " << options.max_speed
+      << " m/s); reduce the time step or check the parameters";
+    throw SolverError(s.str());
+  }
+  return v_next;
+}
+
+void ImplicitEuler::linear_contact_step_adjoint(const StepRecord& r, Eigen::VectorXd& gx, Eigen::VectorXd& gv,
+                                                Eigen::VectorXd& gp) {
+  // Iteration k: x_{k+1} = x_k - alpha_k A_k^-1 g_k, A_k = M/h^2 + K(x_k), g_k = M (x_k - x_hat)/h^2 + grad E(x_k).
+  // With xbar = dL/dx_{k+1} and lambda = alpha_k A_k^-1 xbar:
+  //   dL/dx_k = xbar - (M/h^2 + Hess E) lambda - d(lambda^T K dx_k)/dx,   dL/dx_hat += M lambda / h^2,
+  //   dL/dp -= d(lambda . grad E)/dp + d(lambda^T K dx_k)/dp (+ the masses' part).
+  // The last iterate is x_{t+1} = x_t + h v_{t+1}; x_0 = x_t (a moving obstacle's carried start: held as x_t).
+  const int n = model_.num_dofs(), nv = model_.num_vertices();
+  const double h = h_, inv_h2 = 1.0 / (h * h);
+  const Eigen::VectorXd m = model_.masses(p_);
+  const Eigen::VectorXd x_hat = r.x + h * r.v;
+  const auto& density_block = model_.layout().block("density");
+  const Eigen::VectorXd& w = model_.area_weights();
+  const bool offpattern = has_offpattern_terms(model_);
+  for (const auto& t : model_.terms()) t->resume_step(r.x, p_, h);  // the step's lagged friction state
+  Eigen::VectorXd xbar = gx + gv / h, xt_bar = -gv / h, xhat_bar = Eigen::VectorXd::Zero(n);
+  Eigen::VectorXd start_bar = Eigen::VectorXd::Zero(n);  // d(sum_k lambda_k . (g_k + A_k dx_k))/dx_t at fixed x_k
+  Eigen::VectorXd A, g, lambda, unused(n);
+  for (int k = static_cast<int>(r.iterates.size()) - 1; k >= 0; --k) {
+    const ContactIterate& it = r.iterates[k];
+    const Eigen::VectorXd rhs = it.alpha * xbar;
+    const Eigen::VectorXd* values = &it.matrix;
+    const CholmodSolver::Factor* factor = it.factor ? &it.factor : nullptr;
+    if (!factor) {  // not kept (memory budget): the same matrix, refactorised
+      linear_contact_system(it.x, x_hat, p_, inv_h2, m, A, g);
+      if (!solver_.factorize(A)) throw SolverError("backward: a contact step's matrix is not positive definite");
+      values = &A;
+    }
+    if (offpattern) {
+      if (!solve_with_offpattern(model_, solver_, *values, it.x, p_, OffpatternOperator::kStepMatrix, rhs, lambda,
+                                 kOffpatternTolerance, kOffpatternMaxIterations, nullptr, factor))
+        throw SolverError("backward: a contact step's solve did not converge");
+    } else {
+      lambda = factor ? solver_.solve_with(*factor, rhs) : solver_.solve(rhs);
+    }
+    Eigen::VectorXd xbar_prev = xbar;
+    unused.setZero();
+    for (const auto& t : model_.terms()) {
+      t->add_step_adjoint(it.x, p_, lambda, it.dx, 1.0, xbar_prev, unused, gp);
+      t->add_step_start_adjoint(it.x, p_, lambda, it.dx, 1.0, start_bar);  // the lagged friction's slip start
+    }
+    double gdensity = 0;
+    for (int i = 0; i < nv; ++i) {
+      const Eigen::Vector3d l = lambda.segment<3>(3 * i);
+      xbar_prev.segment<3>(3 * i) -= inv_h2 * m[i] * l;
+      xhat_bar.segment<3>(3 * i) += inv_h2 * m[i] * l;
+      gdensity -= inv_h2 * w[i] *
+                  l.dot(it.x.segment<3>(3 * i) - x_hat.segment<3>(3 * i) + it.dx.segment<3>(3 * i));
+    }
+    gp[density_block.offset] += gdensity;
+    xbar = std::move(xbar_prev);
+  }
+  gx = xt_bar + xbar + xhat_bar - start_bar;
+  gv = h * xhat_bar;
 }
 
 }  // namespace drapelab

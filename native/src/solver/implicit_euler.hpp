@@ -4,15 +4,22 @@
 // Step t: A = M + h^2 K(x_t),  b = h F(x_t) - h^2 K(x_t) v_t,  A y = b,  v_{t+1} = v_t + y,
 //         x_{t+1} = x_t + h v_{t+1};  F = -dE/dx, K = the terms' PSD step matrix, M = lumped masses.
 // The adjoint differentiates exactly this map (including dK/dx and dK/dp) and solves A^T lambda = ...
-// With a contact term active (Term::is_contact: disk_contact, self_contact) a step is instead the minimiser of
-// IPC's incremental potential (Li et al. 2020, sec. 3):
-//   x_{t+1} = argmin_x  1/(2h^2) (x - x_hat)^T M (x - x_hat) + E(x),   x_hat = x_t + h v_t,  v_{t+1} = (x_{t+1} - x_t)/h,
-// found by Newton iterations on the step matrix M/h^2 + K whose every step is first bounded by the terms'
-// continuous collision detection (Term::max_step) and then by an Armijo line search on the potential, so no
-// iterate ever crosses a contact; converged when every vertex's residual force is below
-// RolloutOptions::contact_force_tolerance of its weight. Its adjoint is the implicit function theorem at the
-// minimiser (exact Hessian of the potential, lagged friction quantities held constant). Without contact terms
-// the rollout is the linearised step above, bit for bit.
+// With a contact term active (Term::is_contact: disk_contact, self_contact) a step works on IPC's incremental
+// potential (Li et al. 2020, sec. 3), of which the step above is one Newton iteration from x_t:
+//   Phi(x) = 1/(2h^2) (x - x_hat)^T M (x - x_hat) + E(x),   x_hat = x_t + h v_t,  v_{t+1} = (x_{t+1} - x_t)/h.
+// RolloutOptions::contact_step chooses how:
+// - kLinearised (default): the step above with the contact terms' step matrices and forces included, in position
+//   form, x_{k+1} = x_k - alpha_k (M/h^2 + K(x_k))^-1 grad Phi(x_k) from x_0 = x_t, each move cut to what
+//   continuous collision detection allows (alpha_k = min over terms of Term::max_step, so no iterate crosses a
+//   contact); when the cut shortened the move (alpha_k < 1), another such iteration from x_{k+1}, up to
+//   contact_max_iterations; the step ends with the first uncut move. Its adjoint differentiates exactly this
+//   map (as the contact-free step's, through Term::add_step_adjoint, the alphas held constant: they are
+//   piecewise constant in the inputs), iteration by iteration.
+// - kNewton: the minimiser of Phi, found by Newton iterations whose every step is first bounded by collision
+//   detection and then by an Armijo line search on the potential; converged when every vertex's residual force
+//   is below RolloutOptions::contact_force_tolerance of its weight. Its adjoint is the implicit function theorem
+//   at the minimiser (exact Hessian of the potential, lagged friction quantities held constant).
+// Without contact terms the rollout is the linearised step above, bit for bit.
 // The linearised adjoint keeps the forward factorisation for each step while the kept factors fit in
 // RolloutOptions::factor_memory_mb (memory grows by (x_t, v_t, y_t, factor_t) per step); later steps keep
 // (x_t, v_t, y_t) only and the backward refactorises their matrix (same values, same result).
@@ -33,8 +40,13 @@ struct RolloutOptions {
   double max_speed = 50.0;  // m/s: a step producing a faster vertex is reported as diverged
   bool record = true;       // keep what the adjoint needs
   double factor_memory_mb = 1024.0;  // budget for the factors kept for the adjoint (beyond it: refactorised)
-  // Contact steps (IPC): Newton iterations end when every residual force is below this fraction of the vertex's
-  // weight, or after contact_max_iterations (then the last collision-free iterate is kept).
+  // Contact steps: linearised (one Newton iteration of the incremental potential, more only while collision
+  // detection cuts the move) or Newton to the potential's minimiser (IPC); see the header.
+  enum class ContactStep { kLinearised, kNewton };
+  ContactStep contact_step = ContactStep::kLinearised;
+  // kNewton: iterations end when every residual force is below this fraction of the vertex's weight, or after
+  // contact_max_iterations (then the last collision-free iterate is kept). kLinearised: at most
+  // contact_max_iterations cut iterations (then the last, collision-free, iterate is kept).
   double contact_force_tolerance = 1e-6;
   int contact_max_iterations = 50;
 };
@@ -62,8 +74,11 @@ class ImplicitEuler {
   // Timing split of the last forward (seconds): assembly, factorisation, solves.
   struct Timing {
     double assemble = 0, factorize = 0, solve = 0;
-    int newton_iterations = 0, factorizations = 0;  // contact steps (IPC)
+    int newton_iterations = 0, factorizations = 0;  // contact steps (both kinds)
     int inexact_adjoint_steps = 0;  // contact steps whose adjoint used a definite substitute of the Hessian
+    double collision = 0;           // contact steps: seconds in continuous collision detection (Term::max_step)
+    int cg_iterations = 0;          // contact steps: CG iterations of solves with off-pattern couplings
+    int cut_iterations = 0;         // linearised contact steps: iterations whose move collision detection cut
   };
   const Timing& timing() const { return timing_; }
   CholmodSolver& linear_solver() { return solver_; }
@@ -72,10 +87,19 @@ class ImplicitEuler {
                    Eigen::VectorXd& A, Eigen::VectorXd& b) const;
 
  private:
+  // One iteration of a linearised contact step: x_{k+1} = x + alpha dx, with its matrix's factor and values
+  // (values only with off-pattern couplings: the adjoint's CG operator) when kept within factor_memory_mb.
+  struct ContactIterate {
+    Eigen::VectorXd x, dx;
+    double alpha = 1;
+    CholmodSolver::Factor factor;
+    Eigen::VectorXd matrix;
+  };
   struct StepRecord {
     Eigen::VectorXd x, v, y;  // contact steps: y = v_{t+1} - v_t as well
     CholmodSolver::Factor factor;
     bool contact = false;
+    std::vector<ContactIterate> iterates;  // linearised contact steps
   };
   bool has_contact() const;
   // The Newton matrix of a contact step, kind 0..3: M/h^2 + the exact Hessian; + exact contact Hessians and the
@@ -87,6 +111,16 @@ class ImplicitEuler {
   Eigen::VectorXd contact_step(const Eigen::VectorXd& p, const RolloutOptions& options, int step);
   // The adjoint of one IPC step (see the header): updates gx, gv (dL/dx_t, dL/dv_t) and gp.
   void contact_step_adjoint(const StepRecord& r, Eigen::VectorXd& gx, Eigen::VectorXd& gv, Eigen::VectorXd& gp);
+  // A linearised contact step's matrix M/h^2 + K(x) (pattern values) and the potential's gradient at x.
+  void linear_contact_system(const Eigen::VectorXd& x, const Eigen::VectorXd& x_hat, const Eigen::VectorXd& p,
+                             double inv_h2, const Eigen::VectorXd& m, Eigen::VectorXd& A, Eigen::VectorXd& g) const;
+  // One linearised contact step from (x_, v_): returns v_{t+1}; its iterations go to `iterates` (if recording),
+  // their factors kept while kept_bytes stays within the budget.
+  Eigen::VectorXd linear_contact_step(const Eigen::VectorXd& p, const RolloutOptions& options, int step,
+                                      std::vector<ContactIterate>* iterates, double& kept_bytes);
+  // Its adjoint: updates gx, gv (dL/dx_t, dL/dv_t) and gp.
+  void linear_contact_step_adjoint(const StepRecord& r, Eigen::VectorXd& gx, Eigen::VectorXd& gv,
+                                   Eigen::VectorXd& gp);
   const Model& model_;
   CholmodSolver solver_;
   std::vector<StepRecord> tape_;  // declared after solver_: factors freed before the solver

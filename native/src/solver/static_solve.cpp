@@ -152,7 +152,10 @@ StaticResult StaticSolver::solve(const Eigen::VectorXd& p, const StaticOptions& 
       if (factorised) {
         if (offpattern) {  // couplings outside the pattern (self contact): CG on the full operator
           Eigen::VectorXd y;
-          if (solve_with_offpattern(model_, solver_, A, x, p, used != Matrix::kExact, g, y)) {
+          const OffpatternOperator op = used == Matrix::kExact    ? OffpatternOperator::kExactHessian
+                                        : used == Matrix::kNewton ? OffpatternOperator::kProjectedHessian
+                                                                  : OffpatternOperator::kStepMatrix;
+          if (solve_with_offpattern(model_, solver_, A, x, p, op, g, y)) {
             dx = -y;
             alpha = line_search(result.residual);
           }

@@ -1,5 +1,6 @@
 // The pair barrier kernels (contact/pair_barrier.hpp) against central differences: gradient against energy,
-// Hessian against gradient, the projected Hessian PSD, and the activation-distance derivatives.
+// Hessian against gradient, the projected Hessian PSD, the activation-distance derivatives, and the Gauss-Newton
+// step matrix's derivatives.
 #include <gtest/gtest.h>
 
 #include <Eigen/Geometry>
@@ -158,6 +159,72 @@ TEST(PairBarrier, MollifiedNearlyParallelEdgesMatchCentralDifferences) {
   EXPECT_GT(tested, 10);
   const double parallel[12] = {0, 0, 0, 0.01, 0, 0, 0.002, 0, 5e-4, 0.012, 0, 5e-4};
   EXPECT_EQ(pair_mollifier(PairKind::kEdgeEdge, parallel, 1e-11), 0.0);
+}
+
+// The Gauss-Newton step matrix K = s r r^T (linearised contact steps): PSD (s >= 0), r the distance's gradient,
+// and the derivatives of phi = l^T K w in x and dhat against central differences (random pairs of both kinds
+// and, for edge-edge, with the mollifier acting on nearly parallel edges).
+TEST(PairBarrier, GaussNewtonMatrixDerivativesMatchCentralDifferences) {
+  std::mt19937 rng(5);
+  std::normal_distribution<double> n01(0, 1);
+  const double dhat = 1e-3, c = 0.7;
+  auto phi = [&](PairKind kind, int type, const double* x, double dh, const double* l, const double* w, double eps) {
+    double r[12], s, lr = 0, wr = 0;
+    pair_barrier_gauss_newton(kind, type, x, dh, c * dh, r, s, eps);
+    for (int i = 0; i < 12; ++i) {
+      lr += l[i] * r[i];
+      wr += w[i] * r[i];
+    }
+    return s * lr * wr;
+  };
+  int tested = 0;
+  for (int trial = 0; trial < 80; ++trial) {
+    const PairKind kind = trial % 2 ? PairKind::kEdgeEdge : PairKind::kPointTriangle;
+    double x[12];
+    double eps = 0;
+    if (trial % 4 == 3) {  // nearly parallel edges 0.5 mm apart: the mollifier acts
+      const double angle = (0.5 + (trial % 7) * 0.15) * M_PI / 180;
+      const double y[12] = {0, 0, 0, 0.01, 0, 0, -0.002, -0.005 * std::sin(angle), 5e-4,
+                            -0.002 + 0.01 * std::cos(angle), 0.005 * std::sin(angle), 5e-4};
+      std::copy(y, y + 12, x);
+      eps = 1e-3 * 1e-4 * 1e-4;
+      ASSERT_LT(pair_mollifier(kind, x, eps), 1.0);
+    } else {
+      random_pair(kind, (trial / 2) % 3, rng, dhat, x);
+    }
+    const int type = pair_type(kind, x);
+    double l[12], w[12], dir[12], xp[12], xm[12];
+    for (int i = 0; i < 12; ++i) {
+      l[i] = n01(rng);
+      w[i] = n01(rng);
+      dir[i] = n01(rng);
+    }
+    const double h = 1e-10;
+    for (int i = 0; i < 12; ++i) {
+      xp[i] = x[i] + h * dir[i];
+      xm[i] = x[i] - h * dir[i];
+    }
+    if (pair_type(kind, xp) != type || pair_type(kind, xm) != type) continue;
+    ++tested;
+    double r[12], s;
+    pair_barrier_gauss_newton(kind, type, x, dhat, c * dhat, r, s, eps);
+    EXPECT_GT(s, 0.0);
+    double dphi[12], dphi_ddhat, dd = 0;
+    pair_barrier_gauss_newton_derivatives(kind, type, x, dhat, c, l, w, dphi, dphi_ddhat, eps);
+    for (int i = 0; i < 12; ++i) dd += dphi[i] * dir[i];
+    const double fd = (phi(kind, type, xp, dhat, l, w, eps) - phi(kind, type, xm, dhat, l, w, eps)) / (2 * h);
+    const double scale = std::abs(phi(kind, type, x, dhat, l, w, eps)) / dhat;  // phi varies on the scale of d
+    EXPECT_NEAR(dd, fd, 1e-5 * std::max(std::abs(fd), scale)) << "x, trial " << trial;
+    const double hd = 1e-10;
+    const double fdh = (phi(kind, type, x, dhat + hd, l, w, eps) - phi(kind, type, x, dhat - hd, l, w, eps)) / (2 * hd);
+    EXPECT_NEAR(dphi_ddhat, fdh, 1e-5 * std::max(std::abs(fdh), scale)) << "dhat, trial " << trial;
+  }
+  EXPECT_GT(tested, 50);
+  // beyond the activation distance: no matrix, no derivatives
+  const double far[12] = {0.2, 0.2, 2e-3, 0, 0, 0, 1, 0, 0, 0, 1, 0};
+  double r[12], s;
+  pair_barrier_gauss_newton(PairKind::kPointTriangle, pair_type(PairKind::kPointTriangle, far), far, 1e-3, 1e-3, r, s);
+  EXPECT_EQ(s, 0.0);
 }
 
 TEST(PairBarrier, ZeroBeyondActivationInfiniteAtContact) {

@@ -163,6 +163,39 @@ TEST_P(EffectSuite, TermDerivativesMatchCentralDifferencesAtModerateStrength) {
       EXPECT_NEAR(dEdp[k], fdE, 1e-6 * std::max(std::abs(fdE), scaleE)) << "dE/dp[" << k << "]";
       EXPECT_NEAR(dgdp[k], fdG, 1e-6 * std::max(std::abs(fdG), 1e-12)) << "d(lambda.g)/dp[" << k << "]";
     }
+    // Contact terms: the step matrix's derivatives (the adjoint of linearised contact steps), phi = lambda^T K w
+    // with K the assembled part plus the off-pattern remainder, against central differences in x and p.
+    if (term->is_contact() && term->provides_step_matrix_derivatives()) {
+      const Eigen::VectorXd wv = random_vector(n, 301), dir = random_vector(n, 302);
+      auto phi = [&](const Eigen::VectorXd& xx, const Eigen::VectorXd& pp) {
+        Eigen::VectorXd K = Eigen::VectorXd::Zero(pat.nnz()), rest = Eigen::VectorXd::Zero(n);
+        term->add_step_matrix(xx, pp, 1.0, K);
+        term->add_offpattern_step_matrix_product(xx, pp, wv, rest);
+        return lambda.dot(symmetric_multiply(pat, K, wv) + rest);
+      };
+      Eigen::VectorXd gx = Eigen::VectorXd::Zero(n), gK = Eigen::VectorXd::Zero(np);
+      term->add_step_matrix_derivatives(x, p, lambda, wv, 1.0, gx, gK);
+      const double eps = 1e-8;
+      const double fdx = (phi(x + eps * dir, p) - phi(x - eps * dir, p)) / (2 * eps);
+      EXPECT_NEAR(gx.dot(dir), fdx, 1e-5 * std::max(std::abs(fdx), 1e-12)) << "d(lambda^T K w)/dx";
+      for (int k = 0; k < np; ++k) {
+        const double h = 1e-6 * std::max(1e-3, std::abs(p[k]));
+        Eigen::VectorXd pp = p, pm = p;
+        pp[k] += h;
+        pm[k] -= h;
+        const double fdp = (phi(x, pp) - phi(x, pm)) / (2 * h);
+        EXPECT_NEAR(gK[k], fdp, 1e-5 * std::max(std::abs(fdp), 1e-12)) << "d(lambda^T K w)/dp[" << k << "]";
+      }
+      // K with its remainder is symmetric positive semidefinite
+      Eigen::VectorXd K = Eigen::VectorXd::Zero(pat.nnz()), rd = Eigen::VectorXd::Zero(n),
+                      rw = Eigen::VectorXd::Zero(n);
+      term->add_step_matrix(x, p, 1.0, K);
+      term->add_offpattern_step_matrix_product(x, p, dir, rd);
+      term->add_offpattern_step_matrix_product(x, p, wv, rw);
+      const Eigen::VectorXd Kd = symmetric_multiply(pat, K, dir) + rd, Kw = symmetric_multiply(pat, K, wv) + rw;
+      EXPECT_NEAR(wv.dot(Kd), dir.dot(Kw), 1e-10 * std::max(1e-12, Kd.norm() * wv.norm())) << "K symmetric";
+      EXPECT_GE(dir.dot(Kd), -1e-12 * std::max(1.0, K.norm())) << "K with its remainder PSD";
+    }
   }
 }
 
@@ -174,26 +207,32 @@ TEST_P(EffectSuite, DrapeAdjointsMatchCentralDifferencesInTheEffectParameters) {
   const Eigen::VectorXd p = model.default_parameters();
   const Eigen::VectorXd w = random_vector(model.num_dofs(), 8);
   const std::vector<int> idx = effect_indices(model, spec);
-  // Dynamic rollout (20 steps of 0.05 s).
+  // Dynamic rollout (20 steps of 0.05 s); with contact, in both step modes (linearised, Newton to the minimiser).
   ImplicitEuler sim(model);
-  RolloutOptions ro;
-  ro.steps = 20;
-  sim.forward(p, ro);
-  const RolloutGradient g = sim.backward(w);
-  RolloutOptions fo = ro;
-  fo.record = false;
-  // Step 1e-6 in the parameter's own scale (its prior scale, when below 1): the rollout map is only piecewise
-  // smooth (the step matrix's positive parts switch), and prestrain's compressed rest state (strain < 0) puts
-  // kinks within 1e-6 of a strain of scale 0.02; at 2e-8 central differences agree with the adjoint to 1e-6.
-  for (size_t k = 0; k < idx.size(); ++k) {
-    if (spec.parameters[k].structural) continue;  // fixed by the model's structure: no gradient
-    const double h = 1e-6 * std::min(1.0, spec.parameters[k].prior_scale) * std::max(1.0, std::abs(p[idx[k]]));
-    Eigen::VectorXd pp = p, pm = p;
-    pp[idx[k]] += h;
-    pm[idx[k]] -= h;
-    const double fd = (w.dot(sim.forward(pp, fo)) - w.dot(sim.forward(pm, fo))) / (2 * h);
-    EXPECT_NEAR(g.parameters[idx[k]], fd, adjoint_tolerance(spec, g.parameters, idx, k, fd))
-        << "rollout, " << spec.parameters[k].name;
+  const bool contact = has_contact(model);
+  for (const auto mode : {RolloutOptions::ContactStep::kLinearised, RolloutOptions::ContactStep::kNewton}) {
+    if (!contact && mode != RolloutOptions::ContactStep::kLinearised) continue;
+    const char* label = mode == RolloutOptions::ContactStep::kLinearised ? "rollout, " : "rollout (newton), ";
+    RolloutOptions ro;
+    ro.steps = 20;
+    ro.contact_step = mode;
+    sim.forward(p, ro);
+    const RolloutGradient g = sim.backward(w);
+    RolloutOptions fo = ro;
+    fo.record = false;
+    // Step 1e-6 in the parameter's own scale (its prior scale, when below 1): the rollout map is only piecewise
+    // smooth (the step matrix's positive parts switch), and prestrain's compressed rest state (strain < 0) puts
+    // kinks within 1e-6 of a strain of scale 0.02; at 2e-8 central differences agree with the adjoint to 1e-6.
+    for (size_t k = 0; k < idx.size(); ++k) {
+      if (spec.parameters[k].structural) continue;  // fixed by the model's structure: no gradient
+      const double h = 1e-6 * std::min(1.0, spec.parameters[k].prior_scale) * std::max(1.0, std::abs(p[idx[k]]));
+      Eigen::VectorXd pp = p, pm = p;
+      pp[idx[k]] += h;
+      pm[idx[k]] -= h;
+      const double fd = (w.dot(sim.forward(pp, fo)) - w.dot(sim.forward(pm, fo))) / (2 * h);
+      EXPECT_NEAR(g.parameters[idx[k]], fd, adjoint_tolerance(spec, g.parameters, idx, k, fd))
+          << label << spec.parameters[k].name;
+    }
   }
   // Static equilibrium (implicit-function adjoint), warm-started so both sides stay on one branch.
   StaticSolver solver(model);
