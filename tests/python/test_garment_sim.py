@@ -97,6 +97,28 @@ def test_the_simulated_mesh_is_the_garment_welded_at_its_seams():
         len(np.unique(w.point[g.positions[:, 2] > g.positions[:, 2].max() - 1e-9]))  # its two rims: hem and waist
 
 
+def test_a_failing_frame_is_redone_with_finer_substeps(small_skirt, monkeypatch):
+    m = material.sample_garment_material(WOOL, small_skirt, seed=0)[0]
+    real, calls = sim.ClothModel.simulate, []
+
+    def flaky(self, *args, **kwargs):
+        calls.append(kwargs["time_step"])
+        if len(calls) == 3:   # frame 2's first substep
+            raise sim.SolverError("rollout: step 0 contact Newton matrix is not positive definite")
+        return real(self, *args, **kwargs)
+    monkeypatch.setattr(sim.ClothModel, "simulate", flaky)
+    r = simulate.drape(small_skirt, m, motion="static", frames=4, keep_frames=False)
+    h = 1 / (simulate.DEFAULT_FPS * simulate.DEFAULT_SUBSTEPS)
+    # frame 1: 2 steps; frame 2: 1 failed step, then 4 of half the length; frame 3: 2 steps
+    assert calls == pytest.approx([h, h, h, h / 2, h / 2, h / 2, h / 2, h, h])
+    assert r["retried_frames"] == 1 and r["frames"] == 4 and r["self_intersections_final"] == 0
+    calls.clear()
+    monkeypatch.setattr(sim.ClothModel, "simulate", lambda self, *a, **k: (_ for _ in ()).throw(
+        sim.SolverError("always")))
+    with pytest.raises(sim.SolverError, match="frame 1 failed with up to 16 substeps: always"):
+        simulate.drape(small_skirt, m, motion="static", frames=2, keep_frames=False)
+
+
 def test_self_intersecting_start_is_named(small_skirt):
     m = material.sample_garment_material(WOOL, small_skirt, seed=0)[0]
     crossed = small_skirt.copy()

@@ -51,11 +51,16 @@ FORCE_TOLERANCE = 1e-2
 WAIST_BAND_M = 0.03           # a garment without named waist vertices: those within this of its top
 DEFAULT_THICKNESS_M = 1e-3    # self contact's reach when the material does not know its fabric's thickness
 SELF_FRICTION = 0.3           # Coulomb coefficient between layers (the self_contact effect's moderate value)
+MAX_SUBSTEP_SPLITS = 3        # a failing frame is redone with 2x, 4x, 8x the substeps before drape() gives up
 MAX_SEAM_GAP_M = 1e-3         # seam copies further apart than this at the start are an error (no silent welding)
 
 
 class Cancelled(Exception):
     """Raised inside the frame loop when cancel_event is set (drape() returns what was done)."""
+
+
+class _Crossed(Exception):
+    """A frame ended with the cloth through itself (it is done again with finer substeps)."""
 
 
 class WeldedMesh:
@@ -230,9 +235,6 @@ def drape(garment, material, body=None, motion="static", frames=48, fps=DEFAULT_
     model, params, contact, _ = build_model(garment, material, body, thickness, self_friction, welded)
     waist = np.asarray(model.handle_vertices)
     waist_rest = welded.positions[waist]
-    h = 1.0 / (fps * substeps)
-    times = np.arange((frames - 1) * substeps + 1) * h
-    transforms = part_transforms(body, motion, times, fps)  # (T, parts, 4, 4)
     x = welded.positions.copy()
     v = np.zeros_like(x)
     clearance0 = np.asarray(contact.clearance(x.ravel()))
@@ -243,32 +245,58 @@ def drape(garment, material, body=None, motion="static", frames=48, fps=DEFAULT_
     kept = [welded.to_garment(x).astype(np.float32)] if keep_frames else []
     writer = PC2Writer(pc2_path, garment.num_vertices, start_frame=1, sample_rate=1.0) if pc2_path else None
     penetration, clearance_min = 0.0, float(clearance0.min())
-    done, cancelled, iterations = 1, False, 0
+    done, cancelled = 1, False
+    counters = {"iterations": 0, "retried_frames": 0}
+
+    def run_frame(frame, x, v, n):
+        """The frame's n substeps from (x, v); raises SolverError (or _Crossed) if a step fails."""
+        times = (frame - 1 + np.arange(n + 1) / n) / fps
+        transforms = part_transforms(body, motion, times, fps)
+        h = 1.0 / (fps * n)
+        v = v.copy()
+        for j in range(n):
+            if cancel_event is not None and cancel_event.is_set():
+                raise Cancelled()
+            start, end = transforms[j, 0], transforms[j + 1, 0]
+            a0 = waist_rest @ start[:3, :3].T + start[:3, 3]
+            a1 = waist_rest @ end[:3, :3].T + end[:3, 3]
+            model.set_handle_anchors(a1)
+            # The waistband moves with the pelvis: it starts the step with its anchors' velocity, so the inertial
+            # prediction already carries it (a lagging waist would start each step 10^3 weights out of balance
+            # and cost Newton iterations); its offset from the anchors (the held waistband's strain) stays.
+            v[waist] = (a1 - a0) / h
+            contact.set_poses(list(transforms[j]), list(transforms[j + 1]))
+            x = model.simulate(params, steps=1, time_step=h, record=False, positions0=x, velocities0=v,
+                               contact_force_tolerance=FORCE_TOLERANCE)
+            v = model.velocities.copy()
+            counters["iterations"] += int(model.last_result.get("timing", {}).get("newton_iterations", 0))
+        if thickness > 0:
+            crossing = self_intersections(x, welded.faces, max_pairs=1)
+            if len(crossing):
+                raise _Crossed(f"faces {int(crossing[0][0])} and {int(crossing[0][1])} intersect at its end")
+        return x, v
+
     t_start = time.perf_counter()
     try:
         if writer:
             writer.write_frame(welded.to_garment(x))
         for frame in range(1, frames):
-            for j in range(substeps):
-                if cancel_event is not None and cancel_event.is_set():
-                    raise Cancelled()
-                k = (frame - 1) * substeps + j
-                start, end = transforms[k, 0], transforms[k + 1, 0]
-                a0 = waist_rest @ start[:3, :3].T + start[:3, 3]
-                a1 = waist_rest @ end[:3, :3].T + end[:3, 3]
-                model.set_handle_anchors(a1)
-                # The waistband moves with the pelvis: it starts the step with its anchors' velocity, so the inertial
-                # prediction already carries it (a lagging waist would start each step 10^3 weights out of balance
-                # and cost Newton iterations); its offset from the anchors (the held waistband's strain) stays.
-                v[waist] = (a1 - a0) / h
-                contact.set_poses(list(transforms[k]), list(transforms[k + 1]))
+            # A frame whose step fails, or that ends with the cloth through itself (the body carries the cloth it
+            # reaches to its end pose at each step's start, vertex by vertex, outside the self-contact bound), is
+            # done again from its start with twice the substeps (smaller body moves), up to MAX_SUBSTEP_SPLITS times.
+            n, error = substeps, None
+            for attempt in range(MAX_SUBSTEP_SPLITS + 1):
                 try:
-                    x = model.simulate(params, steps=1, time_step=h, record=False, positions0=x, velocities0=v,
-                                       contact_force_tolerance=FORCE_TOLERANCE)
-                except sim.SolverError as e:
-                    raise sim.SolverError(f"garment: frame {frame} substep {j}: {e}") from None
-                v = model.velocities.copy()
-                iterations += int(model.last_result.get("timing", {}).get("newton_iterations", 0))
+                    x_next, v_next = run_frame(frame, x, v, n)
+                    error = None
+                    break
+                except (sim.SolverError, _Crossed) as e:
+                    error = e
+                    counters["retried_frames"] += int(attempt == 0)
+                    n *= 2
+            if error is not None:
+                raise sim.SolverError(f"garment: frame {frame} failed with up to {n // 2} substeps: {error}")
+            x, v = x_next, v_next
             c = np.asarray(contact.clearance(x.ravel()))
             clearance_min = min(clearance_min, float(c.min()))
             penetration = max(penetration, float(max(0.0, -c.min())))
@@ -284,8 +312,9 @@ def drape(garment, material, body=None, motion="static", frames=48, fps=DEFAULT_
     finally:
         if writer:
             writer.close()
+    iterations = counters["iterations"]
     seconds = time.perf_counter() - t_start
-    pelvis_last = transforms[(done - 1) * substeps, 0]
+    pelvis_last = part_transforms(body, motion, np.array([(done - 1) / fps]), fps)[0, 0]
     last = welded.to_garment(x)
     return {"positions": np.stack(kept) if keep_frames else None, "first": np.array(garment.positions, dtype=float),
             "last": last, "vertices": int(garment.num_vertices), "simulated_vertices": welded.num_vertices,
@@ -294,4 +323,5 @@ def drape(garment, material, body=None, motion="static", frames=48, fps=DEFAULT_
             "min_body_clearance_m": clearance_min,
             "self_intersections_final": int(len(self_intersections(x, welded.faces))),
             "hem_radius_m": hem_radius(last, garment, pelvis_last[:2, 3]), "self_contact_thickness_m": thickness,
-            "cancelled": cancelled, "newton_iterations": iterations, "motion": motion}
+            "cancelled": cancelled, "newton_iterations": iterations, "retried_frames": counters["retried_frames"],
+            "motion": motion}
