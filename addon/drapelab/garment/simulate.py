@@ -206,7 +206,7 @@ def self_contact_thickness(material, thickness_m=None):
 
 def drape(garment, material, body=None, motion="static", frames=48, fps=DEFAULT_FPS, substeps=DEFAULT_SUBSTEPS,
           progress=None, cancel_event=None, pc2_path=None, keep_frames=True, thickness_m=None,
-          self_friction=SELF_FRICTION):
+          self_friction=SELF_FRICTION, force_tolerance=FORCE_TOLERANCE):
     """Simulates the garment on the body for ``frames`` frames (module doc). Returns a dict: ``positions``
     (frames done, V, 3) float32 when keep_frames, ``first`` and ``last`` (V, 3), and the stats ``vertices``
     (the garment's), ``simulated_vertices`` (seams welded), ``frames`` (done), ``seconds_per_frame``,
@@ -215,7 +215,8 @@ def drape(garment, material, body=None, motion="static", frames=48, fps=DEFAULT_
     ``hem_radius_m`` (last frame, from the pelvis axis), ``self_contact_thickness_m``, ``cancelled``,
     ``newton_iterations``. All positions are in the garment's vertex order.
     ``thickness_m``: self contact's reach (None: the material's fabric thickness, else DEFAULT_THICKNESS_M; 0: no
-    self contact); ``self_friction``: Coulomb coefficient between layers.
+    self contact); ``self_friction``: Coulomb coefficient between layers; ``force_tolerance``: each step's Newton
+    iterations end when every residual force is below this fraction of its vertex's weight.
     ``pc2_path``: the frames are appended to a PC2 cache as they finish (playback can start during the bake; a
     reader never sees a partial frame). ``progress(frame_done, frames)``; ``cancel_event`` (threading.Event)
     stops between substeps keeping the frames done. A step that fails raises SolverError naming the frame."""
@@ -267,7 +268,7 @@ def drape(garment, material, body=None, motion="static", frames=48, fps=DEFAULT_
             v[waist] = (a1 - a0) / h
             contact.set_poses(list(transforms[j]), list(transforms[j + 1]))
             x = model.simulate(params, steps=1, time_step=h, record=False, positions0=x, velocities0=v,
-                               contact_force_tolerance=FORCE_TOLERANCE)
+                               contact_force_tolerance=force_tolerance)
             v = model.velocities.copy()
             counters["iterations"] += int(model.last_result.get("timing", {}).get("newton_iterations", 0))
         if thickness > 0:
