@@ -12,18 +12,23 @@ using namespace drapelab;
 
 void bind_geometry(py::module_& m) {
   py::class_<TriangleMesh>(m, "TriangleMesh")
-      .def(py::init([](const MatrixX3d& positions, const MatrixX3i& faces, std::optional<MatrixX2d> uv) {
+      .def(py::init([](const MatrixX3d& positions, const MatrixX3i& faces, std::optional<MatrixX2d> uv,
+                       std::optional<MatrixX2d> corner_uv) {
              TriangleMesh mesh;
              mesh.positions = positions;
              mesh.faces = faces;
              mesh.uv = uv ? *uv : MatrixX2d(positions.leftCols<2>());
+             if (corner_uv) mesh.corner_uv = *corner_uv;
              validate_mesh(mesh);
              return mesh;
            }),
-           py::arg("positions"), py::arg("faces"), py::arg("uv") = py::none())
+           py::arg("positions"), py::arg("faces"), py::arg("uv") = py::none(), py::arg("corner_uv") = py::none(),
+           "corner_uv: optional (3F, 2) pattern coordinates per face corner (row 3 f + k), for meshes whose seam "
+           "vertices lie on two pattern pieces; default: each vertex's uv.")
       .def_readonly("positions", &TriangleMesh::positions)
       .def_readonly("faces", &TriangleMesh::faces)
       .def_readonly("uv", &TriangleMesh::uv)
+      .def_readonly("corner_uv", &TriangleMesh::corner_uv)
       .def_property_readonly("num_vertices", &TriangleMesh::num_vertices)
       .def_property_readonly("num_faces", &TriangleMesh::num_faces);
   m.def("read_obj", [](const std::string& path) {

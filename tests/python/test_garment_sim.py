@@ -9,6 +9,7 @@ import pytest
 
 from drapelab import cli, sim
 from drapelab.garment import body as bodymod, material, simulate, skirt
+from drapelab.garment.mesh import self_intersections
 from drapelab.garment.pc2 import read_pc2
 
 from fit_support import ROOT
@@ -59,11 +60,74 @@ def test_walking_body_never_enters_the_cloth(small_skirt):
     assert np.ptp(legs[:, 1]) > 0  # the legs did move
 
 
-@pytest.mark.xfail(strict=True, reason="self contact is not simulated yet (issue 19): a dropped skirt folds through "
-                                       "itself")
 def test_dropped_skirt_has_no_self_intersection(small_skirt):
+    # viscose, the softest shipped fabric, folds most: without self contact this drop ended with crossing folds
     m = material.sample_garment_material(VISCOSE, small_skirt, seed=0)[0]
-    assert simulate.drape(small_skirt, m, motion="static", frames=8, keep_frames=False)["self_intersections_final"] == 0
+    r = simulate.drape(small_skirt, m, motion="static", frames=8, keep_frames=False)
+    assert r["self_intersections_final"] == 0
+    assert r["max_body_penetration_m"] == 0.0 and r["min_body_clearance_m"] > 0
+    assert r["self_contact_thickness_m"] == pytest.approx(0.56e-3)  # the preset's fabric thickness
+    # the garment's own order, seam copies at their point's place: no self-intersection either way of counting
+    assert len(self_intersections(r["last"], small_skirt.faces, points=small_skirt.point_index())) == 0
+
+
+def test_the_simulated_mesh_is_the_garment_welded_at_its_seams():
+    g = skirt.make_skirt("aline", vertices=400)      # two pieces, two side seams
+    w = simulate.welded_mesh(g)
+    assert w.num_vertices == g.num_vertices - len(g.seams) and len(g.seams) > 0
+    np.testing.assert_allclose(w.to_garment(w.positions), g.positions, atol=1e-12)
+    np.testing.assert_array_equal(w.faces, w.point[g.faces])
+    # the welded mesh's bending edges: the garment's (same tables) plus one per seam edge
+    m = material.sample_garment_material(WOOL, g, seed=3)[0]
+    bend = w.bend_tables(m)
+    seam_edges = len(g.seams) - 2                     # each side seam: a chain of pairs, one edge fewer
+    assert len(w.bending_edges) == len(m.bending_edges) + seam_edges == len(bend)
+    assert len(w.seam_edges) == seam_edges
+    own = {tuple(sorted(w.point[e])): k for k, e in enumerate(m.bending_edges)}
+    for e, (a, b, _, _) in enumerate(w.bending_edges):
+        if e not in set(w.seam_edges.tolist()):
+            np.testing.assert_array_equal(bend[e], m.bend[own[tuple(sorted((a, b)))]])
+    s = bend[w.seam_edges]
+    assert (s >= m.bend.min(axis=0) - 1e-12).all() and (s <= m.bend.max(axis=0) + 1e-12).all()
+    # one manifold surface: every seam edge has two faces now (a closed tube plus its open waist and hem)
+    edges = np.sort(np.concatenate([w.faces[:, [0, 1]], w.faces[:, [1, 2]], w.faces[:, [2, 0]]]), axis=1)
+    _, counts = np.unique(edges, axis=0, return_counts=True)
+    assert counts.max() == 2 and w.num_vertices - len(counts) + len(w.faces) == 0  # an annulus: V - E + F = 0
+    assert (counts == 1).sum() == len(np.unique(w.point[g.hem_vertices])) + \
+        len(np.unique(w.point[g.positions[:, 2] > g.positions[:, 2].max() - 1e-9]))  # its two rims: hem and waist
+
+
+def test_a_failing_frame_is_redone_with_finer_substeps(small_skirt, monkeypatch):
+    m = material.sample_garment_material(WOOL, small_skirt, seed=0)[0]
+    real, calls = sim.ClothModel.simulate, []
+
+    def flaky(self, *args, **kwargs):
+        calls.append(kwargs["time_step"])
+        if len(calls) == 3:   # frame 2's first substep
+            raise sim.SolverError("rollout: step 0 contact Newton matrix is not positive definite")
+        return real(self, *args, **kwargs)
+    monkeypatch.setattr(sim.ClothModel, "simulate", flaky)
+    r = simulate.drape(small_skirt, m, motion="static", frames=4, keep_frames=False)
+    h = 1 / (simulate.DEFAULT_FPS * simulate.DEFAULT_SUBSTEPS)
+    # frame 1: 2 steps; frame 2: 1 failed step, then 4 of half the length; frame 3: 2 steps
+    assert calls == pytest.approx([h, h, h, h / 2, h / 2, h / 2, h / 2, h, h])
+    assert r["retried_frames"] == 1 and r["frames"] == 4 and r["self_intersections_final"] == 0
+    calls.clear()
+    monkeypatch.setattr(sim.ClothModel, "simulate", lambda self, *a, **k: (_ for _ in ()).throw(
+        sim.SolverError("always")))
+    with pytest.raises(sim.SolverError, match="frame 1 failed with up to 16 substeps: always"):
+        simulate.drape(small_skirt, m, motion="static", frames=2, keep_frames=False)
+
+
+def test_self_intersecting_start_is_named(small_skirt):
+    m = material.sample_garment_material(WOOL, small_skirt, seed=0)[0]
+    crossed = small_skirt.copy()
+    i = int(small_skirt.hem_vertices[len(small_skirt.hem_vertices) // 2])
+    crossed.positions[i, :2] *= -1.4                  # through the far side of the skirt
+    with pytest.raises(sim.InputError, match="intersects itself"):
+        simulate.drape(crossed, m, frames=2)
+    with pytest.raises(sim.InputError, match="thickness_m"):
+        simulate.drape(small_skirt, m, frames=2, thickness_m=-1e-3)
 
 
 def test_cancel_keeps_the_frames_done(small_skirt, tmp_path):

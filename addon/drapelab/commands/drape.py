@@ -3,7 +3,8 @@
 
 Samples K per-element materials from the preset's posterior (drapelab.garment.material, oriented by the garment's
 uv grain line) and simulates the garment on the moving body at 24 fps (drapelab.garment.simulate: the Cusick
-drapes' cloth model, the waistband held to the pelvis, seams sewn, IPC contact with the body). --garment skirt
+drapes' cloth model on the garment welded at its seams, the waistband held to the pelvis, IPC contact with the body
+and with itself: --thickness MM is self contact's reach, default the preset's fabric thickness, 0 = off). --garment skirt
 (default) is the bundled parametric skirt (drapelab.garment.skirt, --style circle|flared|aline, --vertices);
 an OBJ garment needs a UV map (its grain line: +v) and a waistband: the vertices within 3 cm of its top.
 --body default is the bundled dress form (drapelab.garment.body); other bodies are not supported yet.
@@ -12,7 +13,6 @@ DIR/sample_KK_first.obj and DIR/sample_KK_last.obj (with the garment's UVs); --r
 sample 00 with the body (matplotlib, shaded); --json STATS: vertices, frames, seconds_per_frame,
 max_body_penetration_m, self_intersections_final, hem_radius_m (the first sample's), and per sample in
 "samples". Progress on stderr. Ctrl-C keeps the frames done (files and STATS written) and exits with 130.
-Self contact is not simulated yet (issue 19): self_intersections_final counts what that leaves.
 """
 import os
 import signal
@@ -34,6 +34,8 @@ def register(subparsers):
     p.add_argument("--motion", choices=MOTIONS, default="walk", help="body motion (default walk)")
     p.add_argument("--frames", type=int, default=48, metavar="N", help="frames at 24 fps (default 48)")
     p.add_argument("--substeps", type=int, default=None, metavar="S", help="implicit steps per frame")
+    p.add_argument("--thickness", type=float, default=None, metavar="MM",
+                   help="self contact's reach in mm (default: the preset's fabric thickness; 0: no self contact)")
     p.add_argument("--samples", type=int, default=1, metavar="K", help="material draws (default 1)")
     p.add_argument("--seed", type=int, default=0, metavar="S", help="material draws' seed (default 0)")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder (created)")
@@ -89,6 +91,8 @@ def run(args):
                 print(f"\rdrape: sample {k + 1}/{len(materials)} frame {done}/{total}", end="", file=sys.stderr,
                       flush=True)
             options = {} if args.substeps is None else {"substeps": args.substeps}
+            if args.thickness is not None:
+                options["thickness_m"] = args.thickness * 1e-3
             r = simulate.drape(garment, m, body=body, motion=args.motion, frames=args.frames, progress=progress,
                                cancel_event=cancel, pc2_path=os.path.join(args.out, f"sample_{k:02d}.pc2"),
                                keep_frames=False, **options)
@@ -97,7 +101,8 @@ def run(args):
                 write_garment_obj(os.path.join(args.out, f"sample_{k:02d}_{name}.obj"), _with_positions(garment, x))
             results.append({key: r[key] for key in ("vertices", "frames", "seconds_per_frame", "max_body_penetration_m",
                                                     "min_body_clearance_m", "self_intersections_final",
-                                                    "hem_radius_m", "cancelled", "newton_iterations")})
+                                                    "hem_radius_m", "cancelled", "newton_iterations",
+                                                    "simulated_vertices", "self_contact_thickness_m")})
             if r["cancelled"]:
                 break
     finally:

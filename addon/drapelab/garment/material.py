@@ -67,6 +67,7 @@ class GarmentMaterial:
     seed: int = 0
     sample: int = 0
     effects: dict = field(default_factory=dict)  # the preset's active effects {name: {param: value}} (their means)
+    thickness_m: float = None  # the fabric's thickness (preset fabric.thickness_mm), m; None: not known
 
     def native_parameters(self, model):
         """The parameter vector of a heterogeneous ``sim.ClothModel`` of this garment (same faces and edges)."""
@@ -123,6 +124,7 @@ def sample_garment_material(preset, garment, seed=0, samples=1):
     E, F = stencils.shape[0], garment.num_faces
     draws = infer.preset_bend_samples(preset, E, np.random.default_rng(int(seed)), int(samples))
     stretch = np.broadcast_to(np.asarray(preset["stretch_N_m"], np.float64), (F,) + STRETCH_SHAPE)
+    thickness = _thickness_m(preset)
     out = []
     for i in range(int(samples)):
         s = np.array(stretch)
@@ -132,8 +134,18 @@ def sample_garment_material(preset, garment, seed=0, samples=1):
         fs, es = _summaries(s, b)
         out.append(GarmentMaterial(s, b, stencils[:, :2].copy(), float(preset["density_kg_m2"]), fs, es,
                                    stencils.copy(), name, int(seed), i,
-                                   fit_effects.active_effect_values(preset.get("active_effects"))))
+                                   fit_effects.active_effect_values(preset.get("active_effects")), thickness))
     return out
+
+
+def _thickness_m(preset):
+    """The preset's fabric thickness in metres (fabric.thickness_mm), None when absent or not a positive number."""
+    t = (preset.get("fabric") or {}).get("thickness_mm")
+    try:
+        t = float(t)
+    except (TypeError, ValueError):
+        return None
+    return t * 1e-3 if np.isfinite(t) and t > 0 else None
 
 
 def material_attributes(material):

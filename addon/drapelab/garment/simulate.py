@@ -1,12 +1,23 @@
 """Garment simulation: a garment (``mesh.Garment``) with one draw of a fitted material (``material.GarmentMaterial``)
 on the moving body (``body.Body`` and a motion), the same cloth model as the Cusick drapes.
 
+The simulated mesh is the garment welded at its seams (``welded_mesh``): every sewn point is one vertex, the
+pattern pieces' faces keep their own corners' pattern coordinates (native ``TriangleMesh.corner_uv``), so
+stretching is that of the pieces, the seam edges bend like any other edge (their bending table: the geometric
+mean of the tables of their two faces' other edges), and the mesh is one manifold surface on which self contact
+is well-posed (faces meeting at a seam share vertices and are excluded from contact pairs as neighbours are).
+Frames are mapped back to the garment's own vertex order (seam copies get their point's position) for the PC2
+and OBJ outputs and the add-on.
+
 The model: per-face stretching and per-bending-edge bending tables sampled from the preset's posterior (oriented by
 the garment's uv, i.e. its grain line), the preset's density, gravity; the waistband held by the handle spring to
-anchors carried by the pelvis; seam pairs held together (physics/seam.hpp); contact with the body's parts (rigid
-surfaces of revolution, IPC barrier of reach ``BODY_REACH_M``, native garment/revolved_body.hpp), so every step is an
-IPC step (Newton on the incremental potential, bounded by collision detection: no cloth vertex ever enters the
-body). Not yet: self contact (issue 19), friction with the body, cloth edges against the body (vertices only).
+anchors carried by the pelvis; contact with the body's parts (rigid surfaces of revolution, IPC barrier of reach
+``BODY_REACH_M``, native garment/revolved_body.hpp) and self contact (the ``self_contact`` effect: IPC barriers
+between non-adjacent point-triangle and edge-edge pairs closer than the fabric's thickness, with friction
+``SELF_FRICTION``; contact/pair_contact.hpp), so every step is an IPC step (Newton on the incremental potential,
+bounded by continuous collision detection: no cloth vertex ever enters the body, the cloth never passes through
+itself). The start placement must be free of self-intersections (an InputError names the first pair). Not yet:
+friction with the body, cloth edges against the body (vertices only).
 
 Time: ``fps`` frames per second with ``substeps`` implicit steps each; the body and the waist anchors move
 continuously (poses at each substep's start and end). Deterministic: the same inputs give the same frames.
@@ -24,7 +35,8 @@ from .material import GarmentMaterial
 from .mesh import Garment, self_intersections
 from .pc2 import PC2Writer
 
-__all__ = ["drape", "DEFAULT_FPS", "DEFAULT_SUBSTEPS", "BODY_REACH_M", "hem_radius", "top_band_vertices"]
+__all__ = ["drape", "DEFAULT_FPS", "DEFAULT_SUBSTEPS", "BODY_REACH_M", "DEFAULT_THICKNESS_M", "SELF_FRICTION",
+           "hem_radius", "top_band_vertices", "welded_mesh", "WeldedMesh"]
 
 DEFAULT_FPS = 24
 DEFAULT_SUBSTEPS = 2          # implicit steps per frame (1/48 s at 24 fps)
@@ -37,10 +49,94 @@ SEAM_STIFFNESS = 1e3          # N/m per seam pair
 # an animation needs far less than a fit's adjoint (1e-6).
 FORCE_TOLERANCE = 1e-2
 WAIST_BAND_M = 0.03           # a garment without named waist vertices: those within this of its top
+DEFAULT_THICKNESS_M = 1e-3    # self contact's reach when the material does not know its fabric's thickness
+SELF_FRICTION = 0.3           # Coulomb coefficient between layers (the self_contact effect's moderate value)
+MAX_SUBSTEP_SPLITS = 3        # a failing frame is redone with 2x, 4x, 8x the substeps before drape() gives up
+MAX_SEAM_GAP_M = 1e-3         # seam copies further apart than this at the start are an error (no silent welding)
 
 
 class Cancelled(Exception):
     """Raised inside the frame loop when cancel_event is set (drape() returns what was done)."""
+
+
+class _Crossed(Exception):
+    """A frame ended with the cloth through itself (it is done again with finer substeps)."""
+
+
+class WeldedMesh:
+    """The garment as the simulator sees it: seams welded (module doc). ``point`` (V,) maps each garment vertex to
+    its simulated vertex; ``positions`` (P, 3), ``faces`` (F, 3) (the garment's faces, same order), ``corner_uv``
+    (3F, 2) pattern coordinates per face corner, ``uv`` (P, 2) one copy's (only read where corner_uv is not)."""
+
+    def __init__(self, garment):
+        point = np.asarray(garment.point_index(), dtype=np.int64)
+        n = int(point.max()) + 1
+        counts = np.bincount(point, minlength=n).astype(float)
+        positions = np.zeros((n, 3))
+        np.add.at(positions, point, garment.positions)
+        positions /= counts[:, None]
+        gap = np.linalg.norm(garment.positions - positions[point], axis=1)
+        if gap.max() > MAX_SEAM_GAP_M / 2:
+            i = int(np.argmax(gap))
+            raise InputError(f"garment: seam copies of point {int(point[i])} (vertex {i}) are "
+                             f"{2 * gap[i] * 1000:.2f} mm apart or more; a garment starts sewn (its seam vertices "
+                             "in pairs at one place)")
+        faces = point[garment.faces]
+        repeated = (faces[:, 0] == faces[:, 1]) | (faces[:, 1] == faces[:, 2]) | (faces[:, 0] == faces[:, 2])
+        if repeated.any():
+            f = int(np.argmax(repeated))
+            raise InputError(f"garment: face {f} {garment.faces[f].tolist()} has two vertices sewn into one point "
+                             "(a seam pairs vertices of one face)")
+        uv = np.zeros((n, 2))
+        uv[point] = garment.uv
+        self.point = point
+        self.positions = positions
+        self.faces = np.ascontiguousarray(faces, dtype=np.int32)
+        self.uv = uv
+        self.corner_uv = np.ascontiguousarray(garment.uv[garment.faces].reshape(-1, 2))
+        try:
+            self.native = sim.native.TriangleMesh(self.positions, self.faces, self.uv, self.corner_uv)
+        except (ValueError, RuntimeError) as e:  # native InputError (non-manifold after welding, ...)
+            raise InputError(f"garment: its seams welded, the mesh is not a valid cloth: {e}") from None
+        self.bending_edges = np.asarray(sim.native.bending_edges(self.native), dtype=np.int64)
+
+    @property
+    def num_vertices(self):
+        return int(self.positions.shape[0])
+
+    def to_garment(self, x):
+        """(V, 3) garment-order positions of simulated positions x (P, 3)."""
+        return np.asarray(x).reshape(-1, 3)[self.point]
+
+    def bend_tables(self, material):
+        """(E', 3, 5) bending tables on the welded mesh's bending edges from the material's (on the garment's):
+        an edge inside a piece keeps its table; a seam edge (a bending edge only once welded) gets the geometric
+        mean of the tables of its two faces' other bending edges."""
+        key = lambda a, b: (min(a, b), max(a, b))
+        own = {}
+        for k, (a, b) in enumerate(np.asarray(material.bending_edges).reshape(-1, 2)):
+            own.setdefault(key(int(self.point[a]), int(self.point[b])), k)
+        bend = np.asarray(material.bend, dtype=float)
+        out = np.empty((len(self.bending_edges),) + bend.shape[1:])
+        seam = []
+        for e, (a, b, c, d) in enumerate(self.bending_edges):
+            k = own.get(key(int(a), int(b)))
+            if k is None:
+                seam.append(e)
+            else:
+                out[e] = bend[k]
+        fallback = np.exp(np.log(bend).mean(axis=0))
+        for e in seam:
+            a, b, c, d = (int(v) for v in self.bending_edges[e])
+            near = [own[q] for q in (key(a, c), key(b, c), key(a, d), key(b, d)) if q in own]
+            out[e] = np.exp(np.log(bend[near]).mean(axis=0)) if near else fallback
+        self.seam_edges = np.asarray(seam, dtype=np.int64)
+        return out
+
+
+def welded_mesh(garment):
+    """The garment's simulated mesh, its seams welded (``WeldedMesh``)."""
+    return WeldedMesh(garment)
 
 
 def top_band_vertices(positions, band_m=WAIST_BAND_M):
@@ -77,82 +173,138 @@ def _check(garment, material, body, frames, fps, substeps):
                          "(sample it for this garment)")
 
 
-def build_model(garment, material, body):
-    """The native model of the garment with its body contact: (ClothModel, parameters, contact term)."""
-    positions, uv, faces = garment.to_native_mesh_arrays()
-    model = sim.ClothModel((positions, faces, uv), heterogeneous=True, density=material.density,
-                           handle_stiffness=HOLD_STIFFNESS, held_vertices=np.asarray(garment.waist_vertices),
-                           seams=np.asarray(garment.seams).reshape(-1, 2), seam_stiffness=SEAM_STIFFNESS)
-    params = material.native_parameters(model)
+def build_model(garment, material, body, thickness_m=None, friction=SELF_FRICTION, welded=None):
+    """The native model of the garment (welded at its seams) with its body contact and self contact:
+    (ClothModel, parameters, body contact term, WeldedMesh). thickness_m: self contact's reach (None: the
+    material's fabric thickness, else DEFAULT_THICKNESS_M; 0: no self contact)."""
+    welded = WeldedMesh(garment) if welded is None else welded
+    thickness = self_contact_thickness(material, thickness_m)
+    effects = {"self_contact": {"thickness_m": thickness, "friction": friction}} if thickness > 0 else None
+    held = np.unique(welded.point[np.asarray(garment.waist_vertices)])
+    model = sim.ClothModel(welded.native, heterogeneous=True, density=material.density,
+                           handle_stiffness=HOLD_STIFFNESS, held_vertices=held, effects=effects)
+    params = model.parameters(stretch=material.stretch, bend=welded.bend_tables(material), density=material.density,
+                              effects=effects)
     weights = np.asarray(model.native.masses(params)) * GRAVITY
     kappa = BARRIER_WEIGHT_SCALE * weights * BODY_REACH_M
     parts = [(np.asarray(o, float), np.asarray(s, float), np.asarray(r, float)) for o, s, r in body.profiles]
     contact = model.native.add_body_contact(parts, kappa, BODY_REACH_M)
-    return model, params, contact
+    return model, params, contact, welded
+
+
+def self_contact_thickness(material, thickness_m=None):
+    """Self contact's reach (m): thickness_m if given (0: off), else the material's fabric thickness, else
+    DEFAULT_THICKNESS_M."""
+    if thickness_m is None:
+        t = getattr(material, "thickness_m", None)
+        return float(t) if t else DEFAULT_THICKNESS_M
+    if isinstance(thickness_m, bool) or not isinstance(thickness_m, (int, float, np.integer, np.floating)) or \
+            not (np.isfinite(thickness_m) and 0 <= thickness_m <= 0.01):
+        raise InputError(f"thickness_m: expected a thickness in [0, 0.01] m (0: no self contact), got {thickness_m!r}")
+    return float(thickness_m)
 
 
 def drape(garment, material, body=None, motion="static", frames=48, fps=DEFAULT_FPS, substeps=DEFAULT_SUBSTEPS,
-          progress=None, cancel_event=None, pc2_path=None, keep_frames=True):
+          progress=None, cancel_event=None, pc2_path=None, keep_frames=True, thickness_m=None,
+          self_friction=SELF_FRICTION, force_tolerance=FORCE_TOLERANCE):
     """Simulates the garment on the body for ``frames`` frames (module doc). Returns a dict: ``positions``
-    (frames done, V, 3) float32 when keep_frames, ``first`` and ``last`` (V, 3), and the stats ``vertices``,
-    ``frames`` (done), ``seconds_per_frame``, ``max_body_penetration_m`` (deepest cloth vertex inside the body over
-    all frames, 0 when none), ``min_body_clearance_m``, ``self_intersections_final`` (intersecting face pairs of the
-    last frame), ``hem_radius_m`` (last frame, from the pelvis axis), ``cancelled``, ``newton_iterations``.
+    (frames done, V, 3) float32 when keep_frames, ``first`` and ``last`` (V, 3), and the stats ``vertices``
+    (the garment's), ``simulated_vertices`` (seams welded), ``frames`` (done), ``seconds_per_frame``,
+    ``max_body_penetration_m`` (deepest cloth vertex inside the body over all frames, 0 when none),
+    ``min_body_clearance_m``, ``self_intersections_final`` (intersecting face pairs of the last frame),
+    ``hem_radius_m`` (last frame, from the pelvis axis), ``self_contact_thickness_m``, ``cancelled``,
+    ``newton_iterations``. All positions are in the garment's vertex order.
+    ``thickness_m``: self contact's reach (None: the material's fabric thickness, else DEFAULT_THICKNESS_M; 0: no
+    self contact); ``self_friction``: Coulomb coefficient between layers; ``force_tolerance``: each step's Newton
+    iterations end when every residual force is below this fraction of its vertex's weight.
     ``pc2_path``: the frames are appended to a PC2 cache as they finish (playback can start during the bake; a
     reader never sees a partial frame). ``progress(frame_done, frames)``; ``cancel_event`` (threading.Event)
     stops between substeps keeping the frames done. A step that fails raises SolverError naming the frame."""
     body = make_body() if body is None else body
     _check(garment, material, body, frames, fps, substeps)
-    model, params, contact = build_model(garment, material, body)
-    positions, _, _ = garment.to_native_mesh_arrays()
+    if not (isinstance(self_friction, (int, float, np.integer, np.floating)) and not isinstance(self_friction, bool)
+            and 0 <= self_friction <= 2):
+        raise InputError(f"self_friction: expected a coefficient in [0, 2], got {self_friction!r}")
+    welded = WeldedMesh(garment)
+    thickness = self_contact_thickness(material, thickness_m)
+    crossing = self_intersections(welded.positions, welded.faces, max_pairs=1)
+    if len(crossing):
+        a, b = (int(f) for f in crossing[0])
+        raise InputError(f"garment: its start placement intersects itself (faces {a} and {b}, and perhaps others): "
+                         "self contact needs an intersection-free start; fix the placement (mesh.self_intersections "
+                         "lists the pairs)")
+    model, params, contact, _ = build_model(garment, material, body, thickness, self_friction, welded)
     waist = np.asarray(model.handle_vertices)
-    waist_rest = np.asarray(positions)[waist]
-    h = 1.0 / (fps * substeps)
-    times = np.arange((frames - 1) * substeps + 1) * h
-    transforms = part_transforms(body, motion, times, fps)  # (T, parts, 4, 4)
-    x = np.asarray(positions, dtype=float).copy()
+    waist_rest = welded.positions[waist]
+    x = welded.positions.copy()
     v = np.zeros_like(x)
     clearance0 = np.asarray(contact.clearance(x.ravel()))
     if clearance0.min() <= 0:
-        worst = int(np.argmin(clearance0))
+        worst = int(np.argmax(welded.point == int(np.argmin(clearance0))))
         raise InputError(f"garment: {int((clearance0 <= 0).sum())} vertices start inside the body (deepest: vertex "
-                         f"{worst}, {-clearance0[worst] * 1000:.1f} mm); move or scale the garment")
-    kept = [x.astype(np.float32)] if keep_frames else []
-    writer = PC2Writer(pc2_path, len(x), start_frame=1, sample_rate=1.0) if pc2_path else None
+                         f"{worst}, {-clearance0.min() * 1000:.1f} mm); move or scale the garment")
+    kept = [welded.to_garment(x).astype(np.float32)] if keep_frames else []
+    writer = PC2Writer(pc2_path, garment.num_vertices, start_frame=1, sample_rate=1.0) if pc2_path else None
     penetration, clearance_min = 0.0, float(clearance0.min())
-    done, cancelled, iterations = 1, False, 0
+    done, cancelled = 1, False
+    counters = {"iterations": 0, "retried_frames": 0}
+
+    def run_frame(frame, x, v, n):
+        """The frame's n substeps from (x, v); raises SolverError (or _Crossed) if a step fails."""
+        times = (frame - 1 + np.arange(n + 1) / n) / fps
+        transforms = part_transforms(body, motion, times, fps)
+        h = 1.0 / (fps * n)
+        v = v.copy()
+        for j in range(n):
+            if cancel_event is not None and cancel_event.is_set():
+                raise Cancelled()
+            start, end = transforms[j, 0], transforms[j + 1, 0]
+            a0 = waist_rest @ start[:3, :3].T + start[:3, 3]
+            a1 = waist_rest @ end[:3, :3].T + end[:3, 3]
+            model.set_handle_anchors(a1)
+            # The waistband moves with the pelvis: it starts the step with its anchors' velocity, so the inertial
+            # prediction already carries it (a lagging waist would start each step 10^3 weights out of balance
+            # and cost Newton iterations); its offset from the anchors (the held waistband's strain) stays.
+            v[waist] = (a1 - a0) / h
+            contact.set_poses(list(transforms[j]), list(transforms[j + 1]))
+            x = model.simulate(params, steps=1, time_step=h, record=False, positions0=x, velocities0=v,
+                               contact_force_tolerance=force_tolerance, contact_step="newton")
+            v = model.velocities.copy()
+            counters["iterations"] += int(model.last_result.get("timing", {}).get("newton_iterations", 0))
+        if thickness > 0:
+            crossing = self_intersections(x, welded.faces, max_pairs=1)
+            if len(crossing):
+                raise _Crossed(f"faces {int(crossing[0][0])} and {int(crossing[0][1])} intersect at its end")
+        return x, v
+
     t_start = time.perf_counter()
     try:
         if writer:
-            writer.write_frame(x)
+            writer.write_frame(welded.to_garment(x))
         for frame in range(1, frames):
-            for j in range(substeps):
-                if cancel_event is not None and cancel_event.is_set():
-                    raise Cancelled()
-                k = (frame - 1) * substeps + j
-                start, end = transforms[k, 0], transforms[k + 1, 0]
-                a0 = waist_rest @ start[:3, :3].T + start[:3, 3]
-                a1 = waist_rest @ end[:3, :3].T + end[:3, 3]
-                model.set_handle_anchors(a1)
-                # The waistband moves with the pelvis: it starts the step with its anchors' velocity, so the inertial
-                # prediction already carries it (a lagging waist would start each step 10^3 weights out of balance
-                # and cost Newton iterations); its offset from the anchors (the held waistband's strain) stays.
-                v[waist] = (a1 - a0) / h
-                contact.set_poses(list(transforms[k]), list(transforms[k + 1]))
+            # A frame whose step fails, or that ends with the cloth through itself (the body carries the cloth it
+            # reaches to its end pose at each step's start, vertex by vertex, outside the self-contact bound), is
+            # done again from its start with twice the substeps (smaller body moves), up to MAX_SUBSTEP_SPLITS times.
+            n, error = substeps, None
+            for attempt in range(MAX_SUBSTEP_SPLITS + 1):
                 try:
-                    x = model.simulate(params, steps=1, time_step=h, record=False, positions0=x, velocities0=v,
-                                       contact_force_tolerance=FORCE_TOLERANCE, contact_step="newton")
-                except sim.SolverError as e:
-                    raise sim.SolverError(f"garment: frame {frame} substep {j}: {e}") from None
-                v = model.velocities.copy()
-                iterations += int(model.last_result.get("timing", {}).get("newton_iterations", 0))
+                    x_next, v_next = run_frame(frame, x, v, n)
+                    error = None
+                    break
+                except (sim.SolverError, _Crossed) as e:
+                    error = e
+                    counters["retried_frames"] += int(attempt == 0)
+                    n *= 2
+            if error is not None:
+                raise sim.SolverError(f"garment: frame {frame} failed with up to {n // 2} substeps: {error}")
+            x, v = x_next, v_next
             c = np.asarray(contact.clearance(x.ravel()))
             clearance_min = min(clearance_min, float(c.min()))
             penetration = max(penetration, float(max(0.0, -c.min())))
             if writer:
-                writer.write_frame(x)
+                writer.write_frame(welded.to_garment(x))
             if keep_frames:
-                kept.append(x.astype(np.float32))
+                kept.append(welded.to_garment(x).astype(np.float32))
             done += 1
             if progress:
                 progress(done, frames)
@@ -161,13 +313,16 @@ def drape(garment, material, body=None, motion="static", frames=48, fps=DEFAULT_
     finally:
         if writer:
             writer.close()
+    iterations = counters["iterations"]
     seconds = time.perf_counter() - t_start
-    pelvis_last = transforms[(done - 1) * substeps, 0]
-    first = np.asarray(positions, dtype=float)
-    return {"positions": np.stack(kept) if keep_frames else None, "first": first, "last": x,
-            "vertices": int(len(x)), "frames": int(done), "fps": float(fps), "substeps": int(substeps),
+    pelvis_last = part_transforms(body, motion, np.array([(done - 1) / fps]), fps)[0, 0]
+    last = welded.to_garment(x)
+    return {"positions": np.stack(kept) if keep_frames else None, "first": np.array(garment.positions, dtype=float),
+            "last": last, "vertices": int(garment.num_vertices), "simulated_vertices": welded.num_vertices,
+            "frames": int(done), "fps": float(fps), "substeps": int(substeps),
             "seconds_per_frame": seconds / max(1, done - 1), "max_body_penetration_m": penetration,
             "min_body_clearance_m": clearance_min,
-            "self_intersections_final": int(len(self_intersections(x, garment.faces))),
-            "hem_radius_m": hem_radius(x, garment, pelvis_last[:2, 3]), "cancelled": cancelled,
-            "newton_iterations": iterations, "motion": motion}
+            "self_intersections_final": int(len(self_intersections(x, welded.faces))),
+            "hem_radius_m": hem_radius(last, garment, pelvis_last[:2, 3]), "self_contact_thickness_m": thickness,
+            "cancelled": cancelled, "newton_iterations": iterations, "retried_frames": counters["retried_frames"],
+            "motion": motion}

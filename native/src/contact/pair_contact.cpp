@@ -214,13 +214,51 @@ template <class F>
 void PairContactTerm::for_each_pair_hessian(const Eigen::VectorXd& x, const Eigen::VectorXd& p, bool project,
                                             const F& f) const {
   const double dh = dhat(p);
-  const ContactPositions P = positions(x);
-  for (const auto& q : active_pairs(x, dh)) {
-    double x12[12], H[144];
-    gather(q, P, x12);
-    pair_barrier_hessian(q.kind, q.type, x12, dh, q.c * dh, project, H, q.mollifier_eps);
-    f(q, H);
+  const std::vector<ActivePair> pairs = active_pairs(x, dh);
+  const std::shared_ptr<const std::vector<double>> H = pair_hessians(x, dh, project, pairs);
+  for (size_t i = 0; i < pairs.size(); ++i) f(pairs[i], H->data() + 144 * i);
+}
+
+// The active pairs' Hessians (144 doubles each, in active_pairs order), cached per exact x, dhat, obstacle and
+// projection: a Newton iteration assembles them once and then applies them in every conjugate-gradient product
+// (solver/contact_linear_solve.hpp), which otherwise recomputed them (jets and 12 x 12 eigen-decompositions) in
+// each product: on a folding garment most of a step's time.
+namespace {
+bool same_pairs(const std::vector<ActivePair>& a, const std::vector<ActivePair>& b) {
+  if (a.size() != b.size()) return false;
+  for (size_t i = 0; i < a.size(); ++i)
+    if (a[i].v != b[i].v || a[i].kind != b[i].kind || a[i].type != b[i].type || a[i].c != b[i].c ||
+        a[i].mollifier_eps != b[i].mollifier_eps)
+      return false;
+  return true;
+}
+}  // namespace
+
+std::shared_ptr<const std::vector<double>> PairContactTerm::pair_hessians(const Eigen::VectorXd& x, double dh,
+                                                                          bool project,
+                                                                          const std::vector<ActivePair>& pairs) const {
+  HessianCache& c = hessian_cache_[project ? 1 : 0];
+  {
+    std::lock_guard<std::mutex> lock(hessian_mutex_);
+    if (c.hessians && c.dhat == dh && c.x.size() == x.size() && c.x == x && c.obstacle.rows() == obstacle_.rows() &&
+        c.obstacle == obstacle_ && same_pairs(c.pairs, pairs))
+      return c.hessians;
   }
+  const ContactPositions P = positions(x);
+  auto H = std::make_shared<std::vector<double>>(144 * pairs.size());
+  for (size_t i = 0; i < pairs.size(); ++i) {
+    const ActivePair& q = pairs[i];
+    double x12[12];
+    gather(q, P, x12);
+    pair_barrier_hessian(q.kind, q.type, x12, dh, q.c * dh, project, H->data() + 144 * i, q.mollifier_eps);
+  }
+  std::lock_guard<std::mutex> lock(hessian_mutex_);
+  c.x = x;
+  c.dhat = dh;
+  c.obstacle = obstacle_;
+  c.pairs = pairs;
+  c.hessians = H;
+  return H;
 }
 
 void PairContactTerm::add_diagonal_blocks(const Eigen::VectorXd& x, const Eigen::VectorXd& p, bool project,

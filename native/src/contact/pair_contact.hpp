@@ -169,6 +169,18 @@ class PairContactTerm : public Term {
   };
   mutable std::mutex cache_mutex_;
   mutable Cache cache_;
+  // The active pairs' Hessians at one x (exact [0] and PSD-projected [1]), see pair_hessians.
+  struct HessianCache {
+    Eigen::VectorXd x;
+    ContactPositions obstacle;
+    double dhat = -1;
+    std::vector<ActivePair> pairs;
+    std::shared_ptr<const std::vector<double>> hessians;
+  };
+  std::shared_ptr<const std::vector<double>> pair_hessians(const Eigen::VectorXd& x, double dhat, bool project,
+                                                           const std::vector<ActivePair>& pairs) const;
+  mutable std::mutex hessian_mutex_;
+  mutable HessianCache hessian_cache_[2];
 };
 
 }  // namespace drapelab

@@ -12,9 +12,9 @@ namespace drapelab {
 Eigen::VectorXd rest_areas(const TriangleMesh& mesh) {
   Eigen::VectorXd a(mesh.num_faces());
   for (Index f = 0; f < mesh.num_faces(); ++f) {
-    const Eigen::Vector2d p0 = mesh.uv.row(mesh.faces(f, 0)).transpose();
-    const Eigen::Vector2d e1 = mesh.uv.row(mesh.faces(f, 1)).transpose() - p0;
-    const Eigen::Vector2d e2 = mesh.uv.row(mesh.faces(f, 2)).transpose() - p0;
+    const Eigen::Vector2d p0 = mesh.face_uv(f, 0);
+    const Eigen::Vector2d e1 = mesh.face_uv(f, 1) - p0;
+    const Eigen::Vector2d e2 = mesh.face_uv(f, 2) - p0;
     a[f] = 0.5 * (e1.x() * e2.y() - e1.y() * e2.x());
   }
   return a;
@@ -29,6 +29,10 @@ void validate_mesh(const TriangleMesh& mesh, double min_area) {
                      std::to_string(nv) + ")");
   if (!mesh.positions.allFinite()) throw InputError("mesh: positions contain NaN or infinity");
   if (!mesh.uv.allFinite()) throw InputError("mesh: uv contains NaN or infinity");
+  if (mesh.corner_uv.rows() != 0 && mesh.corner_uv.rows() != 3 * mesh.num_faces())
+    throw InputError("mesh: corner_uv has " + std::to_string(mesh.corner_uv.rows()) +
+                     " rows, expected none or three per face (" + std::to_string(3 * mesh.num_faces()) + ")");
+  if (!mesh.corner_uv.allFinite()) throw InputError("mesh: corner_uv contains NaN or infinity");
   for (Index f = 0; f < mesh.num_faces(); ++f) {
     for (int k = 0; k < 3; ++k) {
       const Index v = mesh.faces(f, k);
@@ -99,7 +103,10 @@ std::vector<BendingEdge> bending_edges(const TriangleMesh& mesh) {
 void orient_faces_ccw(TriangleMesh& mesh) {
   const Eigen::VectorXd a = rest_areas(mesh);
   for (Index f = 0; f < mesh.num_faces(); ++f)
-    if (a[f] < 0) std::swap(mesh.faces(f, 1), mesh.faces(f, 2));
+    if (a[f] < 0) {
+      std::swap(mesh.faces(f, 1), mesh.faces(f, 2));
+      if (mesh.corner_uv.rows()) mesh.corner_uv.row(3 * f + 1).swap(mesh.corner_uv.row(3 * f + 2));
+    }
 }
 
 TriangleMesh permute_vertices(const TriangleMesh& mesh, const std::vector<Index>& perm) {
@@ -115,6 +122,7 @@ TriangleMesh permute_vertices(const TriangleMesh& mesh, const std::vector<Index>
     out.uv.row(i) = mesh.uv.row(perm[i]);
   }
   out.faces = mesh.faces;
+  out.corner_uv = mesh.corner_uv;  // per corner: faces keep their order
   for (Index f = 0; f < mesh.num_faces(); ++f)
     for (int k = 0; k < 3; ++k) out.faces(f, k) = inverse[mesh.faces(f, k)];
   return out;

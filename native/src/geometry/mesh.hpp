@@ -25,12 +25,21 @@ struct TriangleMesh {
   MatrixX3d positions;   // rest positions (V x 3), metres
   MatrixX2d uv;          // rest pattern coordinates (V x 2), metres: u = weft, v = warp
   MatrixX3i faces;       // (F x 3) vertex indices, counter-clockwise in (u,v)
+  // Optional per-corner pattern coordinates (3F x 2, row 3 f + k = corner k of face f), metres. Empty: every
+  // corner takes its vertex's uv. A sewn garment simulated as one mesh (its seams welded) has vertices on a seam
+  // that lie on two pattern pieces, i.e. at two places of the pattern: its faces carry their own corners' uv.
+  MatrixX2d corner_uv;
 
   Index num_vertices() const { return static_cast<Index>(positions.rows()); }
   Index num_faces() const { return static_cast<Index>(faces.rows()); }
+  // The rest pattern coordinates of corner k of face f (corner_uv when given, else the vertex's uv).
+  Eigen::Vector2d face_uv(Index f, int k) const {
+    return corner_uv.rows() ? Eigen::Vector2d(corner_uv.row(3 * f + k).transpose())
+                            : Eigen::Vector2d(uv.row(faces(f, k)).transpose());
+  }
 };
 
-// Checks shapes, index ranges, finiteness, degenerate faces (rest area <= min_area) and
+// Checks shapes (corner_uv: empty or 3F rows), index ranges, finiteness, degenerate faces (rest area <= min_area) and
 // non-manifold edges (shared by more than two faces). Throws InputError naming the first problem.
 void validate_mesh(const TriangleMesh& mesh, double min_area = 1e-14);
 

@@ -250,10 +250,10 @@ StretchTerm::StretchTerm(const TriangleMesh& mesh, int parameter_offset, bool sh
   area_.resize(nf);
   for (int f = 0; f < nf; ++f) {
     faces_[f] = {mesh.faces(f, 0), mesh.faces(f, 1), mesh.faces(f, 2)};
-    const Eigen::Vector2d u0 = mesh.uv.row(faces_[f][0]).transpose();
+    const Eigen::Vector2d u0 = mesh.face_uv(f, 0);
     Eigen::Matrix2d Dm;
-    Dm.col(0) = mesh.uv.row(faces_[f][1]).transpose() - u0;
-    Dm.col(1) = mesh.uv.row(faces_[f][2]).transpose() - u0;
+    Dm.col(0) = mesh.face_uv(f, 1) - u0;
+    Dm.col(1) = mesh.face_uv(f, 2) - u0;
     const double det = Dm.determinant();
     if (!(std::abs(det) > 0)) throw InputError("stretch: face " + std::to_string(f) + " has zero rest area");
     const Eigen::Matrix2d Di = Dm.inverse();
