@@ -32,7 +32,7 @@ from .. import sim
 from . import InputError
 from .body import Body, make_body, part_transforms
 from .material import GarmentMaterial
-from .mesh import Garment, self_intersections
+from .mesh import Garment
 from .pc2 import PC2Writer
 
 __all__ = ["drape", "DEFAULT_FPS", "DEFAULT_SUBSTEPS", "BODY_REACH_M", "DEFAULT_THICKNESS_M", "SELF_FRICTION",
@@ -227,11 +227,11 @@ def drape(garment, material, body=None, motion="static", frames=48, fps=DEFAULT_
         raise InputError(f"self_friction: expected a coefficient in [0, 2], got {self_friction!r}")
     welded = WeldedMesh(garment)
     thickness = self_contact_thickness(material, thickness_m)
-    crossing = self_intersections(welded.positions, welded.faces, max_pairs=1)
-    if len(crossing):
-        a, b = (int(f) for f in crossing[0])
+    crossing = sim.contact_report(welded.faces, welded.positions, max_listed=1)["first_pairs"]
+    if crossing:
+        a, b = crossing[0]
         raise InputError(f"garment: its start placement intersects itself (faces {a} and {b}, and perhaps others): "
-                         "self contact needs an intersection-free start; fix the placement (mesh.self_intersections "
+                         "self contact needs an intersection-free start; fix the placement (sim.contact_report "
                          "lists the pairs)")
     model, params, contact, _ = build_model(garment, material, body, thickness, self_friction, welded)
     waist = np.asarray(model.handle_vertices)
@@ -272,9 +272,9 @@ def drape(garment, material, body=None, motion="static", frames=48, fps=DEFAULT_
             v = model.velocities.copy()
             counters["iterations"] += int(model.last_result.get("timing", {}).get("newton_iterations", 0))
         if thickness > 0:
-            crossing = self_intersections(x, welded.faces, max_pairs=1)
-            if len(crossing):
-                raise _Crossed(f"faces {int(crossing[0][0])} and {int(crossing[0][1])} intersect at its end")
+            crossing = sim.contact_report(welded.faces, x, max_listed=1)["first_pairs"]
+            if crossing:
+                raise _Crossed(f"faces {crossing[0][0]} and {crossing[0][1]} intersect at its end")
         return x, v
 
     t_start = time.perf_counter()
@@ -322,7 +322,7 @@ def drape(garment, material, body=None, motion="static", frames=48, fps=DEFAULT_
             "frames": int(done), "fps": float(fps), "substeps": int(substeps),
             "seconds_per_frame": seconds / max(1, done - 1), "max_body_penetration_m": penetration,
             "min_body_clearance_m": clearance_min,
-            "self_intersections_final": int(len(self_intersections(x, welded.faces))),
+            "self_intersections_final": int(sim.contact_report(welded.faces, x, max_listed=0)["intersecting_pairs"]),
             "hem_radius_m": hem_radius(last, garment, pelvis_last[:2, 3]), "self_contact_thickness_m": thickness,
             "cancelled": cancelled, "newton_iterations": iterations, "retried_frames": counters["retried_frames"],
             "motion": motion}
