@@ -16,6 +16,18 @@ namespace {
 double seconds_since(std::chrono::steady_clock::time_point t0) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
 }
+
+// Every step kind ends here: a non-finite or faster-than-max_speed velocity means the rollout diverged.
+void check_not_diverged(const Eigen::VectorXd& v_next, const RolloutOptions& options, int step) {
+  double max_speed = 0;
+  for (Eigen::Index i = 0; i < v_next.size() / 3; ++i) max_speed = std::max(max_speed, v_next.segment<3>(3 * i).norm());
+  if (!v_next.allFinite() || max_speed > options.max_speed) {
+    std::ostringstream s;
+    s << "rollout: step " << step << " diverged (max vertex speed " << max_speed << " m/s > " << options.max_speed
+      << " m/s); reduce the time step or check the parameters";
+    throw SolverError(s.str());
+  }
+}
 }  // namespace
 
 ImplicitEuler::ImplicitEuler(const Model& model) : model_(model), solver_(model.pattern()) {}
@@ -74,7 +86,7 @@ Eigen::VectorXd ImplicitEuler::forward(const Eigen::VectorXd& p, const RolloutOp
     }
     if (contact) {
       Eigen::VectorXd v_next = contact_step(p, options, step);
-      if (options.record) tape_.push_back({x_, v_, v_next - v_, CholmodSolver::Factor(), true});
+      if (options.record) tape_.push_back({x_, v_, v_next - v_, CholmodSolver::Factor(), true, {}});
       x_ = x_ + h_ * v_next;
       v_ = std::move(v_next);
       if (progress) progress->step(step + 1, options.steps);
@@ -94,14 +106,7 @@ Eigen::VectorXd ImplicitEuler::forward(const Eigen::VectorXd& p, const RolloutOp
     const Eigen::VectorXd y = solver_.solve(b);
     timing_.solve += seconds_since(t0);
     Eigen::VectorXd v_next = v_ + y;
-    double max_speed = 0;
-    for (int i = 0; i < model_.num_vertices(); ++i) max_speed = std::max(max_speed, v_next.segment<3>(3 * i).norm());
-    if (!v_next.allFinite() || max_speed > options.max_speed) {
-      std::ostringstream s;
-      s << "rollout: step " << step << " diverged (max vertex speed " << max_speed << " m/s > " << options.max_speed
-        << " m/s); reduce the time step or check the parameters";
-      throw SolverError(s.str());
-    }
+    check_not_diverged(v_next, options, step);
     if (options.record) {
       CholmodSolver::Factor kept;
       const double bytes = static_cast<double>(solver_.kept_factor_bytes());
@@ -109,7 +114,7 @@ Eigen::VectorXd ImplicitEuler::forward(const Eigen::VectorXd& p, const RolloutOp
         kept = solver_.keep_factor();
         kept_bytes += bytes;
       }
-      tape_.push_back({x_, v_, y, std::move(kept)});
+      tape_.push_back({x_, v_, y, std::move(kept), false, {}});
     }
     x_ = x_ + h_ * v_next;
     v_ = std::move(v_next);
@@ -355,14 +360,7 @@ Eigen::VectorXd ImplicitEuler::contact_step(const Eigen::VectorXd& p, const Roll
     gradient(x, g);
   }
   Eigen::VectorXd v_next = (x - x_) / h;
-  double max_speed = 0;
-  for (int i = 0; i < nv; ++i) max_speed = std::max(max_speed, v_next.segment<3>(3 * i).norm());
-  if (!v_next.allFinite() || max_speed > options.max_speed) {
-    std::ostringstream s;
-    s << "rollout: step " << step << " diverged (max vertex speed " << max_speed << " m/s > " << options.max_speed
-      << " m/s); reduce the time step or check the parameters";
-    throw SolverError(s.str());
-  }
+  check_not_diverged(v_next, options, step);
   return v_next;
 }
 
@@ -437,7 +435,6 @@ void ImplicitEuler::linear_contact_system(const Eigen::VectorXd& x, const Eigen:
 
 Eigen::VectorXd ImplicitEuler::linear_contact_step(const Eigen::VectorXd& p, const RolloutOptions& options, int step,
                                                    std::vector<ContactIterate>* iterates, double& kept_bytes) {
-  const int nv = model_.num_vertices();
   const double h = h_, inv_h2 = 1.0 / (h * h);
   const Eigen::VectorXd m = model_.masses(p);
   for (const auto& t : model_.terms()) t->begin_step(x_, p, h);
@@ -510,14 +507,7 @@ Eigen::VectorXd ImplicitEuler::linear_contact_step(const Eigen::VectorXd& p, con
     ++timing_.cut_iterations;
   }
   Eigen::VectorXd v_next = (x - x_) / h;
-  double max_speed = 0;
-  for (int i = 0; i < nv; ++i) max_speed = std::max(max_speed, v_next.segment<3>(3 * i).norm());
-  if (!v_next.allFinite() || max_speed > options.max_speed) {
-    std::ostringstream s;
-    s << "rollout: step " << step << " diverged (max vertex speed " << max_speed << " m/s > " << options.max_speed
-      << " m/s); reduce the time step or check the parameters";
-    throw SolverError(s.str());
-  }
+  check_not_diverged(v_next, options, step);
   return v_next;
 }
 
