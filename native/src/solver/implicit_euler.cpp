@@ -28,6 +28,16 @@ void check_not_diverged(const Eigen::VectorXd& v_next, const RolloutOptions& opt
     throw SolverError(s.str());
   }
 }
+
+// Factorises a step's matrix (the contact-free step and each linearised contact iteration); a matrix that is not
+// positive definite ends the rollout.
+void factorize_step(CholmodSolver& solver, const Eigen::VectorXd& A, int step) {
+  if (!solver.factorize(A)) {
+    std::ostringstream s;
+    s << "rollout: step " << step << " matrix is not positive definite (stiffness tables invalid?)";
+    throw SolverError(s.str());
+  }
+}
 }  // namespace
 
 ImplicitEuler::ImplicitEuler(const Model& model) : model_(model), solver_(model.pattern()) {}
@@ -96,11 +106,7 @@ Eigen::VectorXd ImplicitEuler::forward(const Eigen::VectorXd& p, const RolloutOp
     step_system(x_, v_, p, h_, A, b);
     timing_.assemble += seconds_since(t0);
     t0 = std::chrono::steady_clock::now();
-    if (!solver_.factorize(A)) {
-      std::ostringstream s;
-      s << "rollout: step " << step << " matrix is not positive definite (stiffness tables invalid?)";
-      throw SolverError(s.str());
-    }
+    factorize_step(solver_, A, step);
     timing_.factorize += seconds_since(t0);
     t0 = std::chrono::steady_clock::now();
     const Eigen::VectorXd y = solver_.solve(b);
@@ -453,11 +459,7 @@ Eigen::VectorXd ImplicitEuler::linear_contact_step(const Eigen::VectorXd& p, con
     linear_contact_system(x, x_hat, p, inv_h2, m, A, g);
     timing_.assemble += seconds_since(t0);
     t0 = std::chrono::steady_clock::now();
-    if (!solver_.factorize(A)) {
-      std::ostringstream s;
-      s << "rollout: step " << step << " matrix is not positive definite (stiffness tables invalid?)";
-      throw SolverError(s.str());
-    }
+    factorize_step(solver_, A, step);
     ++timing_.factorizations;
     timing_.factorize += seconds_since(t0);
     t0 = std::chrono::steady_clock::now();
