@@ -10,26 +10,36 @@
    same harmonics of best draw vs the other draws: what re-draping alone puts there).
 2. What is missing. For every registered effect not in P: a score (Lagrange-multiplier) test at the effect's
    off value. The draws are draped on one model with every candidate active at its off values (the base
-   model bit for bit: tested), rendered with the fitter's soft renderer, and the data term's gradient with
-   respect to each candidate's parameters is back-propagated per draw. The statistic is Hotelling's
-       T^2 = K gbar^T S^+ gbar      (gbar, S: mean and covariance over the K draws; rank-aware, after
-                                     scaling each parameter by its prior scale)
-   i.e. the mean pull of the data towards switching the effect on, measured in units of how much that pull
-   varies from one re-drape to the next (q = rank of S). p-value: a sign-flip randomisation test of T^2 over
-   the draws (score_test), which needs no Gaussian tails; also reported: Hotelling's F, exact for Gaussian
-   gradients (T^2 (K - q) / (q (K - 1)) ~ F(q, K - q)), and the asymptotic chi2(q) the issue suggests, which
-   with K = 16 draws and q = 5 is anti-conservative by orders of magnitude. Per-draw gradients are exact but
-   heavy-tailed (folds bifurcate), so their norms are capped at fit.json gradient_clip.factor x the median
-   first, as the fitter does. The threshold is alpha = 0.01,
-   Bonferroni-corrected over the candidates tested. A parameter without gradient at the off point (a tilt's
-   azimuth at zero angle) drops out of the rank; the tilt's angle is therefore also scored with the azimuth
-   turned by 90 degrees (SECOND_DIRECTIONS: one more rollout per draw), so both tilt directions are seen.
+   model bit for bit: tested) and rendered with the fitter's soft renderer. The score of draw k is the gradient,
+   with respect to each candidate's parameters, of the excess pixel data term
+       L_k = mean_i data(draw_k, measured_i) - mean_j data(draw_k, reference_j)
+   where the references are J = max(PSEUDO_MIN, n) silhouettes of P's own predictive (other posterior draws with
+   their own placement noise): what the measurement would look like if P were right. The pixel term is
+   quadratic, so the draw's own image cancels: the score is B_k (mean reference - mean measured) / (sigma^2 N),
+   B_k the draw's adjoint (image -> parameters), i.e. the mean measured silhouette's difference from the mean
+   predicted one, seen through how each effect would move the draw. Why not the plain data term's gradient (the
+   first version): its mean under "P is right" is not zero (it pulls towards effects that make the drape less
+   variable, and the soft silhouette's halo pulls on every effect that moves the edge), and its per-draw scatter
+   ignores that the n measured images are themselves one re-drape each: on control drapes of other placements
+   every candidate came out "significant" (docs/diagnose.md, the confusion table).
+   The mean score's covariance has two parts: S/K, the scores' covariance over the K draws (B_k varies), and
+   Cov(measured)/n + Cov(reference)/J seen through the draws, estimated per draw from a scatter image (one pair
+   of references and one pair of measured images, differences scaled so that the outer product has that
+   expectation; a second reference pair stands in for the measurement when one image is given) back-propagated
+   like the score: one more adjoint per draw, on the recorded rollout. The statistic is
+       T^2 = gbar^T (S/K + mean_k u_k u_k^T)^+ gbar      (rank-aware, after scaling each parameter by its
+                                                          prior scale; q = rank)
+   with Hotelling's F approximation on K - 1 dof (minus the nuisance's) as its p-value: a sign-flip test of the
+   draws would see only the first part. Per-draw gradients are exact but heavy-tailed (folds bifurcate), so
+   their norms are capped at fit.json gradient_clip.factor x the median first, as the fitter does (the scatter
+   with the same factor). The threshold is alpha = 0.01, Bonferroni-corrected over the candidates tested. A
+   parameter without gradient at the off point (a tilt's azimuth at zero angle) drops out of the rank; the
+   tilt's angle is therefore also scored with the azimuth turned by 90 degrees (SECOND_DIRECTIONS: one more
+   rollout per draw), so both tilt directions are seen.
    The material is a nuisance: what a change of its overall bending scale explains (a drape coefficient off the
    measured one pulls on every effect that moves it) is projected out of each draw's score first (the efficient
    score, with the information estimated by the outer product of the per-draw gradients; one dof lost).
-   The data term is the pixel term alone: the soft silhouette's drape coefficient sits ~0.02 above the hard
-   one's (docs/fitting.md), a bias that would pull consistently on every effect that moves the drape
-   coefficient.
+   The data term is the pixel term alone (the drape coefficient's term is not quadratic in the image).
 3. Refits. The candidates below the threshold (up to MAX_REFITS, smallest p first) are refitted under the time
    budget: ``infer.FitJob`` with effects {name: None} (P's own effects fixed), starting from P's material
    (its mean log table, per-entry posterior sd and stretching table, no bending scale search) and holding it
@@ -79,6 +89,8 @@ SCORE_SIGMA_DC = 0.0      # the score test's data term: pixel term only (see the
 # tilt's azimuth at zero angle): the primary's score is also taken with the direction parameter at this value
 # (still the base model, the primary being off), so that the test sees the effect in every direction, at the
 # cost of one more recorded rollout and backward per draw. Key in the gradients: "tilt.angle_rad@azimuth_rad".
+PSEUDO_MIN = 4            # predictive silhouettes drawn as the null reference (at least; as many as images)
+PSEUDO_SEED_OFFSET = 100000  # their placement seeds: [seed, offset + j, 1], apart from the scored draws' [seed, i, 1]
 SECOND_DIRECTIONS = {"tilt": {"azimuth_rad": math.pi / 2}}
 FOLD_WORDS = {
     1: "1-fold: the drape hangs further out on one side (offset, tilt, a density or stiffness gradient)",
@@ -91,12 +103,18 @@ def _progress(progress, stage, message, **extra):
         progress(dict(stage=stage, message=message, **extra))
 
 
-def score_test(gradients, scale=None, clip=None, nuisance=None):
+def score_test(gradients, scale=None, clip=None, nuisance=None, scatter=None, scatter_nuisance=None):
     """Score test from per-draw gradients (K, q) of the data term at the off point (see the module doc).
     scale: per-parameter factors (the prior scales: the covariance's rank is judged on comparable units); clip:
     per-draw norms above clip x their median are scaled down to it; nuisance (K,) or (K, r): per-draw gradients of
     nuisance parameters, projected out first (the efficient score with the outer-product estimate of the
     information: g_e - N (N^T N)^-1 N^T g_e), costing r draws of the F test's denominator dof.
+    scatter (K, q), scatter_nuisance (K,) or (K, r): per draw, the same gradient of the draw's scatter image (module
+    doc, 2.: the measurement's and the reference's own re-drape variability), projected with the same nuisance
+    coefficients, scaled and clipped with the same per-draw factors as the draw's score. With it the covariance of
+    the mean score is S/K + mean(u u^T) (S: the scores' covariance over draws), T^2 = gbar^T (that)^+ gbar, and
+    p_value is Hotelling's F approximation on K - 1 - r dof (the sign flips see the draws' variability only:
+    the measured images' are common to every draw), p_value_draws the draws-only sign-flip p.
 
     p_value is a sign-flip randomisation test of T^2: under "the effect is absent" each draw's score is as likely
     to point either way (a tilt's exactly, the draws' distribution being mirror-symmetric), so T^2 is compared
@@ -120,7 +138,14 @@ def score_test(gradients, scale=None, clip=None, nuisance=None):
         g = g - n @ beta
         lost = np.linalg.matrix_rank(n)
     z = g * (np.ones(g.shape[1]) if scale is None else np.asarray(scale, dtype=float))
-    clipped = 0
+    zu = None
+    if scatter is not None:
+        zu = np.asarray(scatter, dtype=float).reshape(g.shape)
+        if nuisance is not None:
+            nu = np.asarray(scatter_nuisance, dtype=float).reshape(k, -1)
+            zu = zu - nu @ beta
+        zu = zu * (np.ones(g.shape[1]) if scale is None else np.asarray(scale, dtype=float))
+    factor = np.ones(k)
     if clip:
         # Per-draw gradients of a rollout are exact but heavy-tailed (a fold bifurcating near the end makes one
         # draw's gradient 5-10x the others'; infer.FitJob.clip_threshold): norms are capped at clip x the median.
@@ -128,19 +153,22 @@ def score_test(gradients, scale=None, clip=None, nuisance=None):
         cap = float(clip) * float(np.median(norms))
         if cap > 0:
             factor = np.minimum(1.0, cap / np.maximum(norms, 1e-300))
-            clipped = int(np.sum(factor < 1.0))
-            z = z * factor[:, None]
+    clipped = int(np.sum(factor < 1.0))
+    z = z * factor[:, None]
     mean = z.mean(axis=0)
-    cov = np.atleast_2d(np.cov(z, rowvar=False, ddof=1))
+    cov = np.atleast_2d(np.cov(z, rowvar=False, ddof=1)) / k
+    if zu is not None:
+        zu = zu * factor[:, None]
+        cov = cov + zu.T @ zu / k
     w, v = np.linalg.eigh(cov)
     top = float(w.max()) if w.size else 0.0
     keep = w > RANK_TOLERANCE * top if top > 0 else np.zeros_like(w, dtype=bool)
     rank = int(keep.sum())
     if rank == 0:
         return {"statistic": 0.0, "rank": 0, "p_value": 1.0, "p_value_f": 1.0, "p_value_chi2": 1.0,
-                "gradient_mean": g.mean(axis=0).tolist(), "clipped": clipped}
+                "p_value_draws": 1.0, "gradient_mean": g.mean(axis=0).tolist(), "clipped": clipped}
     proj = v[:, keep].T @ mean
-    t2 = float(k * np.sum(proj ** 2 / w[keep]))
+    t2 = float(np.sum(proj ** 2 / w[keep]))
     p_chi2 = float(stats.chi2.sf(t2, rank))
     dof = k - lost  # draws left after the nuisance projection
     if dof > rank:
@@ -148,8 +176,10 @@ def score_test(gradients, scale=None, clip=None, nuisance=None):
         p = float(stats.f.sf(f, rank, dof - rank))
     else:  # cannot happen (rank <= K - 1), kept for safety
         p = p_chi2
-    return {"statistic": t2, "rank": rank, "p_value": _sign_flip_p(z), "p_value_f": p, "p_value_chi2": p_chi2,
-            "gradient_mean": g.mean(axis=0).tolist(), "clipped": clipped}
+    flips = _sign_flip_p(z)
+    return {"statistic": t2, "rank": rank, "p_value": p if zu is not None else flips, "p_value_f": p,
+            "p_value_chi2": p_chi2, "p_value_draws": flips, "gradient_mean": g.mean(axis=0).tolist(),
+            "clipped": clipped}
 
 
 def _sign_flip_p(z):
@@ -302,11 +332,69 @@ def _signature(obs, ok, best, calibration):
         {"r_measured": r_obs, "r_best": r_best, "residual": residual}
 
 
+def _pseudo_observations(pred, preset, models, j, seed, config, lanes, progress, cancel_event):
+    """`j` silhouettes of the preset's own predictive (posterior draws with placement noise, independent of the
+    scored draws): what the measurement would look like if P were right. Forward drapes only (no record)."""
+    draws = infer.preset_bend_samples(preset, models[0].num_bending_edges, np.random.default_rng([seed, 23]), j)
+    effects = fit_effects.sample_effect_values(pred.effects, np.random.default_rng([seed, 29]), j)
+    amplitude, modes = pred.placement
+    rest = models[0].rest_positions
+    images = [None] * j
+
+    def run(lane):
+        m = models[lane]
+        for i in range(lane, j, lanes):
+            if cancel_event is not None and cancel_event.is_set():
+                return
+            p = m.parameters(stretch=pred.stretch, bend=draws[i], effects=effects[i] if effects else None)
+            v0 = infer.placement_velocities(rest, np.random.default_rng([seed, PSEUDO_SEED_OFFSET + i, 1]),
+                                            amplitude, modes) if amplitude > 0 else None
+            try:
+                x = m.simulate(p, mode="dynamic", record=False, velocities0=v0, cancel_event=cancel_event,
+                               **config["dynamic"])
+            except SolverError:
+                continue
+            except Cancelled:
+                return
+            images[i] = infer._hard_image(pred.camera, x, m.faces)
+            _progress(progress, "draws", f"predictive silhouette {i + 1}/{j} draped (the score's null reference)")
+
+    if lanes == 1:
+        run(0)
+    else:
+        with concurrent.futures.ThreadPoolExecutor(lanes) as pool:
+            for f in [pool.submit(run, lane) for lane in range(lanes)]:
+                f.result()
+    return [im for im in images if im is not None]
+
+
+def _pairs(n):
+    """All unordered index pairs of range(n), in a fixed order (the scatter vectors cycle through them)."""
+    return [(a, b) for a in range(n) for b in range(a + 1, n)]
+
+
+def _scatter_image(i, pseudo, observed, pseudo_pairs, observed_pairs):
+    """Draw i's scatter image (module doc, 2.): a zero-mean image whose outer product has expectation
+    Cov(pseudo)/J + Cov(observed)/n, from one pair of predictive silhouettes and one pair of measured ones (a second,
+    disjoint predictive pair stands in for the measurement when fewer than two images were given)."""
+    a, b = pseudo_pairs[i % len(pseudo_pairs)]
+    u = (pseudo[a] - pseudo[b]) / math.sqrt(2 * len(pseudo))
+    if observed_pairs:
+        c, d = observed_pairs[i % len(observed_pairs)]
+        u = u + (observed[c] - observed[d]) / math.sqrt(2 * len(observed))
+    else:
+        rest = [q for q in pseudo_pairs if a not in q and b not in q]
+        c, d = rest[i % len(rest)]
+        u = u + (pseudo[c] - pseudo[d]) / math.sqrt(2 * len(observed))
+    return u
+
+
 def _joint_drapes(preset, observations, names, k, seed, config, threads, template_dir, mesh_level, progress,
                   cancel_event):
     """Drapes K draws of the preset on one model with every candidate active at its off values (P's own effects
-    at their sampled values), recording the rollout; returns the shapes (x, hard image, dc, nodes, amplitude)
-    and per draw the gradient of the pixel data term (mean over images) for every candidate parameter."""
+    at their sampled values), recording the rollout; returns the shapes (x, hard image, dc, nodes, amplitude),
+    per draw the score (the gradient of the excess data term, module doc 2.) for every candidate parameter and,
+    under "scatter", the same gradient of the draw's scatter image, and the predictive silhouettes used."""
     reg = fit_effects.registry()
     shape = observations[0].mask.shape
     lanes = max(1, min(int(threads or min(os.cpu_count() or 1, 2)), k))
@@ -331,6 +419,30 @@ def _joint_drapes(preset, observations, names, k, seed, config, threads, templat
     lock = threading.Lock()
     t0 = time.monotonic()
 
+    # the null reference: P's own predictive silhouettes, as many as there are images (at least PSEUDO_MIN)
+    observed = [o.mask for o in observations]
+    j = max(PSEUDO_MIN, len(observed))
+    pseudo = _pseudo_observations(pred, preset, models, j, seed, config, lanes, progress, cancel_event)
+    if len(pseudo) < PSEUDO_MIN:
+        if cancel_event is not None and cancel_event.is_set():
+            return pred, models, shapes, grads, time.monotonic() - t0, lanes, pseudo
+        raise SolverError(f"diagnose: only {len(pseudo)} of {j} predictive drapes of the preset succeeded "
+                          f"(the score test needs {PSEUDO_MIN})")
+    scale = 1.0 / (sigma_obs ** 2 * observed[0].size)  # the pixel data term's gradient per unit image difference
+    excess = (np.mean(pseudo, axis=0) - np.mean(observed, axis=0)) * scale
+    pseudo_pairs = _pairs(len(pseudo))
+    observed_pairs = _pairs(len(observed))
+
+    def scores(m, r, image_grads, bend, prefix_keys):
+        out = []
+        for w in image_grads:
+            g = m.backward(r.backward(w), cancel_event=cancel_event)
+            d = {key: float(g[key]) for key in prefix_keys}
+            # the nuisance direction: the material's overall bending scale, d data / d log(scale)
+            d["bend.log_scale"] = float(np.sum(np.asarray(g["bend"]) * bend))
+            out.append(d)
+        return out
+
     def run(lane):
         m, r = models[lane], renderers[lane]
         for i in range(lane, k, lanes):
@@ -350,19 +462,15 @@ def _joint_drapes(preset, observations, names, k, seed, config, threads, templat
                 return
             hard = infer._hard_image(pred.camera, x, m.faces)
             nodes = measure.analyse_nodes(measure.r_theta(hard, pred.calibration))
-            soft = r.render(x, m.faces)
-            g_image = np.zeros_like(soft)
-            for o in observations:
-                g_image += infer.data_term(soft, o, sigma_obs, SCORE_SIGMA_DC)[1] / len(observations)
+            r.render(x, m.faces)  # the soft render whose adjoint carries the scores back
+            scatter = _scatter_image(i, pseudo, observed, pseudo_pairs, observed_pairs) * scale
             try:
-                g = m.backward(r.backward(g_image), cancel_event=cancel_event)
+                g, gu = scores(m, r, [excess, scatter], draws[i], keys)
             except Cancelled:
                 return
             shapes[i] = {"x": x, "image": hard, "dc": measure.drape_coefficient(hard, pred.calibration.px_per_m),
                          "nodes": nodes.count, "amplitude": nodes.amplitude_m}
-            grads[i] = {key: float(g[key]) for key in keys}
-            # the nuisance direction: the material's overall bending scale, d data / d log(scale)
-            grads[i]["bend.log_scale"] = float(np.sum(np.asarray(g["bend"]) * draws[i]))
+            g["scatter"] = gu
             if turned:  # the same base drape on a model whose gradient-less directions are turned
                 mt = turned_models[lane]
                 pt = mt.parameters(stretch=pred.stretch, bend=draws[i],
@@ -370,24 +478,18 @@ def _joint_drapes(preset, observations, names, k, seed, config, threads, templat
                 try:
                     xt = mt.simulate(pt, mode="dynamic", record=True, velocities0=v0, cancel_event=cancel_event,
                                      **config["dynamic"])
+                    r.render(xt, mt.faces)
+                    turned_keys = [f"{n}.{reg[n]['parameters'][0]['name']}" for n in turned]
+                    gt, gtu = scores(mt, r, [excess, scatter], draws[i], turned_keys)
                 except Cancelled:
-                    grads[i] = None
-                    shapes[i] = None
-                    return
-                soft_t = r.render(xt, mt.faces)
-                g_t = np.zeros_like(soft_t)
-                for o in observations:
-                    g_t += infer.data_term(soft_t, o, sigma_obs, SCORE_SIGMA_DC)[1] / len(observations)
-                try:
-                    gt = mt.backward(r.backward(g_t), cancel_event=cancel_event)
-                except Cancelled:
-                    grads[i] = None
                     shapes[i] = None
                     return
                 for n in turned:
                     primary = reg[n]["parameters"][0]["name"]
                     for q in SECOND_DIRECTIONS[n]:
-                        grads[i][f"{n}.{primary}@{q}"] = float(gt[f"{n}.{primary}"])
+                        g[f"{n}.{primary}@{q}"] = gt[f"{n}.{primary}"]
+                        gu[f"{n}.{primary}@{q}"] = gtu[f"{n}.{primary}"]
+            grads[i] = g
             with lock:
                 done[0] += 1
                 _progress(progress, "draws", f"draw {done[0]}/{k} draped and differentiated "
@@ -399,7 +501,7 @@ def _joint_drapes(preset, observations, names, k, seed, config, threads, templat
         with concurrent.futures.ThreadPoolExecutor(lanes) as pool:
             for f in [pool.submit(run, lane) for lane in range(lanes)]:
                 f.result()
-    return pred, models, shapes, grads, time.monotonic() - t0, lanes
+    return pred, models, shapes, grads, time.monotonic() - t0, lanes, pseudo
 
 
 def refit_with_effect(preset, images, name, level, seed, config, threads=None, template_dir=None, budget=None,
@@ -500,7 +602,7 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
         # 1. where it fails, and the score tests (one rollout + backward per draw)
         _progress(progress, "draws", f"{label}: {k} posterior draws on {len(images)} image(s), score tests of "
                                      f"{', '.join(names) or 'no candidates'}")
-        pred, models, shapes, grads, seconds, lanes = _joint_drapes(
+        pred, models, shapes, grads, seconds, lanes, pseudo = _joint_drapes(
             p, observations, names, k, seed, config, threads, template_dir, mesh_level, progress, cancel_event)
         result["seconds"]["draws"] = seconds
         result["mesh_level"] = pred.level
@@ -546,7 +648,9 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
             elif len(g_done) >= MIN_SAMPLES:
                 st = score_test([[g[key] for key in keys] for g in g_done], scales,
                                 clip=(config.get("gradient_clip") or {}).get("factor"),
-                                nuisance=[g["bend.log_scale"] for g in g_done])
+                                nuisance=[g["bend.log_scale"] for g in g_done],
+                                scatter=[[g["scatter"][key] for key in keys] for g in g_done],
+                                scatter_nuisance=[g["scatter"]["bend.log_scale"] for g in g_done])
                 entry.update(statistic=st["statistic"], p_value=st["p_value"], p_value_f=st["p_value_f"],
                              p_value_chi2=st["p_value_chi2"],
                              rank=st["rank"], clipped_draws=st["clipped"], gradient_mean=dict(zip(keys, st["gradient_mean"])))

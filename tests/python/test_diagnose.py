@@ -1,6 +1,7 @@
 """diagnose: the contract of diagnosis.json and the report, the score test's gradient against central
 differences, a tilted drape (tilt ranked first) and a control (nothing significant), bad input."""
 import copy
+import types
 import json
 import os
 
@@ -38,14 +39,15 @@ def _one_draw(images, names, seed=3):
     cfg = small_config()
     preset = infer.load_preset(PRESET)
     obs = diagnose._observations([images["tilt"]])
-    pred, models, shapes, grads, _, _ = diagnose._joint_drapes(preset, obs, names, 1, seed, cfg, 1, None, 1, None, None)
+    pred, models, shapes, grads, _, _, pseudo = diagnose._joint_drapes(preset, obs, names, 1, seed, cfg, 1, None, 1,
+                                                                       None, None)
     draw = infer.preset_bend_samples(preset, models[0].num_bending_edges, np.random.default_rng(seed), 1)[0]
     v0 = infer.placement_velocities(models[0].rest_positions, np.random.default_rng([seed, 0, 1]), *pred.placement)
-    return cfg, preset, obs, pred, models[0], shapes[0], grads[0], draw, v0
+    return cfg, preset, obs, pred, models[0], shapes[0], grads[0], draw, v0, pseudo
 
 
 def test_model_with_candidates_at_off_drapes_the_base_model_bit_for_bit(images):
-    cfg, preset, _, pred, _, shape, _, draw, v0 = _one_draw(images, list(fit_effects.registry()))
+    cfg, preset, _, pred, _, shape, _, draw, v0, _ = _one_draw(images, list(fit_effects.registry()))
     base = sim.ClothModel(sim.cusick_specimen(1), heterogeneous=True, density=preset["density_kg_m2"])
     x = base.simulate(base.parameters(stretch=pred.stretch, bend=draw), record=False, velocities0=v0, **cfg["dynamic"])
     assert np.array_equal(x, shape["x"])
@@ -59,10 +61,13 @@ def test_model_with_candidates_at_off_drapes_the_base_model_bit_for_bit(images):
         strict=False)),
 ])
 def test_score_gradient_matches_central_differences(images, key):
-    # The score is d(pixel data term)/d(effect parameter) at the off value, back-propagated through the recorded
-    # rollout of one posterior draw (with its placement noise): against central differences of that data term.
+    # The score is d(excess pixel data term)/d(effect parameter) at the off value (the data term against the
+    # measured image minus the mean one against P's predictive references), back-propagated through the recorded
+    # rollout of one posterior draw (with its placement noise): against central differences of that term.
     name, param = key.split(".")
-    cfg, _, obs, pred, m, _, grads, draw, v0 = _one_draw(images, [name])
+    cfg, _, obs, pred, m, _, grads, draw, v0, pseudo = _one_draw(images, [name])
+    assert len(pseudo) == diagnose.PSEUDO_MIN
+    refs = [types.SimpleNamespace(mask=im) for im in pseudo]
     renderer = render.SoftRenderer(pred.camera, sigma=cfg["render_sigma_px"])
     offs = {name: {p["name"]: p["off"] for p in fit_effects.registry()[name]["parameters"]}}
 
@@ -71,7 +76,9 @@ def test_score_gradient_matches_central_differences(images, key):
         effects[name][param] = value
         xe = m.simulate(m.parameters(stretch=pred.stretch, bend=draw, effects=effects), record=False,
                         velocities0=v0, **cfg["dynamic"])
-        return infer.data_term(renderer.render(xe, m.faces), obs[0], cfg["sigma_obs"], diagnose.SCORE_SIGMA_DC)[0]
+        image = renderer.render(xe, m.faces)
+        return (infer.data_term(image, obs[0], cfg["sigma_obs"], diagnose.SCORE_SIGMA_DC)[0]
+                - np.mean([infer.data_term(image, ref, cfg["sigma_obs"], diagnose.SCORE_SIGMA_DC)[0] for ref in refs]))
 
     eps = 1e-6
     fd = (data(eps) - data(-eps)) / (2 * eps)
@@ -98,6 +105,14 @@ def test_score_test_statistic():
     assert heavy["p_value"] >= 0.05
     flat = diagnose.score_test(np.c_[rng.standard_normal(8), np.zeros(8)])  # a parameter without gradient
     assert flat["rank"] == 1
+    # the measured images' own variability (scatter): a mean pull of 3 draw-sd is significant when the images are
+    # exact, not when each image's re-drape moves the pull by 3 as well (K = 16: the draws-only test says 1e-3)
+    g = rng.standard_normal((16, 2)) + [3.0, 0.0]
+    exact = diagnose.score_test(g, scatter=np.zeros((16, 2)))
+    assert exact["p_value"] == pytest.approx(exact["p_value_f"]) and exact["p_value"] < 1e-4
+    noisy = diagnose.score_test(g, scatter=3.0 * rng.standard_normal((16, 2)))
+    assert noisy["p_value"] > 0.01 and noisy["p_value_draws"] < 1e-3
+    assert noisy["statistic"] < exact["statistic"] / 5
 
 
 def test_tilted_drape_ranks_tilt_first_and_the_control_is_clean(images, tmp_path):
