@@ -26,8 +26,10 @@
    Cov(measured)/n + Cov(reference)/J seen through the draws, estimated per draw from a scatter image (one pair
    of references and one pair of measured images, differences scaled so that the outer product has that
    expectation; a second reference pair stands in for the measurement when one image is given) back-propagated
-   like the score: one more adjoint per draw, on the recorded rollout. The statistic is
-       T^2 = gbar^T (S/K + mean_k u_k u_k^T)^+ gbar      (rank-aware, after scaling each parameter by its
+   like the score: one more adjoint per draw, on the recorded rollout. Draws 2m and 2m + 1 share a scatter image
+   and C_u is the mean of their symmetrised cross products (unbiased through the mean adjoint; score_test). The
+   statistic is
+       T^2 = gbar^T (S/K + C_u)^+ gbar                   (rank-aware, after scaling each parameter by its
                                                           prior scale; q = rank)
    with Hotelling's F approximation on K - 1 dof (minus the nuisance's) as its p-value: a sign-flip test of the
    draws would see only the first part. Per-draw gradients are exact but heavy-tailed (folds bifurcate), so
@@ -40,20 +42,26 @@
    measured one pulls on every effect that moves it) is projected out of each draw's score first (the efficient
    score, with the information estimated by the outer product of the per-draw gradients; one dof lost).
    The data term is the pixel term alone (the drape coefficient's term is not quadratic in the image).
-3. Refits. The candidates below the threshold (up to MAX_REFITS, smallest p first) are refitted under the time
-   budget: ``infer.FitJob`` with effects {name: None} (P's own effects fixed), starting from P's material
-   (its mean log table, per-entry posterior sd and stretching table, no bending scale search) and holding it
-   there (the material's learning rates x MATERIAL_LEARNING_RATE_FACTOR = 0): P's posterior is the material's
-   prior and, in a refit of a few epochs, also its posterior. Measured: with the material free, a short refit's
-   noisy material steps absorbed a 0.3 rad tilt (the fitted angle fell 0.15 -> 0.03 rad in 8 epochs); held, it
-   rose to 0.26 rad in 11 epochs. Only the effect's strength (and its bdp posterior sd) is fitted, with the
-   pixel term alone (as the score test).
+3. Refits. When at least one candidate is below the threshold (the data differ from P), the candidates with the
+   smallest p-values below REFIT_P_MAX (up to MAX_REFITS) are refitted under the time budget: the score test
+   says that something differs, the refits say which effect explains it. Effects with the same signature
+   compete there: a 1-fold r(theta) residual is what a tilt, a density gradient and a 1-fold stiffness map all
+   predict, and on six tilted drapes the density gradient's score was the larger (T^2 98 on 3 dof against the
+   tilt's 21 on 2). Each refit is ``infer.FitJob`` with effects {name: None} (P's own effects fixed), starting
+   from P's material (its mean log table, per-entry posterior sd and stretching table, no bending scale search)
+   and holding it there (the material's learning rates x MATERIAL_LEARNING_RATE_FACTOR = 0): P's posterior is
+   the material's prior and, in a refit of a few epochs, also its posterior. Measured: with the material free, a
+   short refit's noisy material steps absorbed a 0.3 rad tilt (the fitted angle fell 0.15 -> 0.03 rad in 8
+   epochs); held, it rose to 0.26 rad in 11 epochs. Only the effect's strength (and its bdp posterior sd) is
+   fitted, with the pixel term alone.
    Each refit is evaluated like the base (same seed, K draws, P's camera and P's global log sd) and written as
-   DIR/presets/<effect>.json. gain = (base loss - refit loss) / added parameters, loss = the expected pixel data
-   term of the predictive (mean over draws and images of MSE / (2 sigma_obs^2), hard silhouettes): the drape
-   coefficient's term, whose per-draw spread is 2-4x the pixel term's, made the loss of 16 draws too noisy to
-   compare models (measured: a refit with a better best-of-16 MSE, 0.026 -> 0.016, had a higher such loss). ``recommended`` = the effect with the largest positive gain among those below
-   the threshold, else None.
+   DIR/presets/<effect>.json. mse_fall = (base best-of-K MSE - refit's) / base's: the same draws' noise on both
+   sides, so the comparison is paired. The final ranking puts the refits that lower the error first (largest
+   fall first), then the rest in the score tests' order. ``recommended`` = the first of them when its fall is at
+   least MIN_MSE_FALL and some candidate was significant (or it is a switch named with --candidates), else
+   None. gain = (base loss - refit loss) / added parameters, loss = the expected pixel data term of the
+   predictive (mean over draws and images), is reported beside it: it weighs the draws' spread, which an effect
+   may widen while its best draws come closer (measured: best-of-16 MSE 0.0288 -> 0.0189 with a higher loss).
 
 Time budget (seconds, the whole job): the draws and score tests come first (their cost is K drapes with
 backward); what remains, less the refits' evaluations (estimated from the measured drape time) and a reserve
@@ -78,6 +86,9 @@ DEFAULT_SAMPLES = 16      # posterior-predictive draws (the score test's sample 
 MIN_SAMPLES = 3           # a covariance over draws needs at least this many
 ALPHA = 0.01              # family-wise significance level, Bonferroni over the candidates tested
 MAX_REFITS = 2            # refits of the most promising candidates
+REFIT_P_MAX = 0.05        # once one candidate is significant, the others up to this p are refitted too (module doc, 3.)
+MIN_MSE_FALL = 0.05       # a recommended refit lowers the best-of-K MSE by at least this fraction of the base's
+SCORE_CLIP_FACTOR = 1.5   # per-draw score norms capped at this x their median (the fit's cap is 3: module doc, 2.)
 HARMONIC_ORDERS = 6       # residual harmonics reported: k = 1..6
 FLIP_ENUMERATE_MAX = 16  # draws up to which the sign-flip test enumerates all 2^K patterns
 FLIP_SAMPLES = 65536      # random sign patterns beyond that
@@ -103,7 +114,8 @@ def _progress(progress, stage, message, **extra):
         progress(dict(stage=stage, message=message, **extra))
 
 
-def score_test(gradients, scale=None, clip=None, nuisance=None, scatter=None, scatter_nuisance=None):
+def score_test(gradients, scale=None, clip=None, nuisance=None, scatter=None, scatter_nuisance=None,
+               scatter_groups=None):
     """Score test from per-draw gradients (K, q) of the data term at the off point (see the module doc).
     scale: per-parameter factors (the prior scales: the covariance's rank is judged on comparable units); clip:
     per-draw norms above clip x their median are scaled down to it; nuisance (K,) or (K, r): per-draw gradients of
@@ -112,9 +124,14 @@ def score_test(gradients, scale=None, clip=None, nuisance=None, scatter=None, sc
     scatter (K, q), scatter_nuisance (K,) or (K, r): per draw, the same gradient of the draw's scatter image (module
     doc, 2.: the measurement's and the reference's own re-drape variability), projected with the same nuisance
     coefficients, scaled and clipped with the same per-draw factors as the draw's score. With it the covariance of
-    the mean score is S/K + mean(u u^T) (S: the scores' covariance over draws), T^2 = gbar^T (that)^+ gbar, and
+    the mean score is S/K + C_u (S: the scores' covariance over draws), T^2 = gbar^T (that)^+ gbar, and
     p_value is Hotelling's F approximation on K - 1 - r dof (the sign flips see the draws' variability only:
     the measured images' are common to every draw), p_value_draws the draws-only sign-flip p.
+    C_u: with scatter_groups (K,) naming which draws share a scatter image, the mean over the pairs (k, l) of one
+    group of the symmetrised cross products u_k u_l^T, projected onto the positive semidefinite cone: unbiased for
+    Bbar C Bbar^T (k and l independent draws, Bbar the mean adjoint). Without groups, mean(u_k u_k^T), which
+    estimates E[B C B^T] >= Bbar C Bbar^T: measured, many times larger, because a pixel's sensitivity to an effect
+    changes sign with the draw's fold positions, so the test lost its power (tilt 0.15 rad on 6 drapes: p 0.004).
 
     p_value is a sign-flip randomisation test of T^2: under "the effect is absent" each draw's score is as likely
     to point either way (a tilt's exactly, the draws' distribution being mirror-symmetric), so T^2 is compared
@@ -159,7 +176,18 @@ def score_test(gradients, scale=None, clip=None, nuisance=None, scatter=None, sc
     cov = np.atleast_2d(np.cov(z, rowvar=False, ddof=1)) / k
     if zu is not None:
         zu = zu * factor[:, None]
-        cov = cov + zu.T @ zu / k
+        cross = None
+        if scatter_groups is not None:
+            groups = {}
+            for row, grp in enumerate(scatter_groups):
+                groups.setdefault(grp, []).append(row)
+            terms = [np.outer(zu[a], zu[b]) for rows in groups.values() for i, a in enumerate(rows) for b in rows[i + 1:]]
+            if terms:
+                c = np.mean(terms, axis=0)
+                c = 0.5 * (c + c.T)
+                cw, cv = np.linalg.eigh(c)
+                cross = (cv * np.maximum(cw, 0.0)) @ cv.T
+        cov = cov + (cross if cross is not None else zu.T @ zu / k)
     w, v = np.linalg.eigh(cov)
     top = float(w.max()) if w.size else 0.0
     keep = w > RANK_TOLERANCE * top if top > 0 else np.zeros_like(w, dtype=bool)
@@ -463,7 +491,9 @@ def _joint_drapes(preset, observations, names, k, seed, config, threads, templat
             hard = infer._hard_image(pred.camera, x, m.faces)
             nodes = measure.analyse_nodes(measure.r_theta(hard, pred.calibration))
             r.render(x, m.faces)  # the soft render whose adjoint carries the scores back
-            scatter = _scatter_image(i, pseudo, observed, pseudo_pairs, observed_pairs) * scale
+            # draws 2m and 2m + 1 share a scatter image: the cross products of their scatter scores estimate the
+            # covariance through the mean adjoint (score_test)
+            scatter = _scatter_image(i // 2, pseudo, observed, pseudo_pairs, observed_pairs) * scale
             try:
                 g, gu = scores(m, r, [excess, scatter], draws[i], keys)
             except Cancelled:
@@ -647,10 +677,11 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                                            " (refitted only when named: --candidates " + n + ")."))
             elif len(g_done) >= MIN_SAMPLES:
                 st = score_test([[g[key] for key in keys] for g in g_done], scales,
-                                clip=(config.get("gradient_clip") or {}).get("factor"),
+                                clip=SCORE_CLIP_FACTOR,
                                 nuisance=[g["bend.log_scale"] for g in g_done],
                                 scatter=[[g["scatter"][key] for key in keys] for g in g_done],
-                                scatter_nuisance=[g["scatter"]["bend.log_scale"] for g in g_done])
+                                scatter_nuisance=[g["scatter"]["bend.log_scale"] for g in g_done],
+                                scatter_groups=[i // 2 for i in done])
                 entry.update(statistic=st["statistic"], p_value=st["p_value"], p_value_f=st["p_value_f"],
                              p_value_chi2=st["p_value_chi2"],
                              rank=st["rank"], clipped_draws=st["clipped"], gradient_mean=dict(zip(keys, st["gradient_mean"])))
@@ -672,7 +703,9 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
             raise Cancelled()
 
         # 2. refits of the most promising candidates
-        promising = [e for e in result["ranking"] if e["p_value"] is not None and e["p_value"] < threshold][:MAX_REFITS]
+        tested = [e for e in result["ranking"] if e["p_value"] is not None]
+        promising = ([e for e in tested if e["p_value"] < max(threshold, REFIT_P_MAX)][:MAX_REFITS]
+                     if any(e["p_value"] < threshold for e in tested) else [])
         promising += [e for e in result["ranking"] if e["switch"] and explicit_switch(e["effect"])]
         if promising:
             result["material_prior"] = ("the preset's posterior (log_mean, per-entry log_std, global_log_std), held "
@@ -720,15 +753,26 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
         result["cancelled"] = True
         _progress(progress, "cancelled", "cancelled: writing what is done")
 
-    gaining = [e for e in result["ranking"] if ((e["p_value"] is not None and e["p_value"] < threshold)
-                                                 or e["switch"]) and e["gain"] is not None and e["gain"] > 0]
+    base_mse = (result.get("base") or {}).get("mse")
+    for e in result["ranking"]:
+        e["mse_fall"] = ((base_mse - e["refit"]["mse"]) / base_mse
+                         if e["refit"] is not None and base_mse else None)
+    # the final order: refits that lower the error, most first (which effect explains the difference), then the
+    # score tests' order (whether the data differ from P at all: module doc, 3.)
+    falling = sorted([e for e in result["ranking"] if e["mse_fall"] is not None and e["mse_fall"] > 0],
+                     key=lambda e: -e["mse_fall"])
+    result["ranking"] = falling + [e for e in result["ranking"] if e not in falling]
+    any_significant = any(e["p_value"] is not None and e["p_value"] < threshold for e in result["ranking"])
+    gaining = [e for e in falling if (any_significant or e["switch"]) and e["mse_fall"] >= MIN_MSE_FALL]
     if gaining:
-        best = max(gaining, key=lambda e: e["gain"])
+        best = gaining[0]
         result["recommended"] = best["effect"]
         why = ("a switch judged by its refit alone" if best["switch"] else
-               f"significant (p = {best['p_value']:.2g} < {threshold:.2g})")
-        result["verdict"] = (f"{best['effect']} is {why} and its refit lowers the loss by {best['gain']:.4g} per "
-                             f"added parameter: fit --effects {best['effect']}")
+               (f"significant (p = {best['p_value']:.2g} < {threshold:.2g})" if best["p_value"] < threshold else
+                f"the refit that explains the significant difference best (its own p = {best['p_value']:.2g})"))
+        result["verdict"] = (f"{best['effect']} is {why} and its refit lowers the best-of-{k} MSE by "
+                             f"{100 * best['mse_fall']:.0f} % ({base_mse:.4f} -> {best['refit']['mse']:.4f}): "
+                             f"fit --effects {best['effect']}")
     else:
         tested = [e for e in result["ranking"] if e["p_value"] is not None]
         significant = [e for e in tested if e["p_value"] < threshold]
@@ -738,7 +782,8 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
             not_run = [e["effect"] for e in significant if e["refit"] is None]
             why = []
             if refitted:
-                why.append(f"the refit with {', '.join(refitted)} did not lower the loss")
+                why.append(f"the refit with {', '.join(refitted)} did not lower the best-of-{k} MSE by "
+                           f"{100 * MIN_MSE_FALL:.0f} %")
             if not_run:
                 reason = "the diagnosis was cancelled" if result["cancelled"] else "no time was left or only " \
                          f"{MAX_REFITS} are refitted"

@@ -163,7 +163,8 @@ def test_cli_writes_the_report_the_contract_and_a_refit(images, tmp_path, capsys
     assert entry["parameters"] == ["tilt.angle_rad", "tilt.azimuth_rad", "tilt.angle_rad@azimuth_rad"]
     assert entry["rank"] == 2  # the azimuth has no gradient at zero angle; the turned angle has
     assert set(entry["refit"]) >= {"mse", "iou", "loss"} and np.isfinite(entry["gain"])
-    assert d["recommended"] == ("tilt" if entry["gain"] > 0 else None)
+    assert entry["mse_fall"] == pytest.approx((d["base"]["mse"] - entry["refit"]["mse"]) / d["base"]["mse"])
+    assert d["recommended"] == ("tilt" if entry["mse_fall"] >= diagnose.MIN_MSE_FALL else None)
     refit = infer.load_preset(os.path.join(out, "presets", "tilt.json"))
     assert refit["active_effects"]["tilt"]["angle_rad"]["fitted"]
     assert refit["posterior"]["bend"]["log_mean"] == infer.load_preset(PRESET)["posterior"]["bend"]["log_mean"]
