@@ -44,6 +44,11 @@ the predictive mean drape coefficient equals the training images', and by adding
 that spreads the predictive by the measured scatter of a fabric's drapes (calibrated on fabrics 11-20). The
 test drapes of a fabric are other specimens and re-drapes: without it the 90 % interval covered 22 % of them.
 
+The numerical core is native (native/src/infer, reached through drapelab.variational): the families above as
+types (parameter blocks, draws from noise, the chain rule, the prior), the fitted effects' block, the ELBO
+assembly with its gradient clipping, Adam and the clip rule. This module keeps the configuration, the drapes of
+each epoch's draws on threads, the start searches, checkpoints and presets.
+
 A fit is a job: progress callback per epoch, cancel (threading.Event), a checkpoint after every epoch
 (atomic JSON, resumable, bit-identical continuation: the noise of epoch k sample s is drawn from
 default_rng([seed, k, s])), a time budget or an epoch count. Monte Carlo samples run on threads (native

@@ -11,7 +11,7 @@ import numpy as np
 from . import tables
 from ._native import native
 
-__all__ = ["Family", "effect_block", "effect_draw", "Draw", "assemble_elbo", "adam_step", "clip_threshold", "kl_divergence"]
+__all__ = ["Family", "EffectBlock", "effect_block", "effect_draw", "Draw", "assemble_elbo", "adam_step", "clip_threshold", "kl_divergence"]
 
 BEND_SHAPE = tables.BEND_SHAPE
 _core = native.infer
@@ -55,6 +55,9 @@ class Family:
         """(mean, sd) of the log table per entry, (3, 5) each (heter: across edges)."""
         mean, sd = self.native.posterior(_flat(theta))
         return mean.reshape(BEND_SHAPE), sd.reshape(BEND_SHAPE)
+
+
+EffectBlock = _core.EffectBlock  # EffectBlock(off, lower, upper, prior_scale): the fitted effect parameters
 
 
 def effect_block(plan):
