@@ -44,6 +44,11 @@ the predictive mean drape coefficient equals the training images', and by adding
 that spreads the predictive by the measured scatter of a fabric's drapes (calibrated on fabrics 11-20). The
 test drapes of a fabric are other specimens and re-drapes: without it the 90 % interval covered 22 % of them.
 
+The numerical core is native (native/src/infer, reached through drapelab.variational): the families above as
+types (parameter blocks, draws from noise, the chain rule, the prior), the fitted effects' block, the ELBO
+assembly with its gradient clipping, Adam and the clip rule. This module keeps the configuration, the drapes of
+each epoch's draws on threads, the start searches, checkpoints and presets.
+
 A fit is a job: progress callback per epoch, cancel (threading.Event), a checkpoint after every epoch
 (atomic JSON, resumable, bit-identical continuation: the noise of epoch k sample s is drawn from
 default_rng([seed, k, s])), a time budget or an epoch count. Monte Carlo samples run on threads (native
@@ -61,7 +66,7 @@ import time
 
 import numpy as np
 
-from . import budget, fit_effects, measure, render, sim, tables
+from . import budget, fit_effects, measure, render, sim, tables, variational
 from ._native import Cancelled, InputError, SolverError
 
 __all__ = ["MODELS", "load_config", "FitJob", "fit", "load_preset", "write_preset", "sample_bend_tables",
@@ -72,6 +77,10 @@ PRESET_SCHEMA_VERSION = 2  # 2: active_effects carries the effects' values (1: a
 CONFIG_PATH = os.path.join(os.path.dirname(os.path.abspath(__file__)), "config", "fit.json")
 MAX_PLAUSIBLE_DENSITY = 5.0  # kg/m^2: heavier than any woven or knitted fabric by far
 BEND_SHAPE = tables.BEND_SHAPE
+# What a configuration without these fit.json entries gets (fit.json sets them all; see its comments).
+DEFAULT_MAX_THREADS = 2  # fit.json max_threads: Monte Carlo lanes by default (the reference machine has 2 cores)
+DEFAULT_EFFECT_SETTINGS = {"learning_rate": 0.1, "eta_learning_rate": 0.05, "init_std": 0.1, "prior_weight": 1.0}
+DEFAULT_GRADIENT_CLIP = {"factor": 0.0, "window": 10, "min_epochs": 3}
 
 
 def load_config(path=None):
@@ -96,9 +105,19 @@ def inverse_softplus(y):
 
 
 def kl_divergence(mu, sigma, mu0, sigma0):
-    """KL(N(mu, sigma^2) || N(mu0, sigma0^2)) summed over entries, and its gradients (d/dmu, d/dsigma)."""
-    kl = np.log(sigma0 / sigma) + (sigma ** 2 + (mu - mu0) ** 2) / (2 * sigma0 ** 2) - 0.5
-    return float(np.sum(kl)), (mu - mu0) / sigma0 ** 2, -1.0 / sigma + sigma / sigma0 ** 2
+    """KL(N(mu, sigma^2) || N(mu0, sigma0^2)) summed over entries, and its gradients (d/dmu, d/dsigma) (native)."""
+    return variational.kl_divergence(mu, sigma, mu0, sigma0)
+
+
+def default_threads(config=None, threads=None):
+    """Monte Carlo lanes: `threads`, else the cores up to fit.json max_threads."""
+    cap = int((config or {}).get("max_threads", DEFAULT_MAX_THREADS))
+    return max(1, int(threads or min(os.cpu_count() or 1, cap)))
+
+
+def effect_settings(config):
+    """fit.json "effects" with DEFAULT_EFFECT_SETTINGS for what it does not set."""
+    return dict(DEFAULT_EFFECT_SETTINGS, **(config.get("effects") or {}))
 
 
 def check_density(density):
@@ -124,15 +143,10 @@ def check_optional_int(value, name, minimum):
 
 
 def sample_bend_tables(model_kind, theta, num_edges, noise=None):
-    """Bending tables (E, 3, 5) in N m (or (3, 5) for homo) for parameters theta and standard-normal noise."""
-    if model_kind == "homo":
-        return np.exp(theta["mu"])
-    if model_kind == "heter":
-        return np.exp(theta["mu"])
-    sigma = softplus(theta["eta"])
-    if noise is None:
-        noise = np.zeros((num_edges,) + BEND_SHAPE)
-    return np.exp(theta["mu"][None] + sigma[None] * noise)
+    """Bending tables (E, 3, 5) in N m (or (3, 5) for homo) for parameters theta and standard-normal noise
+    (None: zero). model_kind: a model name or a variational.Family."""
+    family = model_kind if isinstance(model_kind, variational.Family) else variational.Family(model_kind)
+    return family.tables(theta, num_edges, noise)
 
 
 def soft_drape_coefficient(image, px_per_m, support_radius=0.09, specimen_radius=0.15):
@@ -260,6 +274,7 @@ class FitJob:
         if not images:
             raise InputError("images: give at least one Cusick silhouette")
         self.kind = model
+        self.family = variational.Family(model)  # the variational family: parameter blocks, draws, prior
         self.density = check_density(density)
         self.seed = int(seed)
         self.config = config or load_config()
@@ -291,33 +306,29 @@ class FitJob:
         self.sigma_obs = float(self.config["sigma_obs"])
         self.sigma_dc = float(self.config.get("sigma_dc") or 0.0)
         pn = self.config.get("placement_noise") or {}
-        self.placement = (float(pn.get("velocity_m_s", 0.0)), int(pn.get("angular_modes", 0))) if model == "bdp" else (0.0, 0)
-        self.threads = max(1, int(threads or min(os.cpu_count() or 1, 2)))
-        self.samples = 1 if model == "homo" else (1 if model == "heter" else int(self.config["samples_per_epoch"]))
-        heterogeneous = model != "homo"
+        self.placement = ((float(pn.get("velocity_m_s", 0.0)), int(pn.get("angular_modes", 0))) if self.family.stochastic
+                          else (0.0, 0))
+        self.threads = default_threads(self.config, threads)
+        self.samples = int(self.config["samples_per_epoch"]) if self.family.stochastic else 1
+        heterogeneous = self.family.per_element
         lanes = min(self.threads, max(self.samples, len(self.observations)))
         self.plan = fit_effects.EffectPlan(effects)
         self.workers = [_Worker(self.mesh, heterogeneous, self.density, self.stretch, self.config, self.camera,
                                 self.plan) for _ in range(lanes)]
         self.num_edges = self.workers[0].model.num_bending_edges
-        if model == "heter":
-            self.theta = {"mu": np.broadcast_to(self.log_bend0, (self.num_edges,) + BEND_SHAPE).copy()}
-        elif model == "homo":
-            self.theta = {"mu": self.log_bend0.copy()}
-        else:
-            self.theta = {"mu": self.log_bend0.copy(),
-                          "eta": np.full(BEND_SHAPE, inverse_softplus(float(self.config["init"]["bdp_std"])))}
+        self.theta = self.family.initial(self.log_bend0, self.num_edges, float(self.config["init"]["bdp_std"]))
         # Fitted effect parameters (fit_effects.EffectPlan): their means (MAP values for homo/heter) start at
         # the off values, a bdp posterior sd at fit.json effects.init_std x the prior scale; Adam's step size is
         # effects.learning_rate x the registry's moderate strength (the parameters carry units).
         self.learning_rates = {k: float(v) for k, v in self.config["learning_rates"][model].items()}
+        self.effect_block = variational.effect_block(self.plan)  # None without fitted effects
         if self.plan.size:
-            ecfg = self.config.get("effects") or {}
+            ecfg = effect_settings(self.config)
             self.theta["effect_mu"] = self.plan.off.copy()
-            self.learning_rates["effect_mu"] = float(ecfg.get("learning_rate", 0.1)) * self.plan.moderate
-            if model == "bdp":
-                self.theta["effect_eta"] = inverse_softplus(float(ecfg.get("init_std", 0.1)) * self.plan.prior_scale)
-                self.learning_rates["effect_eta"] = float(ecfg.get("eta_learning_rate", 0.05))
+            self.learning_rates["effect_mu"] = float(ecfg["learning_rate"]) * self.plan.moderate
+            if self.family.stochastic:
+                self.theta["effect_eta"] = inverse_softplus(float(ecfg["init_std"]) * self.plan.prior_scale)
+                self.learning_rates["effect_eta"] = float(ecfg["eta_learning_rate"])
         self.effect_start = None  # result of the effects' start search
         bias = self.config.get("dc_soft_bias", "estimate")
         self.dc_bias = None if bias == "estimate" else float(bias)  # None: estimated when run() starts
@@ -346,12 +357,8 @@ class FitJob:
         (the gradient flows only there), and the noise (bdp; None otherwise)."""
         if not self.plan.size:
             return None, None, None
-        if self.kind == "bdp":
-            eps = self.effect_noise(epoch, sample)
-            value = theta["effect_mu"] + softplus(theta["effect_eta"]) * eps
-        else:
-            eps, value = None, theta["effect_mu"]
-        clipped, inside = self.plan.clip(value)
+        eps = self.effect_noise(epoch, sample) if self.family.stochastic else None
+        clipped, inside = variational.effect_draw(self.effect_block, theta, eps)
         return clipped, inside, eps
 
     def placement_noise(self, epoch, sample):
@@ -369,7 +376,7 @@ class FitJob:
         before the prior/KL gradient, which is exact, is added."""
         jobs = []
         for s in range(self.samples):
-            noise = self.noise(epoch, s) if self.kind == "bdp" else None
+            noise = self.noise(epoch, s) if self.family.stochastic else None
             v0 = self.placement_noise(epoch, s)
             effect = self.effect_draw(theta, epoch, s)
             for o in self.observations:
@@ -382,7 +389,7 @@ class FitJob:
                 if cancel_event is not None and cancel_event.is_set():
                     raise Cancelled()
                 s, noise, o, v0, effect = jobs[i]
-                bend = sample_bend_tables(self.kind, theta, self.num_edges, noise)
+                bend = self.family.tables(theta, self.num_edges, noise)
                 results[i] = (w.loss_and_gradient(bend, o, self.sigma_obs, self.sigma_dc, self.warm, i, v0, effect[0],
                                                   self.dc_bias or 0.0, cancel_event), bend, noise, effect)
 
@@ -394,64 +401,21 @@ class FitJob:
             with concurrent.futures.ThreadPoolExecutor(lanes) as pool:
                 for f in [pool.submit(run, l, a) for l, a in enumerate(assignments)]:
                     f.result()
-        n = len(jobs)
-        data = 0.0
-        grads = {k: np.zeros_like(v, dtype=float) for k, v in theta.items()}
-        images = []
-        for (d, g_bend, x, image, g_effect), bend, noise, (_, inside, eps) in results:
-            data += d / n
-            g_log = np.asarray(g_bend) * bend / n  # dL/dlog B
-            images.append(image)
-            if self.kind == "bdp":
-                grads["mu"] += g_log.sum(axis=0)
-                grads["eta"] += (g_log * noise).sum(axis=0) * sigmoid(theta["eta"])
-            else:
-                grads["mu"] += g_log
-            if self.plan.size:  # reparameterised: value = mu + softplus(eta) eps, clipped to the bounds
-                g_e = np.where(inside, g_effect, 0.0) / n
-                grads["effect_mu"] += g_e
-                if self.kind == "bdp":
-                    grads["effect_eta"] += g_e * eps * sigmoid(theta["effect_eta"])
-        grad_norm = float(np.sqrt(sum(float(np.sum(g * g)) for g in grads.values())))
-        factor = 1.0
-        if clip is not None and grad_norm > clip:
-            factor = clip / grad_norm
-            for g in grads.values():
-                g *= factor
-        kl = 0.0
-        if self.kind in ("homo", "heter"):
-            # MAP with the BDP prior (log-space Gaussian around the starting table): one silhouette does not
-            # pin 15 free entries, and unregularised tables wander to shapes that drape the training image
-            # but generalise badly. Averaged over elements for heter, like the BDP term.
-            w = float(self.config["kl_weight"])
-            dev = (theta["mu"] - self.prior_mu) / self.prior_sigma
-            per = 1.0 / (dev.shape[0] if self.kind == "heter" else 1.0)
-            kl = w * 0.5 * float(np.sum(dev ** 2)) * per
-            grads["mu"] += w * dev / self.prior_sigma * per
-        if self.kind == "bdp":
-            sigma = softplus(theta["eta"])
-            kl, d_mu, d_sigma = kl_divergence(theta["mu"], sigma, self.prior_mu, self.prior_sigma)
-            w = float(self.config["kl_weight"])
-            kl *= w
-            grads["mu"] += w * d_mu
-            grads["eta"] += w * d_sigma * sigmoid(theta["eta"])
-        if self.plan.size:
-            # Prior N(off, prior_scale^2) per fitted effect parameter (the registry's): KL of the bdp posterior,
-            # or -log p (MAP) for homo/heter, weighted by kl_weight x fit.json effects.prior_weight. The pixel
-            # likelihood is a mean over pixels (tempered, the paper's), so at full weight the prior dominates a
-            # moderate effect: a 0.15 rad tilt was recovered as 0.10 (prior scale 0.15 rad), 0.145 without prior.
-            w = float(self.config["kl_weight"]) * float((self.config.get("effects") or {}).get("prior_weight", 1.0))
-            if self.kind == "bdp":
-                sigma = softplus(theta["effect_eta"])
-                kl_e, d_mu, d_sigma = kl_divergence(theta["effect_mu"], sigma, self.plan.off, self.plan.prior_scale)
-                grads["effect_eta"] += w * d_sigma * sigmoid(theta["effect_eta"])
-            else:
-                dev = (theta["effect_mu"] - self.plan.off) / self.plan.prior_scale
-                kl_e, d_mu = 0.5 * float(np.sum(dev ** 2)), dev / self.plan.prior_scale
-            kl += w * kl_e
-            grads["effect_mu"] += w * d_mu
-        return {"loss": data + kl, "data": data, "kl": kl, "images": images, "grad_norm": grad_norm,
-                "clip": factor}, grads
+        # The ELBO assembly (mean data term, chain rule to theta, clipping, prior) is native (infer/elbo.hpp).
+        draws = [variational.Draw(d, g_bend, bend, noise, g_effect if self.plan.size else None, eps)
+                 for (d, g_bend, x, image, g_effect), bend, noise, (_, inside, eps) in results]
+        # The prior: the family's (bdp: KL to N(prior_mu, prior_sigma^2); homo/heter: MAP under it, because one
+        # silhouette does not pin 15 free entries and unregularised tables wander to shapes that drape the training
+        # image but generalise badly), and N(off, prior_scale^2) per fitted effect parameter (the registry's)
+        # weighted by kl_weight x fit.json effects.prior_weight: the pixel likelihood is a mean over pixels
+        # (tempered, the paper's), so at full weight the prior dominates a moderate effect (a 0.15 rad tilt was
+        # recovered as 0.10 with prior scale 0.15 rad, 0.145 without prior).
+        ecfg = effect_settings(self.config)
+        terms, grads = variational.assemble_elbo(
+            self.family, self.effect_block, theta, draws, clip, self.prior_mu, self.prior_sigma,
+            float(self.config["kl_weight"]), float(ecfg["prior_weight"]))
+        terms["images"] = [r[0][3] for r in results]
+        return terms, grads
 
     def clip_threshold(self):
         """Clipping norm for the next epoch's data gradient: fit.json gradient_clip.factor x the median norm
@@ -464,30 +428,17 @@ class FitJob:
         260), and grow by decades as the posterior widens (a 120 s fit, posterior std 0.1 -> 0.4: norms 1e3 to
         2e9 in most epochs, so a running median follows them up). One such draw inflates Adam's second moment
         for ~1/(1 - beta2) epochs and stalls the fit, or kicks it along a meaningless direction."""
-        cfg = self.config.get("gradient_clip") or {}
-        factor = float(cfg.get("factor") or 0.0)
-        if factor <= 0:
-            return None
+        cfg = dict(DEFAULT_GRADIENT_CLIP, **(self.config.get("gradient_clip") or {}))
         norms = [h["grad_norm"] for h in self.history if "rejected" not in h and "grad_norm" in h]
-        norms = norms[:int(cfg.get("window", 10))]
-        if len(norms) < int(cfg.get("min_epochs", 3)):
-            return None
-        return factor * float(np.median(norms))
+        return variational.clip_threshold(norms, float(cfg["factor"] or 0.0), int(cfg["window"]), int(cfg["min_epochs"]))
 
     # -- optimisation
     def adam_step(self, grads):
+        """One Adam step (native, infer/adam.hpp) at step number epoch + 1; the effect means are projected into
+        their bounds."""
         cfg = self.config["adam"]
-        lrs = self.learning_rates
-        t = self.epoch + 1
-        for k, g in grads.items():
-            st = self.adam[k]
-            st["m"] = cfg["beta1"] * st["m"] + (1 - cfg["beta1"]) * g
-            st["v"] = cfg["beta2"] * st["v"] + (1 - cfg["beta2"]) * g * g
-            mhat = st["m"] / (1 - cfg["beta1"] ** t)
-            vhat = st["v"] / (1 - cfg["beta2"] ** t)
-            self.theta[k] = self.theta[k] - self.lr_scale * lrs[k] * mhat / (np.sqrt(vhat) + cfg["epsilon"])
-        if "effect_mu" in self.theta:  # projected: the means stay inside the parameters' bounds
-            self.theta["effect_mu"] = self.plan.clip(self.theta["effect_mu"])[0]
+        self.theta = variational.adam_step(self.theta, grads, self.adam, self.epoch + 1, self.learning_rates,
+                                           self.lr_scale, cfg["beta1"], cfg["beta2"], cfg["epsilon"], self.effect_block)
 
     def metrics(self, images):
         out = []
@@ -524,7 +475,7 @@ class FitJob:
         for f in factors:
             bend = np.exp(self.log_bend0) * float(f)
             scores.append(self._start_score(model.parameters(
-                stretch=self.stretch, bend=bend if self.kind == "homo" else
+                stretch=self.stretch, bend=bend if not self.family.per_element else
                 np.broadcast_to(bend, (self.num_edges,) + BEND_SHAPE)), cancel_event))
         best = float(factors[int(np.argmin(scores))])
         shift = np.log(best)
@@ -541,7 +492,7 @@ class FitJob:
         parameters have no gradient (a tilt's azimuth at zero angle), so the gradient epochs alone could not
         leave it."""
         model = self.workers[0].model
-        bend = sample_bend_tables(self.kind, self.theta, self.num_edges)
+        bend = self.family.tables(self.theta, self.num_edges)
         candidates = self.plan.start_candidates(self.theta["effect_mu"])
         scores = [self._start_score(model.parameters(stretch=self.stretch, bend=bend, effects=self.plan.values(c)),
                                     cancel_event) for c in candidates]
@@ -559,7 +510,7 @@ class FitJob:
         against the pixel term (a tilt of 0.15 rad was fitted back to 0). Held constant during the fit, so
         the loss stays exactly differentiable."""
         w = self.workers[0]
-        bend = sample_bend_tables(self.kind, self.theta, self.num_edges)
+        bend = self.family.tables(self.theta, self.num_edges)
         effects = self.plan.values(self.theta["effect_mu"]) if self.plan.size else None
         x = w.model.simulate(w.model.parameters(stretch=self.stretch, bend=bend, effects=effects), mode="dynamic",
                              record=False, cancel_event=cancel_event, **self.config["dynamic"])
@@ -684,22 +635,18 @@ class FitJob:
 
     # -- results
     def posterior(self):
-        if self.kind == "bdp":
-            return {"bend": {"log_mean": self.theta["mu"].tolist(), "log_std": softplus(self.theta["eta"]).tolist(),
-                             "median_N_m": np.exp(self.theta["mu"]).tolist()}}
-        if self.kind == "homo":
-            return {"bend": {"log_mean": self.theta["mu"].tolist(), "log_std": np.zeros(BEND_SHAPE).tolist(),
-                             "median_N_m": np.exp(self.theta["mu"]).tolist()}}
+        mean, sd = self.family.posterior(self.theta)
+        bend = {"log_mean": mean.tolist(), "log_std": sd.tolist(), "median_N_m": np.exp(mean).tolist()}
         mu = self.theta["mu"]
-        return {"bend": {"log_mean": mu.mean(axis=0).tolist(), "log_std": mu.std(axis=0).tolist(),
-                         "median_N_m": np.exp(mu.mean(axis=0)).tolist(),
-                         "per_element_log": mu.reshape(mu.shape[0], -1).tolist()}}
+        if mu.ndim == 3:  # a learned table per element (heter): kept in the preset
+            bend["per_element_log"] = mu.reshape(mu.shape[0], -1).tolist()
+        return {"bend": bend}
 
     def effects_block(self):
         """The preset's active_effects: fixed values, fitted means (and bdp posterior sds, 90 % intervals)."""
         if not self.plan.size:
             return self.plan.preset_block()
-        std = softplus(self.theta["effect_eta"]) if self.kind == "bdp" else None
+        std = softplus(self.theta["effect_eta"]) if self.family.stochastic else None
         return self.plan.preset_block(self.theta["effect_mu"], std)
 
     def preset(self, fabric=None, options=None):
@@ -754,7 +701,7 @@ def _plan_time_budget(job, total, t_start, calibrating, template_dir=None):
         model = job.workers[0].model
         bend = np.exp(job.log_bend0)
         ts = time.monotonic()
-        model.simulate(model.parameters(stretch=job.stretch, bend=bend if job.kind == "homo" else np.broadcast_to(
+        model.simulate(model.parameters(stretch=job.stretch, bend=bend if not job.family.per_element else np.broadcast_to(
             bend, (job.num_edges,) + BEND_SHAPE)), mode="dynamic", record=False, **config["dynamic"])
         drape = time.monotonic() - ts
         return budget.FitPlan(total, time.monotonic() - t_start, 0.0, 0, 0, 0.0, drape, scale_drapes, epoch_drapes)
@@ -805,7 +752,7 @@ def fit(images, density, model="bdp", epochs=None, time_budget=None, seed=0, out
     job = FitJob(images, density, model=model, seed=seed, **options)
     if resume:
         job.load_checkpoint(resume)
-    calibrating = model == "bdp" and (job.config.get("calibration") or {}).get("enabled", False)
+    calibrating = job.family.stochastic and (job.config.get("calibration") or {}).get("enabled", False)
     plan = None
     epoch_budget = time_budget
     if time_budget is not None:
@@ -1096,7 +1043,7 @@ def calibrate_preset(preset, images, seed=0, threads=None, template_dir=None, co
     observations = [_Observation(p, None) for p in images]
     observed = float(np.mean([o.dc for o in observations]))
     observed_nodes = float(np.mean([o.nodes for o in observations]))
-    lanes = max(1, min(int(threads or min(os.cpu_count() or 1, 2)), k))
+    lanes = max(1, min(default_threads(config, threads), k))
     predictive = _Predictive(preset, observations[0].mask.shape, lanes, config, template_dir)
     stretch0 = np.asarray(preset["stretch_N_m"], dtype=float)
     bend = preset["posterior"]["bend"]
@@ -1367,7 +1314,7 @@ def evaluate(preset_or_path, images, meshes=None, samples=None, seed=0, threads=
     if n < 1:
         raise InputError(f"samples: must be >= 1, got {samples}")
     observations = [_Observation(p, None) for p in images]
-    lanes = max(1, min(int(threads or min(os.cpu_count() or 1, 2)), n))
+    lanes = max(1, min(default_threads(config, threads), n))
     predictive = _Predictive(preset, observations[0].mask.shape, lanes, config, template_dir, mesh_level, forward)
     shape = observations[0].mask.shape
     budget.check_memory(budget.evaluate_memory_bytes(predictive.models[0].num_vertices, predictive.num_edges, lanes, n, len(observations),

@@ -10,9 +10,10 @@ void bind_geometry(py::module_& m);
 void bind_physics(py::module_& m);
 void bind_render(py::module_& m);
 void bind_measure(py::module_& m);
+void bind_infer(py::module_& m);
 
 PYBIND11_MODULE(drapelab_native, m) {
-  m.doc() = "drapelab native core (C++): geometry, physics, solvers, renderer, measurement";
+  m.doc() = "drapelab native core (C++): geometry, physics, solvers, renderer, measurement, inference";
   m.attr("__version__") = DRAPELAB_VERSION;
   py::register_exception<drapelab::InputError>(m, "InputError", PyExc_ValueError);
   py::register_exception<drapelab::SolverError>(m, "SolverError", PyExc_RuntimeError);
@@ -21,4 +22,5 @@ PYBIND11_MODULE(drapelab_native, m) {
   bind_physics(m);
   bind_render(m);
   bind_measure(m);
+  bind_infer(m);
 }
