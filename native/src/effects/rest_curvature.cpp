@@ -71,12 +71,19 @@ EffectSpec make_rest_curvature_effect() {
       "creases: folds lock onto the 4-fold crease pattern (nodes along the warp and weft axes for a ridge), a "
       "4-fold r(theta) residual at the fold count the material alone does not give; dome > 0: the skirt hangs "
       "more steeply from the disk edge, the drape coefficient falls (dome < 0: rises)";
-  // Moderate strengths: see the measurement below (circle3, Cotton Blue tables, 100 x 0.05 s rollout, re-drape
-  // noise floor 0.031 in drape coefficient and 0.042 in pixel MSE).
+  // Moderate strengths, measured on circle3 (tools/effect_strength.py: Cotton Blue tables, 100 x 0.05 s rollout
+  // from flat, no placement noise; re-drape noise floor 0.031 in drape coefficient, 0.042 in pixel MSE; the base
+  // drape: DC 0.562, 6 nodes). Both parameters act by choosing the fold pattern, and the response saturates once
+  // it has switched. crease_rad 0.01 / 0.02 move DC by +0.000 / -0.000 (MSE 0.004); from 0.05 the folds lock onto
+  // the creases' 4-fold pattern (8 nodes): 0.05 / 0.1 / 0.25 / 0.3 / 0.5: DC +0.047 / +0.044 / +0.042 / +0.043 /
+  // +0.036 (MSE 0.061-0.066); -0.1 / -0.5 (valleys): DC +0.003 / +0.032, MSE 0.091 / 0.072. Moderate 0.3 rad
+  // (17 degrees, past the switch: 1.4x the DC floor, the most this effect moves DC). dome_per_m 0.5 / 1 / 2 / 3 /
+  // 4 / 5: DC -0.002 / -0.007 / +0.017 / +0.014 / +0.036 / +0.033 (MSE 0.002 / 0.024 / 0.054 / 0.051 / 0.056 /
+  // 0.057; 6, 6, 7, 7, 8, 8 nodes); -1 / -2 / -5: +0.001 / +0.028 / +0.016. Moderate 4 /m (a 25 cm radius).
   s.parameters = {
-      {"crease_rad", "rad", 0.0, -1.5, 1.5, 0.3, 0.5,
+      {"crease_rad", "rad", 0.0, -1.5, 1.5, 0.3, 0.3,
        "rest fold angle of the two storage creases along the weft and warp diameters (positive: a ridge)"},
-      {"dome_per_m", "1/m", 0.0, -20.0, 20.0, 3.0, 5.0, "uniform rest curvature (positive: a cap, the centre up)"},
+      {"dome_per_m", "1/m", 0.0, -20.0, 20.0, 3.0, 4.0, "uniform rest curvature (positive: a cap, the centre up)"},
   };
   s.make_terms = [](const EffectContext&) { return std::vector<std::unique_ptr<Term>>{}; };
   s.change_base_terms = [](const EffectContext& c, BaseTermChanges& changes) {
