@@ -87,8 +87,9 @@ EffectSpec make_damping_effect() {
       "air drag and internal damping: a mass-proportional (Rayleigh) force -c m v slows the fall, so the dynamic "
       "drape has not settled as far at the end of the rollout (no effect on a static drape)";
   s.signature =
-      "the skirt hangs less far and less folded at the end of the rollout: the drape coefficient rises, fold depth "
-      "falls, no angular pattern; a static drape is unchanged";
+      "below about 8 /s none (the drape settles within the rollout either way); above, the slower fall chooses "
+      "other folds (more nodes) and the drape coefficient rises (+0.05 at 10 /s on circle3); a static drape is "
+      "unchanged";
   // Moderate strength, measured on circle3 (tools/effect_strength.py: Cotton Blue tables, 100 x 0.05 s rollout from
   // flat, no placement noise; re-drape floor 0.031 in DC, 0.042 in pixel MSE; base drape DC 0.562, 6 nodes).
   // Air drag on a 0.19 kg/m^2 cloth falling at 0.5 m/s is c ~ 2 /s, and that is below the noise: the drape has

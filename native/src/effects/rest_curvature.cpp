@@ -68,9 +68,9 @@ EffectSpec make_rest_curvature_effect() {
       "a plastic set: the fabric remembers a non-flat rest shape, two storage creases along the warp and weft "
       "diameters and a uniform dome, as rest dihedral angles of the bending term";
   s.signature =
-      "creases: folds lock onto the 4-fold crease pattern (nodes along the warp and weft axes for a ridge), a "
-      "4-fold r(theta) residual at the fold count the material alone does not give; dome > 0: the skirt hangs "
-      "more steeply from the disk edge, the drape coefficient falls (dome < 0: rises)";
+      "creases: the folds lock onto the creases' 4-fold pattern (a multiple of 4 nodes, 8 on circle3 where the "
+      "material alone gives 6) and the drape coefficient rises (+0.04); a dome of either sign re-chooses the folds "
+      "(more nodes) and raises the drape coefficient (+0.03 at 4 /m); both saturate once the folds have switched";
   // Moderate strengths, measured on circle3 (tools/effect_strength.py: Cotton Blue tables, 100 x 0.05 s rollout
   // from flat, no placement noise; re-drape noise floor 0.031 in drape coefficient, 0.042 in pixel MSE; the base
   // drape: DC 0.562, 6 nodes). Both parameters act by choosing the fold pattern, and the response saturates once
