@@ -26,6 +26,7 @@ failed solve raises ``SolverError`` (a RuntimeError).
 import os
 import re
 import threading
+import warnings
 
 import numpy as np
 
@@ -56,8 +57,9 @@ TABLE_SHAPES = {"stretch": tables.STRETCH_SHAPE, "bend": tables.BEND_SHAPE}
 
 # ---------------------------------------------------------------- effects
 def effects():
-    """The effect registry: a list of {name, explanation, signature, parameters: [{name, unit, off, lower,
-    upper, prior_scale, moderate, description}]} (the first parameter is the primary one)."""
+    """The effect registry: a list of {name, explanation, signature, dynamic_only, parameters: [{name, unit, off,
+    lower, upper, prior_scale, moderate, description}]} (the first parameter is the primary one; dynamic_only: the
+    effect acts only over a dynamic rollout's time steps, e.g. damping, and a static drape ignores it)."""
     return [dict(e) for e in native.effects()]
 
 
@@ -574,7 +576,8 @@ class ClothModel:
 
         mode "dynamic": ``steps`` implicit Euler steps of ``time_step`` seconds (record=False skips what
         backward needs, saving memory). mode "static": Newton to equilibrium, every vertex's residual force
-        below force_tolerance times its weight, within max_iterations. Details in ``last_result``.
+        below force_tolerance times its weight, within max_iterations; a dynamic-only effect (damping) is ignored
+        there, with a warning and ``last_result['ignored_effects']``. Details in ``last_result``.
         positions0 (V, 3): start here instead of the flat rest state (e.g. to warm-start a static solve);
         velocities0 (V, 3): initial velocities of a dynamic rollout (default at rest).
         factor_memory_mb: memory (MB) for the per-step factorisations kept for backward (default 1024);
@@ -636,6 +639,12 @@ class ClothModel:
                                        progress=sink, x0=x0)
                 x = r["positions"]
                 self.last_result = {"mode": mode, "iterations": int(r["iterations"]), "residual": float(r["residual"])}
+                ignored = [e["name"] for e in effects() if e["dynamic_only"] and e["name"] in self.active_effects]
+                if ignored:  # e.g. damping: a static equilibrium does not depend on it (CONVENTIONS.md)
+                    self.last_result["ignored_effects"] = ignored
+                    warnings.warn(f"simulate: {', '.join(ignored)} has no effect on a static drape (it acts only "
+                                  f"over a dynamic rollout's time steps); the static equilibrium ignores it",
+                                  stacklevel=2)
             self._last = mode if (mode == "static" or record) else None
         return np.asarray(x).reshape(-1, 3)
 

@@ -117,6 +117,7 @@ py::list effect_list() {
     d["name"] = e.name;
     d["explanation"] = e.explanation;
     d["signature"] = e.signature;
+    d["dynamic_only"] = e.dynamic_only;
     d["parameters"] = params;
     out.append(d);
   }
@@ -189,8 +190,8 @@ void bind_physics(py::module_& m) {
       "numbered after the cloth's)}. positions: flat 3V; with an obstacle mesh, cloth-obstacle pairs count too.");
   m.def(
       "effects", effect_list,
-      "The effect registry (physics/effect.hpp): a list of {name, explanation, signature, parameters: [{name, "
-      "unit, off, lower, upper, prior_scale, moderate, description, structural}]}, in registration order.");
+      "The effect registry (physics/effect.hpp): a list of {name, explanation, signature, dynamic_only, parameters: "
+      "[{name, unit, off, lower, upper, prior_scale, moderate, description, structural}]}, in registration order.");
 
   py::class_<PyProgress, std::shared_ptr<PyProgress>>(
       m, "Progress",

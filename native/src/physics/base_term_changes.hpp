@@ -56,9 +56,28 @@ struct EnergyModulation {
   }
 };
 
+// Bending's rest dihedral angles (a plastic set): theta_rest,e = sum_k c_ek p[indices[k]] [rad], linear in the
+// parameters (0 at p = 0: the flat rest shape). The bend term's angle change becomes d = theta - theta_rest(p).
+struct RestAngles {
+  std::vector<int> indices;
+  std::vector<std::vector<double>> coefficients;  // [k][e]: rad per unit of parameter k on bending edge e
+
+  bool active() const { return !indices.empty(); }
+  void add(int index, std::vector<double> per_element) {
+    indices.push_back(index);
+    coefficients.push_back(std::move(per_element));
+  }
+  double angle(int e, const Eigen::VectorXd& p) const {
+    double s = 0;
+    for (size_t k = 0; k < indices.size(); ++k) s += coefficients[k][e] * p[indices[k]];
+    return s;
+  }
+};
+
 struct BaseTermChanges {
   RestScaling stretch_rest;
   EnergyModulation bend;
+  RestAngles bend_rest;  // rest_curvature
   // The handle holds the vertices whose rest radius is below this [m] instead of the model's support radius
   // (disk_contact: a small centre clamp; the rest of the specimen lies on the support disk). NaN: unchanged.
   double handle_radius = std::nan("");

@@ -8,10 +8,12 @@
 namespace drapelab {
 
 BendTerm::BendTerm(const TriangleMesh& mesh, const std::vector<BendingEdge>& edges, int parameter_offset, bool shared,
-                   EnergyModulation modulation)
-    : offset_(parameter_offset), shared_(shared), modulation_(std::move(modulation)) {
+                   EnergyModulation modulation, RestAngles rest)
+    : offset_(parameter_offset), shared_(shared), modulation_(std::move(modulation)), rest_(std::move(rest)) {
   for (const auto& c : modulation_.coefficients)
     if (c.size() != edges.size()) throw InputError("bend: a modulation needs one coefficient per bending edge");
+  for (const auto& c : rest_.coefficients)
+    if (c.size() != edges.size()) throw InputError("bend: a rest-angle change needs one coefficient per bending edge");
   const Eigen::VectorXd areas = rest_areas(mesh);
   for (size_t i = 0; i < edges.size(); ++i) {
     const BendingEdge& be = edges[i];
@@ -116,12 +118,12 @@ void BendTerm::modulated_angle_derivatives(int e, double d, const Eigen::VectorX
 }
 
 double BendTerm::energy(const Eigen::VectorXd& x, const Eigen::VectorXd& p) const {
-  if (!modulation_.active()) return Reference::energy(x, p);
+  if (!modulation_.active() && !rest_.active()) return Reference::energy(x, p);
   double E = 0, xe[12];
   for (int e = 0; e < num_elements(); ++e) {
     gather_local(e, x, xe);
-    E += std::exp(modulation_.log_multiplier(e, p)) *
-         element_energy<double>(e, xe, p.data() + parameter_offset(e));
+    const double Ee = energy_of_angle(e, dihedral_angle(xe) - rest_angle(e, p), p.data() + parameter_offset(e));
+    E += modulation_.active() ? std::exp(modulation_.log_multiplier(e, p)) * Ee : Ee;
   }
   return E;
 }
@@ -130,7 +132,7 @@ void BendTerm::add_gradient(const Eigen::VectorXd& x, const Eigen::VectorXd& p, 
   double xe[12], gt[12];
   for (int e = 0; e < num_elements(); ++e) {
     gather_local(e, x, xe);
-    const double d = dihedral_angle(xe) - rest_angle_[e];
+    const double d = dihedral_angle(xe) - rest_angle(e, p);
     AngleDerivatives ad;
     double m;
     modulated_angle_derivatives(e, d, p, ad, m);
@@ -147,7 +149,7 @@ void BendTerm::add_step_matrix(const Eigen::VectorXd& x, const Eigen::VectorXd& 
     gather_local(e, x, xe);
     AngleDerivatives ad;
     double m;
-    modulated_angle_derivatives(e, dihedral_angle(xe) - rest_angle_[e], p, ad, m);
+    modulated_angle_derivatives(e, dihedral_angle(xe) - rest_angle(e, p), p, ad, m);
     const double S = ad.E[2] > 0 ? ad.E[2] : 0.0;  // as element_gauss_newton
     dihedral_gradient(xe, gt);
     for (int i = 0; i < 12; ++i) {
@@ -175,7 +177,7 @@ void BendTerm::add_element_hessians(const Eigen::VectorXd& x, const Eigen::Vecto
   G xj[12], gj[12];
   for (int e = 0; e < num_elements(); ++e) {
     gather_local(e, x, xe);
-    const double d = dihedral_angle(xe) - rest_angle_[e];
+    const double d = dihedral_angle(xe) - rest_angle(e, p);
     AngleDerivatives ad;
     double m;
     modulated_angle_derivatives(e, d, p, ad, m);
@@ -200,7 +202,7 @@ void BendTerm::add_hessian_product(const Eigen::VectorXd& x, const Eigen::Vector
       xj[i] = D1(xe[i]);
       xj[i].v[0] = dir[3 * v[i / 3] + i % 3];
     }
-    const double d = dihedral_angle(xe) - rest_angle_[e];
+    const double d = dihedral_angle(xe) - rest_angle(e, p);
     AngleDerivatives ad;
     double m;
     modulated_angle_derivatives(e, d, p, ad, m);
@@ -220,8 +222,14 @@ void BendTerm::add_energy_parameter_gradient(const Eigen::VectorXd& x, const Eig
   for (int e = 0; e < num_elements(); ++e) {
     gather_local(e, x, xe);
     const int off = parameter_offset(e);
-    const double d = dihedral_angle(xe) - rest_angle_[e];
+    const double d = dihedral_angle(xe) - rest_angle(e, p);
     const int n = table_coefficients(e, d, index, phi);
+    if (rest_.active()) {  // dE/dq = -a E'(d) (times m)
+      AngleDerivatives ad;
+      double m;
+      modulated_angle_derivatives(e, d, p, ad, m);
+      add_rest_gradient(e, ad.E[1], 1.0, gp);
+    }
     if (!modulation_.active()) {
       for (int j = 0; j < n; ++j) gp[off + index[j]] += phi[j];
       continue;
@@ -241,10 +249,17 @@ void BendTerm::add_gradient_parameter_product(const Eigen::VectorXd& x, const Ei
     gather_local(e, x, xe);
     const auto& v = verts_[e];
     const int off = parameter_offset(e);
-    const int n = table_coefficients(e, D1(dihedral_angle(xe) - rest_angle_[e], 0), index, phi);
+    const double d = dihedral_angle(xe) - rest_angle(e, p);
+    const int n = table_coefficients(e, D1(d, 0), index, phi);
     dihedral_gradient(xe, gt);
     double gl = 0;
     for (int i = 0; i < 12; ++i) gl += gt[i] * lambda[3 * v[i / 3] + i % 3];
+    if (rest_.active()) {  // lambda . grad E = E'(d) gl: its q-derivative -a E''(d) gl (times m)
+      AngleDerivatives ad;
+      double m;
+      modulated_angle_derivatives(e, d, p, ad, m);
+      add_rest_gradient(e, ad.E[2] * gl, scale, gp);
+    }
     if (!modulation_.active()) {
       for (int j = 0; j < n; ++j) gp[off + index[j]] += scale * gl * phi[j].v[0];
       continue;
@@ -293,7 +308,7 @@ void BendTerm::add_step_matrix_derivatives(const Eigen::VectorXd& x, const Eigen
     const int off = parameter_offset(e);
     double gl, gw;
     seed_directions(e, x, lambda, w, xe, xj, gj, gl, gw);
-    const double d = dihedral_angle(xe) - rest_angle_[e];
+    const double d = dihedral_angle(xe) - rest_angle(e, p);
     // S = max(E'', 0): its angle derivative E''' and its table derivatives dE''/dp where E'' > 0.
     AngleDerivatives ad;
     double m;
@@ -305,6 +320,7 @@ void BendTerm::add_step_matrix_derivatives(const Eigen::VectorXd& x, const Eigen
     scatter_vector(e, ge, scale, gx);
     for (int j = 0; j < ad.count; ++j) gp[off + ad.index[j]] += scale * gl * gw * ad.phi[j][2];
     if (modulation_.active()) add_modulation_gradient(e, gl * gw * E2, scale, gp);
+    if (rest_.active()) add_rest_gradient(e, E3v * gl * gw, scale, gp);
   }
 }
 
@@ -315,7 +331,7 @@ bool BendTerm::add_step_matrix_product(const Eigen::VectorXd& x, const Eigen::Ve
     gather_local(e, x, xe);
     AngleDerivatives ad;
     double m;
-    modulated_angle_derivatives(e, dihedral_angle(xe) - rest_angle_[e], p, ad, m);
+    modulated_angle_derivatives(e, dihedral_angle(xe) - rest_angle(e, p), p, ad, m);
     const double S = ad.E[2] > 0 ? ad.E[2] : 0.0;  // as element_gauss_newton
     if (!(S != 0.0)) continue;
     const auto& v = verts_[e];
@@ -340,7 +356,7 @@ bool BendTerm::add_step_adjoint(const Eigen::VectorXd& x, const Eigen::VectorXd&
     const int off = parameter_offset(e);
     double gl, gw;
     seed_directions(e, x, lambda, w, xe, xj, gj, gl, gw);
-    const double d = dihedral_angle(xe) - rest_angle_[e];
+    const double d = dihedral_angle(xe) - rest_angle(e, p);
     AngleDerivatives ad;
     double m;
     modulated_angle_derivatives(e, d, p, ad, m);
@@ -351,6 +367,7 @@ bool BendTerm::add_step_adjoint(const Eigen::VectorXd& x, const Eigen::VectorXd&
     // -h d(lambda . grad E)/dp
     for (int j = 0; j < n; ++j) gp[off + ad.index[j]] += -h * gl * ad.phi[j][1];
     if (modulation_.active()) add_modulation_gradient(e, gl * E1, -h, gp);
+    if (rest_.active()) add_rest_gradient(e, E2 * gl, -h, gp);
     if (E2 > 0) {  // S = E'' (else S = 0 with zero derivatives)
       for (int i = 0; i < 12; ++i) {
         ge[i] += -h2 * (E3 * gj[i].a * gl * gw + E2 * (gj[i].v[0] * gw + gl * gj[i].v[1]));
@@ -358,6 +375,7 @@ bool BendTerm::add_step_adjoint(const Eigen::VectorXd& x, const Eigen::VectorXd&
       }
       for (int j = 0; j < n; ++j) gp[off + ad.index[j]] += -h2 * gl * gw * ad.phi[j][2];
       if (modulation_.active()) add_modulation_gradient(e, gl * gw * E2, -h2, gp);
+      if (rest_.active()) add_rest_gradient(e, E3 * gl * gw, -h2, gp);
       scatter_vector(e, kl, 1.0, gv);
     }
     scatter_vector(e, ge, 1.0, gx);
@@ -371,7 +389,7 @@ bool BendTerm::add_step_system(const Eigen::VectorXd& x, const Eigen::VectorXd& 
   for (int e = 0; e < num_elements(); ++e) {
     gather_local(e, x, xe);
     const auto& vv = verts_[e];
-    const double d = dihedral_angle(xe) - rest_angle_[e];
+    const double d = dihedral_angle(xe) - rest_angle(e, p);
     AngleDerivatives ad;
     double m;
     modulated_angle_derivatives(e, d, p, ad, m);

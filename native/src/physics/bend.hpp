@@ -14,7 +14,9 @@
 // Step matrix: K = max(d2E/dtheta2, 0) dtheta/dx dtheta/dx^T (see element_gauss_newton).
 // Optionally (an effect's change, physics/base_term_changes.hpp) each edge's energy is multiplied by a smooth
 // field m_w = exp(sum_k c_wk q_k) > 0 of effect parameters q_k: E_w -> m_w E_w, exact in x, the table and q.
-// The jet-derived Reference (element_energy, element_gauss_newton) is the unmodulated term.
+// Optionally too (rest_curvature) the rest angles are linear in effect parameters q_k:
+// theta_rest,w = sum_k a_wk q_k (a plastic set), so dE_w/dq_k = -a_wk E_w'(d), exact in every kernel.
+// The jet-derived Reference (element_energy, element_gauss_newton) is the unmodulated, flat-rest term.
 #pragma once
 #include <array>
 #include <vector>
@@ -29,9 +31,10 @@ constexpr double kBendSampleCurvature = 2.5;  // 1/m between table columns
 
 class BendTerm : public ElementTerm<BendTerm, 4, 15, 1> {
  public:
-  // modulation: an optional per-edge energy multiplier (one coefficient per bending edge and mode).
+  // modulation: an optional per-edge energy multiplier (one coefficient per bending edge and mode);
+  // rest: optional rest angles linear in parameters (one coefficient per bending edge and parameter).
   BendTerm(const TriangleMesh& mesh, const std::vector<BendingEdge>& edges, int parameter_offset, bool shared,
-           EnergyModulation modulation = {});
+           EnergyModulation modulation = {}, RestAngles rest = {});
   std::string name() const override { return "bend"; }
 
   int num_elements() const { return static_cast<int>(verts_.size()); }
@@ -225,6 +228,16 @@ class BendTerm : public ElementTerm<BendTerm, 4, 15, 1> {
   // The exact element Hessians, each projected onto the PSD cone if `project` (add_projected_hessian).
   void add_element_hessians(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double scale,
                             Eigen::VectorXd& values, bool project) const;
+  // The edge's rest angle at p (the constant rest angle, untouched, without a rest change).
+  double rest_angle(int e, const Eigen::VectorXd& p) const {
+    return rest_.active() ? rest_angle_[e] + rest_.angle(e, p) : rest_angle_[e];
+  }
+  // Adds scale * d(value(d))/dq_k = -scale * a_ek * value' for every rest-angle parameter k (value': the derivative
+  // of the quantity in the angle change d, already times m).
+  void add_rest_gradient(int e, double derivative_in_d, double scale, Eigen::VectorXd& gp) const {
+    for (size_t k = 0; k < rest_.indices.size(); ++k)
+      gp[rest_.indices[k]] -= scale * rest_.coefficients[k][e] * derivative_in_d;
+  }
   // angle_derivatives times the edge's multiplier m (m = 1, untouched, without a modulation); p: the whole vector.
   void modulated_angle_derivatives(int e, double d, const Eigen::VectorXd& p, AngleDerivatives& out, double& m) const;
   // Adds scale * dm_e/dq_k * value to gp for every mode k (value: the unmodulated quantity, times m_e by the caller).
@@ -252,6 +265,7 @@ class BendTerm : public ElementTerm<BendTerm, 4, 15, 1> {
   int offset_;
   bool shared_;
   EnergyModulation modulation_;
+  RestAngles rest_;
 };
 
 }  // namespace drapelab

@@ -64,6 +64,9 @@ struct EffectSpec {
   // Optional: changes inside the base terms (rest shape, a stiffness field; physics/base_term_changes.hpp) for
   // effects that are not an added energy. Called before the base terms are built; empty for most effects.
   std::function<void(const EffectContext&, BaseTermChanges&)> change_base_terms;
+  // True for an effect that acts only over a dynamic rollout's time steps (damping): a static drape is the same
+  // with or without it (its terms are zero at h = 0), and sim's static simulate says so.
+  bool dynamic_only = false;
 };
 
 // Effect name -> parameter name -> value; an effect present here is active (missing parameters take their

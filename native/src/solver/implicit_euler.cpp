@@ -102,6 +102,7 @@ Eigen::VectorXd ImplicitEuler::forward(const Eigen::VectorXd& p, const RolloutOp
       if (progress) progress->step(step + 1, options.steps);
       continue;
     }
+    for (const auto& t : model_.terms()) t->begin_step(x_, p, h_);  // step-start state (damping's x_t)
     auto t0 = std::chrono::steady_clock::now();
     step_system(x_, v_, p, h_, A, b);
     timing_.assemble += seconds_since(t0);
@@ -146,7 +147,7 @@ RolloutGradient ImplicitEuler::backward(const Eigen::VectorXd& dL_dx, const Eige
   Eigen::VectorXd gx = dL_dx;
   Eigen::VectorXd gv = dL_dv ? *dL_dv : Eigen::VectorXd::Zero(n);
   Eigen::VectorXd gp = Eigen::VectorXd::Zero(p_.size());
-  Eigen::VectorXd K, tmp;
+  Eigen::VectorXd K, tmp, start_bar;
   const int T = static_cast<int>(tape_.size());
   for (const auto& r : tape_)
     if (!r.iterates.empty()) {
@@ -165,6 +166,7 @@ RolloutGradient ImplicitEuler::backward(const Eigen::VectorXd& dL_dx, const Eige
       continue;
     }
     // x' = x + h v', v' = v + y
+    for (const auto& term : model_.terms()) term->resume_step(r.x, p_, h);  // the step's start state, as forward
     const Eigen::VectorXd gv_total = gv + h * gx;
     Eigen::VectorXd lambda;
     if (r.factor) {
@@ -187,6 +189,11 @@ RolloutGradient ImplicitEuler::backward(const Eigen::VectorXd& dL_dx, const Eige
         term->add_step_matrix(r.x, p_, h * h, K);
       }
     if (K.size() != 0) gv_prev -= symmetric_multiply(pattern, K, lambda);
+    // Terms that depend on the step start x_t besides x (damping): the x_t-derivative of lambda . (h grad E +
+    // h^2 K v') at fixed x (Term::add_step_start_adjoint).
+    start_bar.setZero(n);
+    for (const auto& term : model_.terms()) term->add_step_start_adjoint(r.x, p_, lambda, v_next, h, start_bar);
+    gx_prev -= h * start_bar;
     double gdensity = 0;
     for (int i = 0; i < model_.num_vertices(); ++i) gdensity -= w[i] * lambda.segment<3>(3 * i).dot(r.y.segment<3>(3 * i));
     gp[density_block.offset] += gdensity;

@@ -95,13 +95,12 @@ TEST_P(EffectSuite, TermDerivativesMatchCentralDifferencesAtModerateStrength) {
   Model model(make_cusick_specimen(60), o);
   const Eigen::VectorXd p = model.default_parameters();
   // Contact effects: a collision-free state with vertices inside the barrier's reach, and a lagged friction
-  // state from a step start 1 mm away (so the friction forces are active).
+  // state from a step start 1 mm away (so the friction forces are active). Every model gets that step start
+  // (terms with step-start state: friction, damping; the others ignore it).
   const Eigen::VectorXd x = has_contact(model) ? contact_positions(model, 5) : perturbed_positions(model, 2e-3, 5);
-  if (has_contact(model)) {
-    Eigen::VectorXd start = x;
-    for (int i = 0; i < model.num_vertices(); ++i) start[3 * i] -= 1e-3 * std::sin(i);
-    for (const auto& t : model.terms()) t->begin_step(start, p, 0.05);
-  }
+  Eigen::VectorXd start = x;
+  for (int i = 0; i < model.num_vertices(); ++i) start[3 * i] -= 1e-3 * std::sin(i);
+  for (const auto& t : model.terms()) t->begin_step(start, p, 0.05);
   const int n = model.num_dofs(), np = static_cast<int>(p.size());
   const SparsePattern& pat = model.pattern();
   for (const auto& term : model.terms()) {
@@ -195,6 +194,27 @@ TEST_P(EffectSuite, TermDerivativesMatchCentralDifferencesAtModerateStrength) {
       const Eigen::VectorXd Kd = symmetric_multiply(pat, K, dir) + rd, Kw = symmetric_multiply(pat, K, wv) + rw;
       EXPECT_NEAR(wv.dot(Kd), dir.dot(Kw), 1e-10 * std::max(1e-12, Kd.norm() * wv.norm())) << "K symmetric";
       EXPECT_GE(dir.dot(Kd), -1e-12 * std::max(1.0, K.norm())) << "K with its remainder PSD";
+    }
+    // The step start's adjoint (Term::add_step_start_adjoint): the x_t-derivative of lambda . grad E(x) +
+    // c lambda^T K(x) w at fixed x, against central differences in x_t (begin_step at x_t +- eps d). Contact
+    // terms hold their lagged normal forces and tangent planes constant there (IPC's lagging), which a moved
+    // begin_step does not: they are checked through the rollout adjoints instead.
+    if (!term->is_contact()) {
+      const Eigen::VectorXd wv = random_vector(n, 303), dir = random_vector(n, 304);
+      const double c = 0.05 * 0.05;
+      auto phi = [&](const Eigen::VectorXd& xt) {
+        term->begin_step(xt, p, 0.05);
+        Eigen::VectorXd g = Eigen::VectorXd::Zero(n), K = Eigen::VectorXd::Zero(pat.nnz());
+        term->add_gradient(x, p, g);
+        term->add_step_matrix(x, p, 1.0, K);
+        return lambda.dot(g) + c * lambda.dot(symmetric_multiply(pat, K, wv));
+      };
+      const double eps = 1e-6;
+      const double fd = (phi(start + eps * dir) - phi(start - eps * dir)) / (2 * eps);
+      term->begin_step(start, p, 0.05);
+      Eigen::VectorXd gxt = Eigen::VectorXd::Zero(n);
+      term->add_step_start_adjoint(x, p, lambda, wv, c, gxt);
+      EXPECT_NEAR(gxt.dot(dir), fd, 1e-6 * std::max(std::abs(fd), 1e-12)) << "step start adjoint";
     }
   }
 }
