@@ -20,6 +20,9 @@ constexpr double kSlipSpeed = 1e-3;  // eps_v [m/s]: friction is smoothed below 
 // Candidate pairs are found with boxes inflated by dhat (1 + 2 margin) and reused while no vertex moves more
 // than margin * dhat (line-search trials and Newton iterations near convergence move far less).
 constexpr double kCandidateMargin = 1.0;
+// max_step's swept broad phase also gives the candidates of every state along its segment (the next iterate and
+// the next step's start lie on it), found with the boxes inflated by dhat (1 + 2 this margin).
+constexpr double kSweepCandidateMargin = 0.25;
 constexpr double kMollifierScale = 1e-3;
 // An obstacle move that brings a pair within this fraction of its start distance counts as passing through.
 constexpr double kSweepSeparation = 1e-3;  // edge-edge mollifier eps = this |e0_rest|^2 |e1_rest|^2 (IPC's choice)
@@ -102,6 +105,27 @@ void PairContactTerm::gather(const ActivePair& q, const ContactPositions& P, dou
     for (int a = 0; a < 3; ++a) x12[3 * k + a] = P(q.v[k], a);
 }
 
+bool PairContactTerm::candidates_valid(const Cache& c, const Eigen::VectorXd& x, double dh) const {
+  if (!c.candidates || c.candidate_dhat != dh || c.candidate_x.size() != x.size() ||
+      c.candidate_obstacle.rows() != obstacle_.rows() || !(c.candidate_obstacle == obstacle_))
+    return false;
+  const int n = 3 * num_cloth_;
+  // The segment's point nearest to x (any point of it would do: this one is exactly x's for the iterates and
+  // step ends max_step swept to).
+  double s = 0;
+  if (c.candidate_dx.size() == x.size()) {
+    const double dd = c.candidate_dx.head(n).squaredNorm();
+    if (dd > 0) s = std::clamp((x.head(n) - c.candidate_x.head(n)).dot(c.candidate_dx.head(n)) / dd, 0.0, 1.0);
+  }
+  const double margin = c.candidate_margin * dh;
+  for (int i = 0; i < num_cloth_; ++i) {
+    Eigen::Vector3d d = x.segment<3>(3 * i) - c.candidate_x.segment<3>(3 * i);
+    if (s != 0) d -= s * c.candidate_dx.segment<3>(3 * i);
+    if (d.squaredNorm() > margin * margin) return false;
+  }
+  return true;
+}
+
 std::vector<ActivePair> PairContactTerm::active_pairs(const Eigen::VectorXd& x, double dh) const {
   if (!(dh > 0)) return {};
   {
@@ -111,20 +135,14 @@ std::vector<ActivePair> PairContactTerm::active_pairs(const Eigen::VectorXd& x, 
       return cache_.pairs;
   }
   const ContactPositions P = positions(x);
-  // Candidates: reused while no cloth vertex has moved more than kCandidateMargin dhat from where they were found
-  // (found with the boxes inflated by dhat (1 + 2 kCandidateMargin): a box moves by at most the margin, so every
-  // pair closer than dhat now was a candidate then); else found again here.
+  // Candidates: reused while every cloth vertex is within the candidates' margin of where they were found (a
+  // point, or a segment swept by max_step); else found again here, with the boxes inflated by
+  // dhat (1 + 2 kCandidateMargin): a box moves by at most the margin, so every pair closer than dhat now was a
+  // candidate then.
   std::shared_ptr<const CandidatePairs> candidates;
   {
     std::lock_guard<std::mutex> lock(cache_mutex_);
-    if (cache_.candidates && cache_.candidate_dhat == dh && cache_.candidate_x.size() == x.size() &&
-        cache_.candidate_obstacle.rows() == obstacle_.rows() && cache_.candidate_obstacle == obstacle_) {
-      double moved2 = 0;
-      for (int i = 0; i < num_cloth_; ++i)
-        moved2 = std::max(moved2, (x.segment<3>(3 * i) - cache_.candidate_x.segment<3>(3 * i)).squaredNorm());
-      const double margin = kCandidateMargin * dh;
-      if (moved2 <= margin * margin) candidates = cache_.candidates;
-    }
+    if (candidates_valid(cache_, x, dh)) candidates = cache_.candidates;
   }
   if (!candidates) {
     candidates = std::make_shared<const CandidatePairs>(
@@ -132,8 +150,10 @@ std::vector<ActivePair> PairContactTerm::active_pairs(const Eigen::VectorXd& x, 
     std::lock_guard<std::mutex> lock(cache_mutex_);
     cache_.candidates = candidates;
     cache_.candidate_x = x;
+    cache_.candidate_dx.resize(0);
     cache_.candidate_obstacle = obstacle_;
     cache_.candidate_dhat = dh;
+    cache_.candidate_margin = kCandidateMargin;
   }
   const CandidatePairs& c = *candidates;
   std::vector<ActivePair> pairs;
@@ -364,31 +384,83 @@ void PairContactTerm::add_gradient_parameter_product(const Eigen::VectorXd& x, c
 }
 
 double PairContactTerm::max_step(const Eigen::VectorXd& x, const Eigen::VectorXd& dx, const Eigen::VectorXd& p) const {
-  if (!(dhat(p) > 0)) return 1.0;
+  const double dh = dhat(p);
+  if (!(dh > 0)) return 1.0;
   const ContactPositions P0 = positions(x), P1 = positions(x + dx);
-  const CandidatePairs c = broad_phase(surfaces_, P0, &P1, 0.0, filter_);
+  // One swept broad phase, inflated: its pairs whose uninflated swept boxes overlap go to CCD, and all of them
+  // are the candidates of the active pairs anywhere along the segment (the next iterate, the next step's start).
+  auto candidates = std::make_shared<const CandidatePairs>(
+      broad_phase(surfaces_, P0, &P1, dh * (1 + 2 * kSweepCandidateMargin), filter_));
   const ContactPositions D = P1 - P0;
+  auto swept_boxes_overlap = [&](const int* a, int na, const int* b, int nb) {
+    for (int k = 0; k < 3; ++k) {
+      double alo = INFINITY, ahi = -INFINITY, blo = INFINITY, bhi = -INFINITY;
+      for (int i = 0; i < na; ++i) {
+        alo = std::min({alo, P0(a[i], k), P1(a[i], k)});
+        ahi = std::max({ahi, P0(a[i], k), P1(a[i], k)});
+      }
+      for (int i = 0; i < nb; ++i) {
+        blo = std::min({blo, P0(b[i], k), P1(b[i], k)});
+        bhi = std::max({bhi, P0(b[i], k), P1(b[i], k)});
+      }
+      if (ahi < blo || bhi < alo) return false;
+    }
+    return true;
+  };
   double alpha = 1.0;
-  for (const auto& pt : c.point_triangle) {
+  for (const auto& pt : candidates->point_triangle) {
     const auto& f = surfaces_.faces[pt[1]];
+    if (!swept_boxes_overlap(&pt[0], 1, f.data(), 3)) continue;
     alpha = std::min(alpha, point_triangle_ccd(P0.row(pt[0]), P0.row(f[0]), P0.row(f[1]), P0.row(f[2]), D.row(pt[0]),
                                                D.row(f[0]), D.row(f[1]), D.row(f[2])));
   }
-  for (const auto& ee : c.edge_edge) {
+  for (const auto& ee : candidates->edge_edge) {
     const auto &e = surfaces_.edges[ee[0]], &o = surfaces_.edges[ee[1]];
+    if (!swept_boxes_overlap(e.data(), 2, o.data(), 2)) continue;
     alpha = std::min(alpha, edge_edge_ccd(P0.row(e[0]), P0.row(e[1]), P0.row(o[0]), P0.row(o[1]), D.row(e[0]),
                                           D.row(e[1]), D.row(o[0]), D.row(o[1])));
   }
+  std::lock_guard<std::mutex> lock(cache_mutex_);
+  cache_.candidates = std::move(candidates);
+  cache_.candidate_x = x;
+  cache_.candidate_dx = dx;
+  cache_.candidate_obstacle = obstacle_;
+  cache_.candidate_dhat = dh;
+  cache_.candidate_margin = kSweepCandidateMargin;
   return alpha;
 }
 
-void PairContactTerm::start_step(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double h, bool check) {
+struct PairContactTerm::SavedStep {
+  std::vector<FrictionPair> friction;
+  double eps_u;
+  Cache cache;
+};
+
+std::shared_ptr<const void> PairContactTerm::step_state() const {
+  auto s = std::make_shared<SavedStep>();
+  s->friction = friction_pairs_;
+  s->eps_u = eps_u_;
+  std::lock_guard<std::mutex> lock(cache_mutex_);
+  s->cache = cache_;
+  return s;
+}
+
+void PairContactTerm::restore_step(const std::shared_ptr<const void>& state) {
+  const auto& s = *static_cast<const SavedStep*>(state.get());
+  friction_pairs_ = s.friction;
+  eps_u_ = s.eps_u;
+  std::lock_guard<std::mutex> lock(cache_mutex_);
+  cache_ = s.cache;
+}
+
+void PairContactTerm::start_step(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double h,
+                                 bool check_intersections, bool check_sweep) {
   friction_pairs_.clear();
   eps_u_ = kSlipSpeed * h;
   if (!(dhat(p) > 0)) return;
   const ContactPositions P = positions(x);
   std::vector<std::array<int, 2>> first;
-  if (check) {  // the state must be free of intersections (the adjoint resumes accepted states unchecked)
+  if (check_intersections) {  // the state must be free of intersections (see begin_step, continue_step)
     for (const auto& q : triangle_pairs(surfaces_, P, 0.0, filter_)) {
       Eigen::Vector3d t0[3], t1[3];
       for (int k = 0; k < 3; ++k) {
@@ -402,7 +474,7 @@ void PairContactTerm::start_step(const Eigen::VectorXd& x, const Eigen::VectorXd
     }
   }
   if (!first.empty()) throw_intersection(first[0]);
-  if (check) check_obstacle_sweep(x);
+  if (check_sweep) check_obstacle_sweep(x);
   if (!(h > 0)) return;  // a static drape: no friction
   // Lagged friction: each active pair's normal force, closest-point weights and normal at the step's start.
   const double dh = dhat(p);

@@ -445,5 +445,79 @@ TEST(SelfContact, StartingIntersectedIsAnErrorNamingTheTriangles) {
   EXPECT_GT(contact_report(mesh.faces, model.rest_positions()).intersecting_pairs, 0);
 }
 
+// max_step's swept broad phase keeps its candidates for the states along its move (contact/pair_contact.cpp): the
+// active pairs found from them anywhere on the segment equal a fresh term's (its own broad phase at that state).
+TEST(SelfContact, SweptCandidatesGiveTheActivePairsAlongTheMove) {
+  const TriangleMesh mesh = stacked_sheets(7, 0.05, 2e-3);
+  Model model(mesh, self_contact_options(1e-3));
+  const Eigen::VectorXd p = model.default_parameters();
+  const auto& term = dynamic_cast<const PairContactTerm&>(term_named(model, "self_contact"));
+  const int n = model.num_dofs();
+  const Eigen::VectorXd x0 = jittered_start(model);
+  Eigen::VectorXd dx = 1e-4 * testing::random_vector(n, 5);
+  for (int i = model.num_vertices() / 2; i < model.num_vertices(); ++i) dx[3 * i + 2] -= 1.8e-3;  // 0.2 mm apart
+  const double alpha = term.max_step(x0, dx, p);
+  ASSERT_GT(alpha, 0.5);
+  size_t active_at_end = 0;
+  for (double s : {0.0, 0.3, 0.55, 0.8, 1.0}) {
+    const Eigen::VectorXd x = x0 + s * alpha * dx;
+    Model fresh_model(mesh, self_contact_options(1e-3));
+    const auto& fresh = dynamic_cast<const PairContactTerm&>(term_named(fresh_model, "self_contact"));
+    const std::vector<ActivePair> a = term.active_pairs(x, 1e-3), b = fresh.active_pairs(x, 1e-3);
+    ASSERT_EQ(a.size(), b.size()) << "s = " << s;
+    for (size_t k = 0; k < a.size(); ++k) {
+      EXPECT_EQ(a[k].kind, b[k].kind);
+      EXPECT_EQ(a[k].type, b[k].type);
+      EXPECT_EQ(a[k].v, b[k].v);
+    }
+    active_at_end = a.size();
+  }
+  EXPECT_GT(active_at_end, 20u) << "the layers end within the thickness";
+}
+
+// The state a step began with (SteppedContact::step_state: lagged friction pairs, active pairs and candidates at
+// its start), restored after other steps, gives the energy, gradient and friction start adjoint of a term that
+// began that step itself, bit for bit (the adjoint restores it instead of a broad phase; continue_step is
+// begin_step without the intersection check).
+TEST(SelfContact, RestoredStepStateMatchesABegunStep) {
+  const TriangleMesh mesh = stacked_sheets(5, 0.04, 2e-3);
+  ModelOptions o = self_contact_options(1e-3);
+  o.effects["self_contact"]["friction"] = 0.3;
+  Model model(mesh, o), other(mesh, o);
+  Eigen::VectorXd p = model.default_parameters();
+  p[model.layout().block("self_contact.friction").offset] = 0.3;
+  auto pair_term = [](const Model& m) {
+    for (const auto& t : m.terms())
+      if (t->name() == "self_contact") return dynamic_cast<PairContactTerm*>(t.get());
+    throw std::runtime_error("no self_contact term");
+  };
+  PairContactTerm *term = pair_term(model), *begun = pair_term(other);
+  const int n = model.num_dofs();
+  Eigen::VectorXd xt = jittered_start(model);
+  for (int i = model.num_vertices() / 2; i < model.num_vertices(); ++i) xt[3 * i + 2] -= 1.6e-3;  // 0.4 mm apart
+  const Eigen::VectorXd x = xt + 1e-5 * testing::random_vector(n, 3), lambda = testing::random_vector(n, 4);
+  const double h = 0.02;
+  term->begin_step(xt, p, h);
+  const std::shared_ptr<const void> state = term->step_state();
+  term->continue_step(xt + 1e-4 * testing::random_vector(n, 6), p, h);  // another step's state
+  term->restore_step(state);
+  begun->begin_step(xt, p, h);
+  auto evaluate = [&](const PairContactTerm& t, double& E, Eigen::VectorXd& g, Eigen::VectorXd& start) {
+    E = t.energy(x, p);
+    g = Eigen::VectorXd::Zero(n);
+    t.add_gradient(x, p, g);
+    start = Eigen::VectorXd::Zero(n);
+    t.add_step_start_adjoint(x, p, lambda, lambda, 1.0, start);
+  };
+  double Er, Eb;
+  Eigen::VectorXd gr, gb, sr, sb;
+  evaluate(*term, Er, gr, sr);
+  evaluate(*begun, Eb, gb, sb);
+  EXPECT_GT(sb.norm(), 0.0) << "friction pairs at the step's start";
+  EXPECT_EQ(Er, Eb);
+  EXPECT_EQ((gr - gb).lpNorm<Eigen::Infinity>(), 0.0);
+  EXPECT_EQ((sr - sb).lpNorm<Eigen::Infinity>(), 0.0);
+}
+
 }  // namespace
 }  // namespace drapelab
