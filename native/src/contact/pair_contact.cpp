@@ -27,48 +27,88 @@ constexpr double kMollifierScale = 1e-3;
 // An obstacle move that brings a pair within this fraction of its start distance counts as passing through.
 constexpr double kSweepSeparation = 1e-3;  // edge-edge mollifier eps = this |e0_rest|^2 |e1_rest|^2 (IPC's choice)
 
-double segment_parameter(const Eigen::Vector3d& p, const Eigen::Vector3d& a, const Eigen::Vector3d& b) {
-  const Eigen::Vector3d e = b - a;
-  const double ee = e.squaredNorm();
-  return ee > 0 ? std::clamp((p - a).dot(e) / ee, 0.0, 1.0) : 0.0;
+template <class T>
+T segment_parameter(const T* p, const T* a, const T* b) {
+  T pe(0.0), ee(0.0);
+  for (int k = 0; k < 3; ++k) {
+    pe = pe + (p[k] - a[k]) * (b[k] - a[k]);
+    ee = ee + (b[k] - a[k]) * (b[k] - a[k]);
+  }
+  if (!(value_of(ee) > 0)) return T(0.0);
+  const T t = pe / ee;
+  if (value_of(t) <= 0) return T(0.0);
+  if (value_of(t) >= 1) return T(1.0);
+  return t;
+}
+
+template <class T>
+T dot3(const T* a, const T* b) {
+  return a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
 }
 
 // Weights of the pair's 4 vertices whose combination is (closest point of the first primitive) - (closest point
-// of the second), by closest-feature type.
-std::array<double, 4> closest_weights(PairKind kind, int type, const double* x) {
-  const Eigen::Map<const Eigen::Vector3d> q0(x), q1(x + 3), q2(x + 6), q3(x + 9);
+// of the second), by closest-feature type; templated for the lagged friction's x_t-derivatives.
+template <class T>
+std::array<T, 4> closest_weights(PairKind kind, int type, const T* x) {
+  const T *q0 = x, *q1 = x + 3, *q2 = x + 6, *q3 = x + 9;
+  const T one(1.0), zero(0.0);
   if (kind == PairKind::kPointTriangle) {
     switch (static_cast<PointTriangleType>(type)) {
-      case PointTriangleType::kA: return {1, -1, 0, 0};
-      case PointTriangleType::kB: return {1, 0, -1, 0};
-      case PointTriangleType::kC: return {1, 0, 0, -1};
-      case PointTriangleType::kAB: { const double t = segment_parameter(q0, q1, q2); return {1, -(1 - t), -t, 0}; }
-      case PointTriangleType::kBC: { const double t = segment_parameter(q0, q2, q3); return {1, 0, -(1 - t), -t}; }
-      case PointTriangleType::kCA: { const double t = segment_parameter(q0, q3, q1); return {1, -t, 0, -(1 - t)}; }
+      case PointTriangleType::kA: return {one, -one, zero, zero};
+      case PointTriangleType::kB: return {one, zero, -one, zero};
+      case PointTriangleType::kC: return {one, zero, zero, -one};
+      case PointTriangleType::kAB: { const T t = segment_parameter(q0, q1, q2); return {one, -(1.0 - t), -t, zero}; }
+      case PointTriangleType::kBC: { const T t = segment_parameter(q0, q2, q3); return {one, zero, -(1.0 - t), -t}; }
+      case PointTriangleType::kCA: { const T t = segment_parameter(q0, q3, q1); return {one, -t, zero, -(1.0 - t)}; }
       case PointTriangleType::kFace: break;
     }
-    const Eigen::Vector3d e0 = q2 - q1, e1 = q3 - q1, w = q0 - q1;
-    const double d00 = e0.dot(e0), d01 = e0.dot(e1), d11 = e1.dot(e1), d20 = w.dot(e0), d21 = w.dot(e1);
-    const double den = d00 * d11 - d01 * d01;
-    const double v = (d11 * d20 - d01 * d21) / den, t = (d00 * d21 - d01 * d20) / den;
-    return {1, -(1 - v - t), -v, -t};
+    T e0[3], e1[3], w[3];
+    for (int k = 0; k < 3; ++k) {
+      e0[k] = q2[k] - q1[k];
+      e1[k] = q3[k] - q1[k];
+      w[k] = q0[k] - q1[k];
+    }
+    const T d00 = dot3(e0, e0), d01 = dot3(e0, e1), d11 = dot3(e1, e1), d20 = dot3(w, e0), d21 = dot3(w, e1);
+    const T den = d00 * d11 - d01 * d01;
+    const T v = (d11 * d20 - d01 * d21) / den, t = (d00 * d21 - d01 * d20) / den;
+    return {one, -(1.0 - v - t), -v, -t};
   }
   switch (static_cast<EdgeEdgeType>(type)) {
-    case EdgeEdgeType::kA0_E1: { const double t = segment_parameter(q0, q2, q3); return {1, 0, -(1 - t), -t}; }
-    case EdgeEdgeType::kB0_E1: { const double t = segment_parameter(q1, q2, q3); return {0, 1, -(1 - t), -t}; }
-    case EdgeEdgeType::kA1_E0: { const double s = segment_parameter(q2, q0, q1); return {1 - s, s, -1, 0}; }
-    case EdgeEdgeType::kB1_E0: { const double s = segment_parameter(q3, q0, q1); return {1 - s, s, 0, -1}; }
-    case EdgeEdgeType::kA0_A1: return {1, 0, -1, 0};
-    case EdgeEdgeType::kA0_B1: return {1, 0, 0, -1};
-    case EdgeEdgeType::kB0_A1: return {0, 1, -1, 0};
-    case EdgeEdgeType::kB0_B1: return {0, 1, 0, -1};
+    case EdgeEdgeType::kA0_E1: { const T t = segment_parameter(q0, q2, q3); return {one, zero, -(1.0 - t), -t}; }
+    case EdgeEdgeType::kB0_E1: { const T t = segment_parameter(q1, q2, q3); return {zero, one, -(1.0 - t), -t}; }
+    case EdgeEdgeType::kA1_E0: { const T s = segment_parameter(q2, q0, q1); return {1.0 - s, s, -one, zero}; }
+    case EdgeEdgeType::kB1_E0: { const T s = segment_parameter(q3, q0, q1); return {1.0 - s, s, zero, -one}; }
+    case EdgeEdgeType::kA0_A1: return {one, zero, -one, zero};
+    case EdgeEdgeType::kA0_B1: return {one, zero, zero, -one};
+    case EdgeEdgeType::kB0_A1: return {zero, one, -one, zero};
+    case EdgeEdgeType::kB0_B1: return {zero, one, zero, -one};
     case EdgeEdgeType::kLineLine: break;
   }
-  const Eigen::Vector3d e0 = q1 - q0, e1 = q3 - q2, w = q0 - q2;
-  const double a = e0.dot(e0), b = e0.dot(e1), c = e1.dot(e1), d = e0.dot(w), e = e1.dot(w);
-  const double den = a * c - b * b;
-  const double sp = (b * e - c * d) / den, tp = (a * e - b * d) / den;
-  return {1 - sp, sp, -(1 - tp), -tp};
+  T e0[3], e1[3], w[3];
+  for (int k = 0; k < 3; ++k) {
+    e0[k] = q1[k] - q0[k];
+    e1[k] = q3[k] - q2[k];
+    w[k] = q0[k] - q2[k];
+  }
+  const T a = dot3(e0, e0), b = dot3(e0, e1), c = dot3(e1, e1), d = dot3(e0, w), e = dot3(e1, w);
+  const T den = a * c - b * b;
+  const T sp = (b * e - c * d) / den, tp = (a * e - b * d) / den;
+  return {1.0 - sp, sp, -(1.0 - tp), -tp};
+}
+
+// IPC's edge-edge mollifier (contact/pair_barrier.cpp), templated.
+template <class T>
+T edge_mollifier(const T* x, double eps) {
+  T e0[3], e1[3];
+  for (int k = 0; k < 3; ++k) {
+    e0[k] = x[3 + k] - x[k];
+    e1[k] = x[9 + k] - x[6 + k];
+  }
+  const T n[3] = {e0[1] * e1[2] - e0[2] * e1[1], e0[2] * e1[0] - e0[0] * e1[2], e0[0] * e1[1] - e0[1] * e1[0]};
+  const T c = dot3(n, n);
+  if (value_of(c) >= eps) return T(1.0);
+  const T s = c / eps;
+  return (2.0 - s) * s;
 }
 }  // namespace
 
@@ -487,6 +527,11 @@ void PairContactTerm::start_step(const Eigen::VectorXd& x, const Eigen::VectorXd
     barrier_derivatives(d, dh, b, db, d2b);
     FrictionPair f;
     f.v = q.v;
+    f.kind = q.kind;
+    f.type = q.type;
+    f.c = q.c;
+    f.dhat = dh;
+    f.mollifier_eps = q.mollifier_eps;
     f.normal_force = q.c * dh * std::abs(db) * pair_mollifier(q.kind, x12, q.mollifier_eps);
     if (!(f.normal_force > 0)) continue;
     const std::array<double, 4> w = closest_weights(q.kind, q.type, x12);
@@ -734,6 +779,78 @@ void PairContactTerm::add_step_start_adjoint(const Eigen::VectorXd& x, const Eig
   add_friction_product(x, p, lambda, false, d);
   if (c != 0) add_friction_step_matrix_derivatives(x, p, lambda, w, c, d, nullptr);
   gxt -= d;
+  // The lagged quantities' x_t-dependence: lambda = c dhat |b'(d(X_t))| m(X_t), n and Gamma from X_t (12-variable
+  // jets over the pair's start positions; the slip's own start, X - X_t, is held: it is the part above).
+  const double mu = friction(p);
+  using J = Jet<double, 12>;
+  for (const auto& f : friction_pairs_) {
+    J xs[12];
+    for (int k = 0; k < 12; ++k) xs[k] = J(f.start[k], k);
+    const J d2 = f.kind == PairKind::kPointTriangle
+                     ? point_triangle_distance2(static_cast<PointTriangleType>(f.type), xs)
+                     : edge_edge_distance2(static_cast<EdgeEdgeType>(f.type), xs);
+    using std::sqrt;
+    const J d = sqrt(d2);
+    const J e = d - f.dhat;
+    const J db = (-2.0 * e * log_of(d / f.dhat) - e * e / d) / (f.dhat * f.dhat);
+    J force = -(f.c * f.dhat) * db;
+    if (f.kind == PairKind::kEdgeEdge && f.mollifier_eps > 0) force = force * edge_mollifier(xs, f.mollifier_eps);
+    const std::array<J, 4> wts = closest_weights(f.kind, f.type, xs);
+    J r[3];
+    for (int a = 0; a < 3; ++a) {
+      r[a] = J(0.0);
+      for (int k = 0; k < 4; ++k) r[a] = r[a] + wts[k] * xs[3 * k + a];
+    }
+    const J rn = sqrt(dot3(r, r));
+    J nn[3];
+    for (int a = 0; a < 3; ++a) nn[a] = r[a] / rn;
+    // Gamma applied to the held slip X - X_t, to lambda and to w; then the projector
+    double X[12], l12[12], w12[12];
+    for (int k = 0; k < 4; ++k)
+      for (int a = 0; a < 3; ++a) {
+        const bool cloth = f.v[k] < num_cloth_;
+        X[3 * k + a] = cloth ? x[3 * f.v[k] + a] : obstacle_(f.v[k] - num_cloth_, a);
+        l12[3 * k + a] = cloth ? lambda[3 * f.v[k] + a] : 0.0;
+        w12[3 * k + a] = cloth ? w[3 * f.v[k] + a] : 0.0;
+      }
+    J gd[3], gl[3], gw[3];
+    for (int a = 0; a < 3; ++a) {
+      gd[a] = gl[a] = gw[a] = J(0.0);
+      for (int k = 0; k < 4; ++k) {
+        gd[a] = gd[a] + wts[k] * (X[3 * k + a] - f.start[3 * k + a]);
+        gl[a] = gl[a] + wts[k] * l12[3 * k + a];
+        gw[a] = gw[a] + wts[k] * w12[3 * k + a];
+      }
+    }
+    const J nd = dot3(nn, gd), nl = dot3(nn, gl), nw = dot3(nn, gw);
+    J u[3], Tl[3], Tw[3];
+    for (int a = 0; a < 3; ++a) {
+      u[a] = gd[a] - nn[a] * nd;
+      Tl[a] = gl[a] - nn[a] * nl;
+      Tw[a] = gw[a] - nn[a] * nw;
+    }
+    const J u2 = dot3(u, u), lu = dot3(Tl, u), lw = dot3(Tl, Tw);
+    const double eps = eps_u_;
+    J phi;
+    if (u2.a < 1e-20 * eps * eps) {
+      phi = (2.0 / eps) * (lu + c * lw);
+    } else {
+      const J un = sqrt(u2), wu = dot3(Tw, u);
+      J f1_over_u, df1;
+      if (un.a >= eps) {
+        f1_over_u = 1.0 / un;
+        df1 = J(0.0);
+      } else {
+        f1_over_u = -un / (eps * eps) + 2.0 / eps;
+        df1 = -2.0 * un / (eps * eps) + 2.0 / eps;
+      }
+      phi = f1_over_u * lu + c * (f1_over_u * (lw - lu * wu / u2) + df1 * lu * wu / u2);
+    }
+    const J total = mu * force * phi;
+    for (int k = 0; k < 4; ++k)
+      if (f.v[k] < num_cloth_)
+        for (int a = 0; a < 3; ++a) gxt[3 * f.v[k] + a] += total.v[3 * k + a];
+  }
 }
 
 void PairContactTerm::add_friction_step_matrix_derivatives(const Eigen::VectorXd& x, const Eigen::VectorXd& p,

@@ -25,7 +25,8 @@
 // u = (I - n n^T) Gamma (X - X_t), Gamma the closest points' weights (point minus triangle point, or edge point
 // minus edge point), and D = mu lambda f0(|u|, eps_v h) [J]. An obstacle's vertices slip by their own motion over
 // the step (set_obstacle's at_t1 - at_t), so a moving body drags the cloth. The lagging is IPC's approximation:
-// within a step (and in the adjoint) lambda, the weights and n are those of its start. The friction Hessian is
+// within a step lambda, the weights and n are those of its start; the adjoint differentiates them in x_t
+// (add_step_start_adjoint), not in the thickness (its gradient misses their part). The friction Hessian is
 // PSD (f1 >= 0, f1' >= 0) and couples the pair's vertices like the barrier's (diagonal blocks assembled, the rest
 // as products).
 #pragma once
@@ -156,6 +157,10 @@ class PairContactTerm : public Term, public SteppedContact {
     Eigen::Matrix<double, 3, 12> T;  // (I - n n^T) Gamma
     Eigen::Matrix<double, 12, 1> start;  // X_t of the pair's vertices (obstacle rows: at the step's start)
     double normal_force;                 // lambda [N]
+    // what lambda, n and Gamma were computed from (add_step_start_adjoint differentiates them in X_t)
+    PairKind kind;
+    int type;
+    double c, dhat, mollifier_eps;
   };
   // Slip u = T (X - X_t) of a friction pair at x (obstacle rows at the end position).
   Eigen::Vector3d slip(const FrictionPair& f, const Eigen::VectorXd& x) const;
