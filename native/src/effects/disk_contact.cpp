@@ -154,6 +154,7 @@ class DiskFrictionTerm : public ElementTerm<DiskFrictionTerm, 1, 1, 3> {
     start_.assign(n, Eigen::Vector3d::Zero());
     projector_.assign(n, Eigen::Matrix3d::Zero());
     normal_force_.assign(n, 0.0);
+    start_geometry_.assign(n, {});
   }
   std::string name() const override { return "disk_friction"; }
   bool is_contact() const override { return true; }
@@ -174,6 +175,9 @@ class DiskFrictionTerm : public ElementTerm<DiskFrictionTerm, 1, 1, 3> {
       distance_gradient_hessian<3>([&](const auto* y) { return setup_->distance(y, decltype(y[0])(rim)); },
                                    start_[e].data(), d, g, H);
       if (!(d > 0 && d < kActivation)) continue;
+      start_geometry_[e][0] = d;  // for add_step_start_adjoint
+      std::copy(g, g + 3, start_geometry_[e].begin() + 1);
+      std::copy(H, H + 9, start_geometry_[e].begin() + 4);
       double b, db, d2b;
       barrier_derivatives(d, kActivation, b, db, d2b);
       normal_force_[e] = setup_->kappa[e] * std::abs(db);
@@ -194,14 +198,12 @@ class DiskFrictionTerm : public ElementTerm<DiskFrictionTerm, 1, 1, 3> {
     add_hessian_product(x, p, lambda, d);
     if (c != 0) add_step_matrix_derivatives(x, p, lambda, w, c, d, unused);
     gxt -= d;
-    const double rim = p[rim_];
     using J = Jet<double, 3>;
     for (size_t e = 0; e < setup_->vertices.size(); ++e) {
       if (normal_force_[e] == 0) continue;
       const int i = setup_->vertices[e][0];
-      double dist, g[3], H[9];
-      distance_gradient_hessian<3>([&](const auto* y) { return setup_->distance(y, decltype(y[0])(rim)); },
-                                   start_[e].data(), dist, g, H);
+      const double dist = start_geometry_[e][0];
+      const double *g = start_geometry_[e].data() + 1, *H = start_geometry_[e].data() + 4;
       // d, grad d as jets in x_t
       J dj(dist), gj[3];
       for (int a = 0; a < 3; ++a) {
@@ -312,6 +314,7 @@ class DiskFrictionTerm : public ElementTerm<DiskFrictionTerm, 1, 1, 3> {
   std::vector<Eigen::Vector3d> start_;
   std::vector<Eigen::Matrix3d> projector_;
   std::vector<double> normal_force_;
+  std::vector<std::array<double, 13>> start_geometry_;  // d, grad d, Hess d at the step's start (normal force > 0)
 };
 
 }  // namespace
