@@ -59,6 +59,7 @@ def test_bench_smoke(tmp_path, capsys):
     assert contact["draws"] == 1 and contact["forward_ratio"] > 0 and contact["backward_ratio"] > 0
     assert contact["vertices_below_disk_max"] == 0 and contact["min_signed_distance_m"] > 0
     assert contact["intersecting_pairs_max"] == 0  # sim.contact_report of the last state
+    assert contact["min_self_distance_m"] is None or contact["min_self_distance_m"] > 0
     assert "garment" not in report
     assert "circle1" in capsys.readouterr().out
     assert cli.main(["bench", "--meshes", "7", "--json", str(out)]) == 2

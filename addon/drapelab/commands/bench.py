@@ -30,7 +30,9 @@ values (disk_contact: 2 cm clamp) beside the same placements without contact, fo
   contact: draws, effects, forward_ratio, backward_ratio (contact / contact-free, means over the draws, one run),
            forward_ms_per_step, backward_ms_per_step, base_forward_ms_per_step, base_backward_ms_per_step,
            min_signed_distance_m (the smallest clearance of a free vertex over the disk),
-           vertices_below_disk_max, intersecting_pairs_max (sim.contact_report of each draw's last state)
+           vertices_below_disk_max, intersecting_pairs_max (sim.contact_report of each draw's last state),
+           min_self_distance_m (its smallest distance between primitives sharing no vertex, within the mean edge
+           length; null if none is that close)
 Garments (issue 21), unless --no-garment: the bundled skirt (--garment-vertices, default 6000, flared) on the walking
 dress form for --garment-frames (default 48) with our simulator (drapelab.garment.simulate; the stiffest and the
 softest shipped presets, wool fabric 5 and viscose fabric 3) and with Blender's own cloth modifier at its default
@@ -510,7 +512,7 @@ def child_contact(task):
                if q["name"] == "rim_radius_m")
     weights = np.random.default_rng(0).standard_normal((base.num_vertices, 3))
     times = {"base_f": 0.0, "base_b": 0.0, "f": 0.0, "b": 0.0}
-    clearances, below, crossings = [], [], []
+    clearances, below, crossings, self_distances = [], [], [], []
     for seed in range(draws):
         v0 = infer.placement_velocities(rest, np.random.default_rng([seed, 7]), float(placement.get("velocity_m_s", 0.0)),
                                         int(placement.get("angular_modes", 0)))
@@ -526,7 +528,10 @@ def child_contact(task):
             c = disk_clearance(x, rest_radius, clamp, rim)
             clearances.append(float(c.min()))
             below.append(int((c <= 0).sum()))
-        crossings.append(sim.contact_report(mesh.faces, x)["intersecting_pairs"])
+        report = sim.contact_report(mesh.faces, x)
+        crossings.append(report["intersecting_pairs"])
+        if np.isfinite(report["min_distance_m"]):
+            self_distances.append(float(report["min_distance_m"]))
     n = draws * steps
     return {"mesh": f"circle{level}", "draws": draws, "steps": steps, "effects": effects,
             "forward_ratio": times["f"] / times["base_f"], "backward_ratio": times["b"] / times["base_b"],
@@ -535,7 +540,8 @@ def child_contact(task):
             "base_backward_ms_per_step": 1000 * times["base_b"] / n,
             "min_signed_distance_m": min(clearances) if clearances else None,
             "vertices_below_disk_max": max(below) if below else None,
-            "intersecting_pairs_max": max(crossings) if crossings else None}
+            "intersecting_pairs_max": max(crossings) if crossings else None,
+            "min_self_distance_m": min(self_distances) if self_distances else None}
 
 
 GARMENT_STYLE = "flared"

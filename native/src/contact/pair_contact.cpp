@@ -20,52 +20,95 @@ constexpr double kSlipSpeed = 1e-3;  // eps_v [m/s]: friction is smoothed below 
 // Candidate pairs are found with boxes inflated by dhat (1 + 2 margin) and reused while no vertex moves more
 // than margin * dhat (line-search trials and Newton iterations near convergence move far less).
 constexpr double kCandidateMargin = 1.0;
+// max_step's swept broad phase also gives the candidates of every state along its segment (the next iterate and
+// the next step's start lie on it), found with the boxes inflated by dhat (1 + 2 this margin).
+constexpr double kSweepCandidateMargin = 0.25;
 constexpr double kMollifierScale = 1e-3;
 // An obstacle move that brings a pair within this fraction of its start distance counts as passing through.
 constexpr double kSweepSeparation = 1e-3;  // edge-edge mollifier eps = this |e0_rest|^2 |e1_rest|^2 (IPC's choice)
 
-double segment_parameter(const Eigen::Vector3d& p, const Eigen::Vector3d& a, const Eigen::Vector3d& b) {
-  const Eigen::Vector3d e = b - a;
-  const double ee = e.squaredNorm();
-  return ee > 0 ? std::clamp((p - a).dot(e) / ee, 0.0, 1.0) : 0.0;
+template <class T>
+T segment_parameter(const T* p, const T* a, const T* b) {
+  T pe(0.0), ee(0.0);
+  for (int k = 0; k < 3; ++k) {
+    pe = pe + (p[k] - a[k]) * (b[k] - a[k]);
+    ee = ee + (b[k] - a[k]) * (b[k] - a[k]);
+  }
+  if (!(value_of(ee) > 0)) return T(0.0);
+  const T t = pe / ee;
+  if (value_of(t) <= 0) return T(0.0);
+  if (value_of(t) >= 1) return T(1.0);
+  return t;
+}
+
+template <class T>
+T dot3(const T* a, const T* b) {
+  return a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
 }
 
 // Weights of the pair's 4 vertices whose combination is (closest point of the first primitive) - (closest point
-// of the second), by closest-feature type.
-std::array<double, 4> closest_weights(PairKind kind, int type, const double* x) {
-  const Eigen::Map<const Eigen::Vector3d> q0(x), q1(x + 3), q2(x + 6), q3(x + 9);
+// of the second), by closest-feature type; templated for the lagged friction's x_t-derivatives.
+template <class T>
+std::array<T, 4> closest_weights(PairKind kind, int type, const T* x) {
+  const T *q0 = x, *q1 = x + 3, *q2 = x + 6, *q3 = x + 9;
+  const T one(1.0), zero(0.0);
   if (kind == PairKind::kPointTriangle) {
     switch (static_cast<PointTriangleType>(type)) {
-      case PointTriangleType::kA: return {1, -1, 0, 0};
-      case PointTriangleType::kB: return {1, 0, -1, 0};
-      case PointTriangleType::kC: return {1, 0, 0, -1};
-      case PointTriangleType::kAB: { const double t = segment_parameter(q0, q1, q2); return {1, -(1 - t), -t, 0}; }
-      case PointTriangleType::kBC: { const double t = segment_parameter(q0, q2, q3); return {1, 0, -(1 - t), -t}; }
-      case PointTriangleType::kCA: { const double t = segment_parameter(q0, q3, q1); return {1, -t, 0, -(1 - t)}; }
+      case PointTriangleType::kA: return {one, -one, zero, zero};
+      case PointTriangleType::kB: return {one, zero, -one, zero};
+      case PointTriangleType::kC: return {one, zero, zero, -one};
+      case PointTriangleType::kAB: { const T t = segment_parameter(q0, q1, q2); return {one, -(1.0 - t), -t, zero}; }
+      case PointTriangleType::kBC: { const T t = segment_parameter(q0, q2, q3); return {one, zero, -(1.0 - t), -t}; }
+      case PointTriangleType::kCA: { const T t = segment_parameter(q0, q3, q1); return {one, -t, zero, -(1.0 - t)}; }
       case PointTriangleType::kFace: break;
     }
-    const Eigen::Vector3d e0 = q2 - q1, e1 = q3 - q1, w = q0 - q1;
-    const double d00 = e0.dot(e0), d01 = e0.dot(e1), d11 = e1.dot(e1), d20 = w.dot(e0), d21 = w.dot(e1);
-    const double den = d00 * d11 - d01 * d01;
-    const double v = (d11 * d20 - d01 * d21) / den, t = (d00 * d21 - d01 * d20) / den;
-    return {1, -(1 - v - t), -v, -t};
+    T e0[3], e1[3], w[3];
+    for (int k = 0; k < 3; ++k) {
+      e0[k] = q2[k] - q1[k];
+      e1[k] = q3[k] - q1[k];
+      w[k] = q0[k] - q1[k];
+    }
+    const T d00 = dot3(e0, e0), d01 = dot3(e0, e1), d11 = dot3(e1, e1), d20 = dot3(w, e0), d21 = dot3(w, e1);
+    const T den = d00 * d11 - d01 * d01;
+    const T v = (d11 * d20 - d01 * d21) / den, t = (d00 * d21 - d01 * d20) / den;
+    return {one, -(1.0 - v - t), -v, -t};
   }
   switch (static_cast<EdgeEdgeType>(type)) {
-    case EdgeEdgeType::kA0_E1: { const double t = segment_parameter(q0, q2, q3); return {1, 0, -(1 - t), -t}; }
-    case EdgeEdgeType::kB0_E1: { const double t = segment_parameter(q1, q2, q3); return {0, 1, -(1 - t), -t}; }
-    case EdgeEdgeType::kA1_E0: { const double s = segment_parameter(q2, q0, q1); return {1 - s, s, -1, 0}; }
-    case EdgeEdgeType::kB1_E0: { const double s = segment_parameter(q3, q0, q1); return {1 - s, s, 0, -1}; }
-    case EdgeEdgeType::kA0_A1: return {1, 0, -1, 0};
-    case EdgeEdgeType::kA0_B1: return {1, 0, 0, -1};
-    case EdgeEdgeType::kB0_A1: return {0, 1, -1, 0};
-    case EdgeEdgeType::kB0_B1: return {0, 1, 0, -1};
+    case EdgeEdgeType::kA0_E1: { const T t = segment_parameter(q0, q2, q3); return {one, zero, -(1.0 - t), -t}; }
+    case EdgeEdgeType::kB0_E1: { const T t = segment_parameter(q1, q2, q3); return {zero, one, -(1.0 - t), -t}; }
+    case EdgeEdgeType::kA1_E0: { const T s = segment_parameter(q2, q0, q1); return {1.0 - s, s, -one, zero}; }
+    case EdgeEdgeType::kB1_E0: { const T s = segment_parameter(q3, q0, q1); return {1.0 - s, s, zero, -one}; }
+    case EdgeEdgeType::kA0_A1: return {one, zero, -one, zero};
+    case EdgeEdgeType::kA0_B1: return {one, zero, zero, -one};
+    case EdgeEdgeType::kB0_A1: return {zero, one, -one, zero};
+    case EdgeEdgeType::kB0_B1: return {zero, one, zero, -one};
     case EdgeEdgeType::kLineLine: break;
   }
-  const Eigen::Vector3d e0 = q1 - q0, e1 = q3 - q2, w = q0 - q2;
-  const double a = e0.dot(e0), b = e0.dot(e1), c = e1.dot(e1), d = e0.dot(w), e = e1.dot(w);
-  const double den = a * c - b * b;
-  const double sp = (b * e - c * d) / den, tp = (a * e - b * d) / den;
-  return {1 - sp, sp, -(1 - tp), -tp};
+  T e0[3], e1[3], w[3];
+  for (int k = 0; k < 3; ++k) {
+    e0[k] = q1[k] - q0[k];
+    e1[k] = q3[k] - q2[k];
+    w[k] = q0[k] - q2[k];
+  }
+  const T a = dot3(e0, e0), b = dot3(e0, e1), c = dot3(e1, e1), d = dot3(e0, w), e = dot3(e1, w);
+  const T den = a * c - b * b;
+  const T sp = (b * e - c * d) / den, tp = (a * e - b * d) / den;
+  return {1.0 - sp, sp, -(1.0 - tp), -tp};
+}
+
+// IPC's edge-edge mollifier (contact/pair_barrier.cpp), templated.
+template <class T>
+T edge_mollifier(const T* x, double eps) {
+  T e0[3], e1[3];
+  for (int k = 0; k < 3; ++k) {
+    e0[k] = x[3 + k] - x[k];
+    e1[k] = x[9 + k] - x[6 + k];
+  }
+  const T n[3] = {e0[1] * e1[2] - e0[2] * e1[1], e0[2] * e1[0] - e0[0] * e1[2], e0[0] * e1[1] - e0[1] * e1[0]};
+  const T c = dot3(n, n);
+  if (value_of(c) >= eps) return T(1.0);
+  const T s = c / eps;
+  return (2.0 - s) * s;
 }
 }  // namespace
 
@@ -102,6 +145,27 @@ void PairContactTerm::gather(const ActivePair& q, const ContactPositions& P, dou
     for (int a = 0; a < 3; ++a) x12[3 * k + a] = P(q.v[k], a);
 }
 
+bool PairContactTerm::candidates_valid(const Cache& c, const Eigen::VectorXd& x, double dh) const {
+  if (!c.candidates || c.candidate_dhat != dh || c.candidate_x.size() != x.size() ||
+      c.candidate_obstacle.rows() != obstacle_.rows() || !(c.candidate_obstacle == obstacle_))
+    return false;
+  const int n = 3 * num_cloth_;
+  // The segment's point nearest to x (any point of it would do: this one is exactly x's for the iterates and
+  // step ends max_step swept to).
+  double s = 0;
+  if (c.candidate_dx.size() == x.size()) {
+    const double dd = c.candidate_dx.head(n).squaredNorm();
+    if (dd > 0) s = std::clamp((x.head(n) - c.candidate_x.head(n)).dot(c.candidate_dx.head(n)) / dd, 0.0, 1.0);
+  }
+  const double margin = c.candidate_margin * dh;
+  for (int i = 0; i < num_cloth_; ++i) {
+    Eigen::Vector3d d = x.segment<3>(3 * i) - c.candidate_x.segment<3>(3 * i);
+    if (s != 0) d -= s * c.candidate_dx.segment<3>(3 * i);
+    if (d.squaredNorm() > margin * margin) return false;
+  }
+  return true;
+}
+
 std::vector<ActivePair> PairContactTerm::active_pairs(const Eigen::VectorXd& x, double dh) const {
   if (!(dh > 0)) return {};
   {
@@ -111,20 +175,14 @@ std::vector<ActivePair> PairContactTerm::active_pairs(const Eigen::VectorXd& x, 
       return cache_.pairs;
   }
   const ContactPositions P = positions(x);
-  // Candidates: reused while no cloth vertex has moved more than kCandidateMargin dhat from where they were found
-  // (found with the boxes inflated by dhat (1 + 2 kCandidateMargin): a box moves by at most the margin, so every
-  // pair closer than dhat now was a candidate then); else found again here.
+  // Candidates: reused while every cloth vertex is within the candidates' margin of where they were found (a
+  // point, or a segment swept by max_step); else found again here, with the boxes inflated by
+  // dhat (1 + 2 kCandidateMargin): a box moves by at most the margin, so every pair closer than dhat now was a
+  // candidate then.
   std::shared_ptr<const CandidatePairs> candidates;
   {
     std::lock_guard<std::mutex> lock(cache_mutex_);
-    if (cache_.candidates && cache_.candidate_dhat == dh && cache_.candidate_x.size() == x.size() &&
-        cache_.candidate_obstacle.rows() == obstacle_.rows() && cache_.candidate_obstacle == obstacle_) {
-      double moved2 = 0;
-      for (int i = 0; i < num_cloth_; ++i)
-        moved2 = std::max(moved2, (x.segment<3>(3 * i) - cache_.candidate_x.segment<3>(3 * i)).squaredNorm());
-      const double margin = kCandidateMargin * dh;
-      if (moved2 <= margin * margin) candidates = cache_.candidates;
-    }
+    if (candidates_valid(cache_, x, dh)) candidates = cache_.candidates;
   }
   if (!candidates) {
     candidates = std::make_shared<const CandidatePairs>(
@@ -132,8 +190,10 @@ std::vector<ActivePair> PairContactTerm::active_pairs(const Eigen::VectorXd& x, 
     std::lock_guard<std::mutex> lock(cache_mutex_);
     cache_.candidates = candidates;
     cache_.candidate_x = x;
+    cache_.candidate_dx.resize(0);
     cache_.candidate_obstacle = obstacle_;
     cache_.candidate_dhat = dh;
+    cache_.candidate_margin = kCandidateMargin;
   }
   const CandidatePairs& c = *candidates;
   std::vector<ActivePair> pairs;
@@ -364,31 +424,83 @@ void PairContactTerm::add_gradient_parameter_product(const Eigen::VectorXd& x, c
 }
 
 double PairContactTerm::max_step(const Eigen::VectorXd& x, const Eigen::VectorXd& dx, const Eigen::VectorXd& p) const {
-  if (!(dhat(p) > 0)) return 1.0;
+  const double dh = dhat(p);
+  if (!(dh > 0)) return 1.0;
   const ContactPositions P0 = positions(x), P1 = positions(x + dx);
-  const CandidatePairs c = broad_phase(surfaces_, P0, &P1, 0.0, filter_);
+  // One swept broad phase, inflated: its pairs whose uninflated swept boxes overlap go to CCD, and all of them
+  // are the candidates of the active pairs anywhere along the segment (the next iterate, the next step's start).
+  auto candidates = std::make_shared<const CandidatePairs>(
+      broad_phase(surfaces_, P0, &P1, dh * (1 + 2 * kSweepCandidateMargin), filter_));
   const ContactPositions D = P1 - P0;
+  auto swept_boxes_overlap = [&](const int* a, int na, const int* b, int nb) {
+    for (int k = 0; k < 3; ++k) {
+      double alo = INFINITY, ahi = -INFINITY, blo = INFINITY, bhi = -INFINITY;
+      for (int i = 0; i < na; ++i) {
+        alo = std::min({alo, P0(a[i], k), P1(a[i], k)});
+        ahi = std::max({ahi, P0(a[i], k), P1(a[i], k)});
+      }
+      for (int i = 0; i < nb; ++i) {
+        blo = std::min({blo, P0(b[i], k), P1(b[i], k)});
+        bhi = std::max({bhi, P0(b[i], k), P1(b[i], k)});
+      }
+      if (ahi < blo || bhi < alo) return false;
+    }
+    return true;
+  };
   double alpha = 1.0;
-  for (const auto& pt : c.point_triangle) {
+  for (const auto& pt : candidates->point_triangle) {
     const auto& f = surfaces_.faces[pt[1]];
+    if (!swept_boxes_overlap(&pt[0], 1, f.data(), 3)) continue;
     alpha = std::min(alpha, point_triangle_ccd(P0.row(pt[0]), P0.row(f[0]), P0.row(f[1]), P0.row(f[2]), D.row(pt[0]),
                                                D.row(f[0]), D.row(f[1]), D.row(f[2])));
   }
-  for (const auto& ee : c.edge_edge) {
+  for (const auto& ee : candidates->edge_edge) {
     const auto &e = surfaces_.edges[ee[0]], &o = surfaces_.edges[ee[1]];
+    if (!swept_boxes_overlap(e.data(), 2, o.data(), 2)) continue;
     alpha = std::min(alpha, edge_edge_ccd(P0.row(e[0]), P0.row(e[1]), P0.row(o[0]), P0.row(o[1]), D.row(e[0]),
                                           D.row(e[1]), D.row(o[0]), D.row(o[1])));
   }
+  std::lock_guard<std::mutex> lock(cache_mutex_);
+  cache_.candidates = std::move(candidates);
+  cache_.candidate_x = x;
+  cache_.candidate_dx = dx;
+  cache_.candidate_obstacle = obstacle_;
+  cache_.candidate_dhat = dh;
+  cache_.candidate_margin = kSweepCandidateMargin;
   return alpha;
 }
 
-void PairContactTerm::start_step(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double h, bool check) {
+struct PairContactTerm::SavedStep {
+  std::vector<FrictionPair> friction;
+  double eps_u;
+  Cache cache;
+};
+
+std::shared_ptr<const void> PairContactTerm::step_state() const {
+  auto s = std::make_shared<SavedStep>();
+  s->friction = friction_pairs_;
+  s->eps_u = eps_u_;
+  std::lock_guard<std::mutex> lock(cache_mutex_);
+  s->cache = cache_;
+  return s;
+}
+
+void PairContactTerm::restore_step(const std::shared_ptr<const void>& state) {
+  const auto& s = *static_cast<const SavedStep*>(state.get());
+  friction_pairs_ = s.friction;
+  eps_u_ = s.eps_u;
+  std::lock_guard<std::mutex> lock(cache_mutex_);
+  cache_ = s.cache;
+}
+
+void PairContactTerm::start_step(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double h,
+                                 bool check_intersections, bool check_sweep) {
   friction_pairs_.clear();
   eps_u_ = kSlipSpeed * h;
   if (!(dhat(p) > 0)) return;
   const ContactPositions P = positions(x);
   std::vector<std::array<int, 2>> first;
-  if (check) {  // the state must be free of intersections (the adjoint resumes accepted states unchecked)
+  if (check_intersections) {  // the state must be free of intersections (see begin_step, continue_step)
     for (const auto& q : triangle_pairs(surfaces_, P, 0.0, filter_)) {
       Eigen::Vector3d t0[3], t1[3];
       for (int k = 0; k < 3; ++k) {
@@ -402,7 +514,7 @@ void PairContactTerm::start_step(const Eigen::VectorXd& x, const Eigen::VectorXd
     }
   }
   if (!first.empty()) throw_intersection(first[0]);
-  if (check) check_obstacle_sweep(x);
+  if (check_sweep) check_obstacle_sweep(x);
   if (!(h > 0)) return;  // a static drape: no friction
   // Lagged friction: each active pair's normal force, closest-point weights and normal at the step's start.
   const double dh = dhat(p);
@@ -415,6 +527,11 @@ void PairContactTerm::start_step(const Eigen::VectorXd& x, const Eigen::VectorXd
     barrier_derivatives(d, dh, b, db, d2b);
     FrictionPair f;
     f.v = q.v;
+    f.kind = q.kind;
+    f.type = q.type;
+    f.c = q.c;
+    f.dhat = dh;
+    f.mollifier_eps = q.mollifier_eps;
     f.normal_force = q.c * dh * std::abs(db) * pair_mollifier(q.kind, x12, q.mollifier_eps);
     if (!(f.normal_force > 0)) continue;
     const std::array<double, 4> w = closest_weights(q.kind, q.type, x12);
@@ -662,6 +779,78 @@ void PairContactTerm::add_step_start_adjoint(const Eigen::VectorXd& x, const Eig
   add_friction_product(x, p, lambda, false, d);
   if (c != 0) add_friction_step_matrix_derivatives(x, p, lambda, w, c, d, nullptr);
   gxt -= d;
+  // The lagged quantities' x_t-dependence: lambda = c dhat |b'(d(X_t))| m(X_t), n and Gamma from X_t (12-variable
+  // jets over the pair's start positions; the slip's own start, X - X_t, is held: it is the part above).
+  const double mu = friction(p);
+  using J = Jet<double, 12>;
+  for (const auto& f : friction_pairs_) {
+    J xs[12];
+    for (int k = 0; k < 12; ++k) xs[k] = J(f.start[k], k);
+    const J d2 = f.kind == PairKind::kPointTriangle
+                     ? point_triangle_distance2(static_cast<PointTriangleType>(f.type), xs)
+                     : edge_edge_distance2(static_cast<EdgeEdgeType>(f.type), xs);
+    using std::sqrt;
+    const J d = sqrt(d2);
+    const J e = d - f.dhat;
+    const J db = (-2.0 * e * log_of(d / f.dhat) - e * e / d) / (f.dhat * f.dhat);
+    J force = -(f.c * f.dhat) * db;
+    if (f.kind == PairKind::kEdgeEdge && f.mollifier_eps > 0) force = force * edge_mollifier(xs, f.mollifier_eps);
+    const std::array<J, 4> wts = closest_weights(f.kind, f.type, xs);
+    J r[3];
+    for (int a = 0; a < 3; ++a) {
+      r[a] = J(0.0);
+      for (int k = 0; k < 4; ++k) r[a] = r[a] + wts[k] * xs[3 * k + a];
+    }
+    const J rn = sqrt(dot3(r, r));
+    J nn[3];
+    for (int a = 0; a < 3; ++a) nn[a] = r[a] / rn;
+    // Gamma applied to the held slip X - X_t, to lambda and to w; then the projector
+    double X[12], l12[12], w12[12];
+    for (int k = 0; k < 4; ++k)
+      for (int a = 0; a < 3; ++a) {
+        const bool cloth = f.v[k] < num_cloth_;
+        X[3 * k + a] = cloth ? x[3 * f.v[k] + a] : obstacle_(f.v[k] - num_cloth_, a);
+        l12[3 * k + a] = cloth ? lambda[3 * f.v[k] + a] : 0.0;
+        w12[3 * k + a] = cloth ? w[3 * f.v[k] + a] : 0.0;
+      }
+    J gd[3], gl[3], gw[3];
+    for (int a = 0; a < 3; ++a) {
+      gd[a] = gl[a] = gw[a] = J(0.0);
+      for (int k = 0; k < 4; ++k) {
+        gd[a] = gd[a] + wts[k] * (X[3 * k + a] - f.start[3 * k + a]);
+        gl[a] = gl[a] + wts[k] * l12[3 * k + a];
+        gw[a] = gw[a] + wts[k] * w12[3 * k + a];
+      }
+    }
+    const J nd = dot3(nn, gd), nl = dot3(nn, gl), nw = dot3(nn, gw);
+    J u[3], Tl[3], Tw[3];
+    for (int a = 0; a < 3; ++a) {
+      u[a] = gd[a] - nn[a] * nd;
+      Tl[a] = gl[a] - nn[a] * nl;
+      Tw[a] = gw[a] - nn[a] * nw;
+    }
+    const J u2 = dot3(u, u), lu = dot3(Tl, u), lw = dot3(Tl, Tw);
+    const double eps = eps_u_;
+    J phi;
+    if (u2.a < 1e-20 * eps * eps) {
+      phi = (2.0 / eps) * (lu + c * lw);
+    } else {
+      const J un = sqrt(u2), wu = dot3(Tw, u);
+      J f1_over_u, df1;
+      if (un.a >= eps) {
+        f1_over_u = 1.0 / un;
+        df1 = J(0.0);
+      } else {
+        f1_over_u = -un / (eps * eps) + 2.0 / eps;
+        df1 = -2.0 * un / (eps * eps) + 2.0 / eps;
+      }
+      phi = f1_over_u * lu + c * (f1_over_u * (lw - lu * wu / u2) + df1 * lu * wu / u2);
+    }
+    const J total = mu * force * phi;
+    for (int k = 0; k < 4; ++k)
+      if (f.v[k] < num_cloth_)
+        for (int a = 0; a < 3; ++a) gxt[3 * f.v[k] + a] += total.v[3 * k + a];
+  }
 }
 
 void PairContactTerm::add_friction_step_matrix_derivatives(const Eigen::VectorXd& x, const Eigen::VectorXd& p,

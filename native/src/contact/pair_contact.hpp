@@ -25,7 +25,8 @@
 // u = (I - n n^T) Gamma (X - X_t), Gamma the closest points' weights (point minus triangle point, or edge point
 // minus edge point), and D = mu lambda f0(|u|, eps_v h) [J]. An obstacle's vertices slip by their own motion over
 // the step (set_obstacle's at_t1 - at_t), so a moving body drags the cloth. The lagging is IPC's approximation:
-// within a step (and in the adjoint) lambda, the weights and n are those of its start. The friction Hessian is
+// within a step lambda, the weights and n are those of its start; the adjoint differentiates them in x_t
+// (add_step_start_adjoint), not in the thickness (its gradient misses their part). The friction Hessian is
 // PSD (f1 >= 0, f1' >= 0) and couples the pair's vertices like the barrier's (diagonal blocks assembled, the rest
 // as products).
 #pragma once
@@ -36,6 +37,7 @@
 
 #include "contact/broad_phase.hpp"
 #include "contact/pair_barrier.hpp"
+#include "contact/stepped_contact.hpp"
 #include "physics/term.hpp"
 
 namespace drapelab {
@@ -48,7 +50,7 @@ struct ActivePair {
   double mollifier_eps = 0;  // edge-edge: 1e-3 |e0_rest|^2 |e1_rest|^2 (contact/pair_barrier.hpp)
 };
 
-class PairContactTerm : public Term {
+class PairContactTerm : public Term, public SteppedContact {
  public:
   // surfaces: cloth vertices are rows [0, num_cloth) of the combined array, obstacle vertices after them;
   // unit_stiffness: per cloth vertex, c_i = kWeightScale w_i rho g [J/m]; rest: the combined positions at rest
@@ -97,9 +99,21 @@ class PairContactTerm : public Term {
   double max_step(const Eigen::VectorXd& x, const Eigen::VectorXd& dx, const Eigen::VectorXd& p) const override;
   // A state must start free of intersections: begin_step throws SolverError naming the first intersecting
   // triangle pair (contact/diagnostics.hpp), or the pair through which a moving obstacle's step sweeps.
-  void begin_step(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double h) override { start_step(x, p, h, true); }
+  void begin_step(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double h) override {
+    start_step(x, p, h, true, true);
+  }
   // The lagged friction state only (Term::resume_step: no intersection or sweep check).
-  void resume_step(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double h) override { start_step(x, p, h, false); }
+  void resume_step(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double h) override {
+    start_step(x, p, h, false, false);
+  }
+  // SteppedContact (contact/stepped_contact.hpp): begin_step without the intersection check, unless a moving
+  // obstacle may have carried the cloth (carry_start moves it outside the CCD bound); the sweep check stays.
+  void continue_step(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double h) override {
+    start_step(x, p, h, obstacle_moves(), true);
+  }
+  // The lagged friction pairs and the active pairs and candidates cached at the step's start.
+  std::shared_ptr<const void> step_state() const override;
+  void restore_step(const std::shared_ptr<const void>& state) override;
 
   // The pairs closer than dhat at x (cached per x).
   std::vector<ActivePair> active_pairs(const Eigen::VectorXd& x, double dhat) const;
@@ -129,7 +143,9 @@ class PairContactTerm : public Term {
   [[noreturn]] void throw_intersection(const std::array<int, 2>& faces) const;
   // SolverError if the obstacle's move over the step (obstacle_start_ -> obstacle_) sweeps through the cloth at x.
   void check_obstacle_sweep(const Eigen::VectorXd& x) const;
-  void start_step(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double h, bool check);
+  void start_step(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double h, bool check_intersections,
+                  bool check_sweep);
+  bool obstacle_moves() const { return obstacle_.rows() > 0 && !(obstacle_start_ == obstacle_); }
   template <class F>
   void for_each_pair_gauss_newton(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const F& f) const;
   template <class F>
@@ -141,6 +157,10 @@ class PairContactTerm : public Term {
     Eigen::Matrix<double, 3, 12> T;  // (I - n n^T) Gamma
     Eigen::Matrix<double, 12, 1> start;  // X_t of the pair's vertices (obstacle rows: at the step's start)
     double normal_force;                 // lambda [N]
+    // what lambda, n and Gamma were computed from (add_step_start_adjoint differentiates them in X_t)
+    PairKind kind;
+    int type;
+    double c, dhat, mollifier_eps;
   };
   // Slip u = T (X - X_t) of a friction pair at x (obstacle rows at the end position).
   Eigen::Vector3d slip(const FrictionPair& f, const Eigen::VectorXd& x) const;
@@ -161,12 +181,17 @@ class PairContactTerm : public Term {
     ContactPositions obstacle;
     double dhat = -1;
     std::vector<ActivePair> pairs;
-    // broad-phase candidates, valid near candidate_x (active_pairs)
+    // broad-phase candidates, valid within candidate_margin dhat of the segment candidate_x + s candidate_dx,
+    // s in [0, 1] (candidate_dx empty: the point candidate_x; active_pairs, max_step)
     std::shared_ptr<const CandidatePairs> candidates;
-    Eigen::VectorXd candidate_x;
+    Eigen::VectorXd candidate_x, candidate_dx;
     ContactPositions candidate_obstacle;
     double candidate_dhat = -1;
+    double candidate_margin = 0;
   };
+  // Whether c's candidates hold every pair closer than dh at x (under cache_mutex_).
+  bool candidates_valid(const Cache& c, const Eigen::VectorXd& x, double dh) const;
+  struct SavedStep;
   mutable std::mutex cache_mutex_;
   mutable Cache cache_;
   // The active pairs' Hessians at one x (exact [0] and PSD-projected [1]), see pair_hessians.

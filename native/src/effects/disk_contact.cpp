@@ -11,7 +11,8 @@
 // lambda_i = |dE_i/dd| and the tangent projector P_i = I - n_i n_i^T taken at the start of each time step
 // (x_t), D_i = mu lambda_i f0(|P_i (x_i - x_t,i)|, eps_v h) [J]; f0 smooths the stick-slip switch over a slip
 // speed eps_v. The lagging is IPC's approximation: within a step the normal force and the tangent plane are
-// those of its start (in the adjoint they are held constant too). A static drape has no friction.
+// those of its start. The adjoint differentiates them in x_t (add_step_start_adjoint), not in the rim radius
+// (its gradient misses their part). A static drape has no friction.
 // Only the vertices whose rest radius lies between the clamp and the disk's edge touch the disk (the rest hang
 // beyond its rim from the start); edges are not tested against the rim, so the rim radius should exceed the
 // mesh's sag between two vertices over it (2 mm against 0.6 mm on circle3).
@@ -153,6 +154,7 @@ class DiskFrictionTerm : public ElementTerm<DiskFrictionTerm, 1, 1, 3> {
     start_.assign(n, Eigen::Vector3d::Zero());
     projector_.assign(n, Eigen::Matrix3d::Zero());
     normal_force_.assign(n, 0.0);
+    start_geometry_.assign(n, {});
   }
   std::string name() const override { return "disk_friction"; }
   bool is_contact() const override { return true; }
@@ -173,6 +175,9 @@ class DiskFrictionTerm : public ElementTerm<DiskFrictionTerm, 1, 1, 3> {
       distance_gradient_hessian<3>([&](const auto* y) { return setup_->distance(y, decltype(y[0])(rim)); },
                                    start_[e].data(), d, g, H);
       if (!(d > 0 && d < kActivation)) continue;
+      start_geometry_[e][0] = d;  // for add_step_start_adjoint
+      std::copy(g, g + 3, start_geometry_[e].begin() + 1);
+      std::copy(H, H + 9, start_geometry_[e].begin() + 4);
       double b, db, d2b;
       barrier_derivatives(d, kActivation, b, db, d2b);
       normal_force_[e] = setup_->kappa[e] * std::abs(db);
@@ -181,14 +186,79 @@ class DiskFrictionTerm : public ElementTerm<DiskFrictionTerm, 1, 1, 3> {
     }
   }
 
-  // The energy is a function of x - x_t (lagged normal force and projector held): minus its x-derivatives.
+  // The energy is a function of x - x_t (the slip's start) and of the lagged normal force and projector, which
+  // are functions of x_t too (lambda = kappa |b'(d(x_t))|, n = grad d(x_t) / |grad d(x_t)|): the x_t-derivative
+  // of lambda . grad E + c lambda^T K w at fixed x is minus its x-derivatives (the slip's start) plus its
+  // derivative through lambda and P (3-variable jets over x_t, with grad d and Hess d of the distance).
   void add_step_start_adjoint(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& lambda,
                               const Eigen::VectorXd& w, double c, Eigen::VectorXd& gxt) const override {
-    if (p[friction_] == 0) return;
+    const double mu = p[friction_];
+    if (mu == 0) return;
     Eigen::VectorXd d = Eigen::VectorXd::Zero(gxt.size()), unused = Eigen::VectorXd::Zero(p.size());
     add_hessian_product(x, p, lambda, d);
     if (c != 0) add_step_matrix_derivatives(x, p, lambda, w, c, d, unused);
     gxt -= d;
+    using J = Jet<double, 3>;
+    for (size_t e = 0; e < setup_->vertices.size(); ++e) {
+      if (normal_force_[e] == 0) continue;
+      const int i = setup_->vertices[e][0];
+      const double dist = start_geometry_[e][0];
+      const double *g = start_geometry_[e].data() + 1, *H = start_geometry_[e].data() + 4;
+      // d, grad d as jets in x_t
+      J dj(dist), gj[3];
+      for (int a = 0; a < 3; ++a) {
+        dj.v[a] = g[a];
+        gj[a] = J(g[a]);
+        for (int b = 0; b < 3; ++b) gj[a].v[b] = H[3 * a + b];
+      }
+      // lambda = -kappa b'(d) (b' < 0 inside the reach), b' / dhat^2 as in barrier_derivatives
+      const J ed = dj - kActivation;
+      const J db = (-2.0 * ed * log_of(dj / kActivation) - ed * ed / dj) / (kActivation * kActivation);
+      const J force = -setup_->kappa[e] * db;
+      using std::sqrt;
+      const J gn = sqrt(gj[0] * gj[0] + gj[1] * gj[1] + gj[2] * gj[2]);
+      J nj[3], P[9];
+      for (int a = 0; a < 3; ++a) nj[a] = gj[a] / gn;
+      for (int a = 0; a < 3; ++a)
+        for (int b = 0; b < 3; ++b) P[3 * a + b] = (a == b ? 1.0 : 0.0) - nj[a] * nj[b];
+      const Eigen::Vector3d slip = x.segment<3>(3 * i) - start_[e];  // held: its x_t part is the term above
+      J u[3], Pl[3], Pw[3];
+      for (int a = 0; a < 3; ++a) {
+        u[a] = J(0.0);
+        Pl[a] = J(0.0);
+        Pw[a] = J(0.0);
+        for (int b = 0; b < 3; ++b) {
+          u[a] = u[a] + P[3 * a + b] * slip[b];
+          Pl[a] = Pl[a] + P[3 * a + b] * lambda[3 * i + b];
+          Pw[a] = Pw[a] + P[3 * a + b] * w[3 * i + b];
+        }
+      }
+      const J u2 = u[0] * u[0] + u[1] * u[1] + u[2] * u[2];
+      J phi(0.0);
+      if (u2.a < 1e-20 * eps_u_ * eps_u_) {
+        for (int a = 0; a < 3; ++a) phi = phi + (2.0 / eps_u_) * Pl[a] * (u[a] + c * Pw[a]);
+      } else {
+        const J un = sqrt(u2);
+        J f1_over_u, df1;
+        if (un.a >= eps_u_) {
+          f1_over_u = 1.0 / un;
+          df1 = J(0.0);
+        } else {
+          f1_over_u = -un / (eps_u_ * eps_u_) + 2.0 / eps_u_;
+          df1 = -2.0 * un / (eps_u_ * eps_u_) + 2.0 / eps_u_;
+        }
+        J lu(0.0), wu(0.0), lw(0.0);
+        for (int a = 0; a < 3; ++a) {
+          lu = lu + Pl[a] * u[a];
+          wu = wu + Pw[a] * u[a];
+          lw = lw + Pl[a] * Pw[a];
+        }
+        // (P l) . f1/u u + c (P l)^T [f1/u (I - u u^T/u^2) + f1' u u^T/u^2] (P w)
+        phi = f1_over_u * lu + c * (f1_over_u * (lw - lu * wu / u2) + df1 * lu * wu / u2);
+      }
+      const J total = mu * force * phi;
+      for (int a = 0; a < 3; ++a) gxt[3 * i + a] += total.v[a];
+    }
   }
 
   template <class T>
@@ -244,6 +314,7 @@ class DiskFrictionTerm : public ElementTerm<DiskFrictionTerm, 1, 1, 3> {
   std::vector<Eigen::Vector3d> start_;
   std::vector<Eigen::Matrix3d> projector_;
   std::vector<double> normal_force_;
+  std::vector<std::array<double, 13>> start_geometry_;  // d, grad d, Hess d at the step's start (normal force > 0)
 };
 
 }  // namespace

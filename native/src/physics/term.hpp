@@ -99,10 +99,10 @@ class Term {
   // False if add_step_matrix_derivatives is not provided (then a rollout's adjoint through linearised contact
   // steps, solver/implicit_euler.hpp, refuses to run).
   virtual bool provides_step_matrix_derivatives() const { return true; }
-  // Terms whose energy depends on the step's start x_t (begin_step) through x - x_t (lagged friction's slip
-  // u = T (x - x_t); the lagged normal forces and tangent planes are held constant, IPC's lagging): the
-  // x_t-derivative of lambda . grad E(x) + c lambda^T K(x) w at fixed x, added to gxt. For such a term it is
-  // -(Hess E lambda + c d(lambda^T K w)/dx) of its x_t-dependent part. Default: no x_t dependence.
+  // Terms whose energy depends on the step's start x_t (begin_step): lagged friction, through its slip
+  // u = T (x - x_t) and through the normal forces and tangent frames taken at x_t (IPC's lagging): the
+  // x_t-derivative of lambda . grad E(x) + c lambda^T K(x) w at fixed x, added to gxt (the slip's part is
+  // -(Hess E lambda + c d(lambda^T K w)/dx) of the friction's energy). Default: no x_t dependence.
   virtual void add_step_start_adjoint(const Eigen::VectorXd& /*x*/, const Eigen::VectorXd& /*p*/,
                                       const Eigen::VectorXd& /*lambda*/, const Eigen::VectorXd& /*w*/, double /*c*/,
                                       Eigen::VectorXd& /*gxt*/) const {}

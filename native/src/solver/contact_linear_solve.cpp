@@ -38,12 +38,17 @@ bool solve_with_offpattern(const Model& model, const CholmodSolver& solver, cons
   // r = b - (A + R) y = (b - A y) - R y; b - A y is round-off of the factor's solve. No pair couples vertices
   // outside the pattern (R y = 0 exactly): y is the direct solve's answer.
   const Eigen::VectorXd Ry = remainder(y);
-  if (!Ry.any()) return y.allFinite();
-  Eigen::VectorXd r = b - symmetric_multiply(pattern, A, y) - Ry;
-  const double bnorm = b.norm();
   OffpatternSolveStats local;
   OffpatternSolveStats& s = stats ? *stats : local;
   s = {};
+  if (!Ry.any()) return y.allFinite();
+  s.coupled = true;
+  if (A.size() == 0) {
+    s.needs_matrix = true;
+    return false;
+  }
+  Eigen::VectorXd r = b - symmetric_multiply(pattern, A, y) - Ry;
+  const double bnorm = b.norm();
   s.relative_residual = bnorm > 0 ? r.norm() / bnorm : 0.0;
   if (s.relative_residual <= tolerance || !std::isfinite(s.relative_residual)) return std::isfinite(s.relative_residual);
   Eigen::VectorXd z = precondition(r), d = z;

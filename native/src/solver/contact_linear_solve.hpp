@@ -19,6 +19,8 @@ bool has_offpattern_terms(const Model& model);
 struct OffpatternSolveStats {
   int iterations = 0;          // CG iterations after the preconditioner's first solve
   double relative_residual = 0;
+  bool coupled = false;        // the remainder was not zero (some pair couples vertices outside the pattern)
+  bool needs_matrix = false;   // failed because A was empty (size 0) and the remainder was not zero
 };
 
 // Which matrix the assembled part belongs to, hence which remainder R is: the exact Hessian's
@@ -28,7 +30,8 @@ enum class OffpatternOperator { kExactHessian, kProjectedHessian, kStepMatrix };
 
 // y = (A + R(x, p))^-1 b. A: the assembled values that `solver` has factorised (the caller's
 // matrix, including whatever diagonal it added), or whose factor `factor` is (kept by the solver earlier);
-// R: the sum over terms of the remainder of `op` at (x, p).
+// R: the sum over terms of the remainder of `op` at (x, p). A may be empty (size 0) when a factor is given: enough
+// where R y = 0 (the direct solve); else the solve fails with stats->needs_matrix set.
 bool solve_with_offpattern(const Model& model, const CholmodSolver& solver, const Eigen::VectorXd& A,
                            const Eigen::VectorXd& x, const Eigen::VectorXd& p, OffpatternOperator op,
                            const Eigen::VectorXd& b, Eigen::VectorXd& y, double tolerance = 1e-10,

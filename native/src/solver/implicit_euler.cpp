@@ -7,6 +7,7 @@
 #include <cstdio>
 #include <cstdlib>
 
+#include "contact/stepped_contact.hpp"
 #include "solver/contact_linear_solve.hpp"
 #include "util/error.hpp"
 
@@ -87,8 +88,11 @@ Eigen::VectorXd ImplicitEuler::forward(const Eigen::VectorXd& p, const RolloutOp
   for (int step = 0; step < options.steps; ++step) {
     if (contact && options.contact_step == RolloutOptions::ContactStep::kLinearised) {
       std::vector<ContactIterate> iterates;
-      Eigen::VectorXd v_next = linear_contact_step(p, options, step, options.record ? &iterates : nullptr, kept_bytes);
-      if (options.record) tape_.push_back({x_, v_, v_next - v_, CholmodSolver::Factor(), true, std::move(iterates)});
+      std::vector<std::shared_ptr<const void>> states;
+      Eigen::VectorXd v_next = linear_contact_step(p, options, step, options.record ? &iterates : nullptr,
+                                                   options.record ? &states : nullptr, kept_bytes);
+      if (options.record)
+        tape_.push_back({x_, v_, v_next - v_, CholmodSolver::Factor(), true, std::move(iterates), std::move(states)});
       x_ = x_ + h_ * v_next;
       v_ = std::move(v_next);
       if (progress) progress->step(step + 1, options.steps);
@@ -447,14 +451,27 @@ void ImplicitEuler::linear_contact_system(const Eigen::VectorXd& x, const Eigen:
 }
 
 Eigen::VectorXd ImplicitEuler::linear_contact_step(const Eigen::VectorXd& p, const RolloutOptions& options, int step,
-                                                   std::vector<ContactIterate>* iterates, double& kept_bytes) {
+                                                   std::vector<ContactIterate>* iterates,
+                                                   std::vector<std::shared_ptr<const void>>* term_states,
+                                                   double& kept_bytes) {
   const double h = h_, inv_h2 = 1.0 / (h * h);
   const Eigen::VectorXd m = model_.masses(p);
-  for (const auto& t : model_.terms()) t->begin_step(x_, p, h);
+  // The rollout's first state is checked (begin_step: intersection-free); every later one is the end of a step
+  // whose moves were all bounded by max_step (CCD), hence intersection-free too: continue_step skips the check.
+  for (const auto& t : model_.terms()) {
+    auto* stepped = dynamic_cast<SteppedContact*>(t.get());
+    if (stepped && step > 0) stepped->continue_step(x_, p, h);
+    else t->begin_step(x_, p, h);
+    if (term_states) term_states->push_back(stepped ? stepped->step_state() : nullptr);
+  }
   const Eigen::VectorXd x_hat = x_ + h * v_;
   Eigen::VectorXd x = x_, A, g, dx;
   for (const auto& t : model_.terms()) t->carry_start(x);
-  if (!std::isfinite(model_.energy(x, p))) {
+  // Only a contact term's energy can be infinite (a state in contact).
+  double contact_energy = 0;
+  for (const auto& t : model_.terms())
+    if (t->is_contact()) contact_energy += t->energy(x, p);
+  if (!std::isfinite(contact_energy)) {
     std::ostringstream s;
     s << "rollout: step " << step << " starts in contact (a vertex touches an obstacle or the cloth itself, or a "
       << "moving obstacle passed through the cloth: use shorter steps)";
@@ -463,6 +480,7 @@ Eigen::VectorXd ImplicitEuler::linear_contact_step(const Eigen::VectorXd& p, con
   const bool offpattern = has_offpattern_terms(model_);
   for (int it = 0; it < std::max(1, options.contact_max_iterations); ++it) {
     auto t0 = std::chrono::steady_clock::now();
+    bool coupled = false;  // off-pattern couplings present (then the adjoint's CG needs the matrix values)
     linear_contact_system(x, x_hat, p, inv_h2, m, A, g);
     timing_.assemble += seconds_since(t0);
     t0 = std::chrono::steady_clock::now();
@@ -480,6 +498,7 @@ Eigen::VectorXd ImplicitEuler::linear_contact_step(const Eigen::VectorXd& p, con
         throw SolverError(s.str());
       }
       timing_.cg_iterations += stats.iterations;
+      coupled = stats.coupled;
       dx = -y;
     } else {
       dx = -solver_.solve(g);
@@ -503,10 +522,10 @@ Eigen::VectorXd ImplicitEuler::linear_contact_step(const Eigen::VectorXd& p, con
       std::fprintf(stderr, "step %d linear it %d cap %.3g |dx| %.3g\n", step, it, alpha, dx.lpNorm<Eigen::Infinity>());
     if (iterates) {
       ContactIterate r{x, dx, alpha, CholmodSolver::Factor(), Eigen::VectorXd()};
-      const double bytes = static_cast<double>(solver_.kept_factor_bytes()) + (offpattern ? 8.0 * A.size() : 0.0);
+      const double bytes = static_cast<double>(solver_.kept_factor_bytes()) + (coupled ? 8.0 * A.size() : 0.0);
       if (kept_bytes + bytes <= options.factor_memory_mb * 1048576.0) {
         r.factor = solver_.keep_factor();
-        if (offpattern) r.matrix = A;
+        if (coupled) r.matrix = A;
         kept_bytes += bytes;
       }
       iterates->push_back(std::move(r));
@@ -534,7 +553,13 @@ void ImplicitEuler::linear_contact_step_adjoint(const StepRecord& r, Eigen::Vect
   const auto& density_block = model_.layout().block("density");
   const Eigen::VectorXd& w = model_.area_weights();
   const bool offpattern = has_offpattern_terms(model_);
-  for (const auto& t : model_.terms()) t->resume_step(r.x, p_, h);  // the step's lagged friction state
+  // The step's lagged friction state (and, for SteppedContact terms, the pairs the forward found at its start).
+  for (size_t i = 0; i < model_.terms().size(); ++i) {
+    const auto& t = model_.terms()[i];
+    auto* stepped = dynamic_cast<SteppedContact*>(t.get());
+    if (stepped && i < r.term_states.size() && r.term_states[i]) stepped->restore_step(r.term_states[i]);
+    else t->resume_step(r.x, p_, h);
+  }
   Eigen::VectorXd xbar = gx + gv / h, xt_bar = -gv / h, xhat_bar = Eigen::VectorXd::Zero(n);
   Eigen::VectorXd start_bar = Eigen::VectorXd::Zero(n);  // d(sum_k lambda_k . (g_k + A_k dx_k))/dx_t at fixed x_k
   Eigen::VectorXd A, g, lambda, unused(n);
@@ -549,9 +574,15 @@ void ImplicitEuler::linear_contact_step_adjoint(const StepRecord& r, Eigen::Vect
       values = &A;
     }
     if (offpattern) {
-      if (!solve_with_offpattern(model_, solver_, *values, it.x, p_, OffpatternOperator::kStepMatrix, rhs, lambda,
-                                 kOffpatternTolerance, kOffpatternMaxIterations, nullptr, factor))
-        throw SolverError("backward: a contact step's solve did not converge");
+      OffpatternSolveStats stats;
+      bool solved = solve_with_offpattern(model_, solver_, *values, it.x, p_, OffpatternOperator::kStepMatrix, rhs,
+                                          lambda, kOffpatternTolerance, kOffpatternMaxIterations, &stats, factor);
+      if (!solved && stats.needs_matrix) {  // the forward kept no values (it saw no coupling): assemble them
+        linear_contact_system(it.x, x_hat, p_, inv_h2, m, A, g);
+        solved = solve_with_offpattern(model_, solver_, A, it.x, p_, OffpatternOperator::kStepMatrix, rhs, lambda,
+                                       kOffpatternTolerance, kOffpatternMaxIterations, nullptr, factor);
+      }
+      if (!solved) throw SolverError("backward: a contact step's solve did not converge");
     } else {
       lambda = factor ? solver_.solve_with(*factor, rhs) : solver_.solve(rhs);
     }

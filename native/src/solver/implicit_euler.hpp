@@ -88,7 +88,8 @@ class ImplicitEuler {
 
  private:
   // One iteration of a linearised contact step: x_{k+1} = x + alpha dx, with its matrix's factor and values
-  // (values only with off-pattern couplings: the adjoint's CG operator) when kept within factor_memory_mb.
+  // (values only where off-pattern couplings are present: the adjoint's CG operator) when kept within
+  // factor_memory_mb.
   struct ContactIterate {
     Eigen::VectorXd x, dx;
     double alpha = 1;
@@ -100,6 +101,8 @@ class ImplicitEuler {
     CholmodSolver::Factor factor;
     bool contact = false;
     std::vector<ContactIterate> iterates;  // linearised contact steps
+    // linearised contact steps: per term, its SteppedContact::step_state (null for other terms)
+    std::vector<std::shared_ptr<const void>> term_states;
   };
   bool has_contact() const;
   // The Newton matrix of a contact step, kind 0..3: M/h^2 + the exact Hessian; + exact contact Hessians and the
@@ -114,10 +117,12 @@ class ImplicitEuler {
   // A linearised contact step's matrix M/h^2 + K(x) (pattern values) and the potential's gradient at x.
   void linear_contact_system(const Eigen::VectorXd& x, const Eigen::VectorXd& x_hat, const Eigen::VectorXd& p,
                              double inv_h2, const Eigen::VectorXd& m, Eigen::VectorXd& A, Eigen::VectorXd& g) const;
-  // One linearised contact step from (x_, v_): returns v_{t+1}; its iterations go to `iterates` (if recording),
-  // their factors kept while kept_bytes stays within the budget.
+  // One linearised contact step from (x_, v_): returns v_{t+1}; its iterations go to `iterates` and the terms'
+  // step states to `term_states` (if recording), the factors kept while kept_bytes stays within the budget.
+  // Steps after a rollout's first continue the previous one (SteppedContact::continue_step).
   Eigen::VectorXd linear_contact_step(const Eigen::VectorXd& p, const RolloutOptions& options, int step,
-                                      std::vector<ContactIterate>* iterates, double& kept_bytes);
+                                      std::vector<ContactIterate>* iterates,
+                                      std::vector<std::shared_ptr<const void>>* term_states, double& kept_bytes);
   // Its adjoint: updates gx, gv (dL/dx_t, dL/dv_t) and gp.
   void linear_contact_step_adjoint(const StepRecord& r, Eigen::VectorXd& gx, Eigen::VectorXd& gv,
                                    Eigen::VectorXd& gp);

@@ -93,5 +93,45 @@ TEST(DiskContactDrape, ModelRejectsAClampThatHoldsNothingAndAStructuralMismatch)
   EXPECT_THROW(model.validate_parameters(p), InputError);
 }
 
+// disk_friction's step-start adjoint (Term::add_step_start_adjoint): the x_t-derivative of
+// lambda . grad E(x) + c lambda^T K(x) w at fixed x, where the term began its step at x_t (the slip's start, the
+// lagged normal force and tangent plane), against central differences of begin_step's x_t.
+TEST(DiskContactDrape, FrictionStepStartAdjointMatchesCentralDifferences) {
+  const TriangleMesh mesh = load_cusick_template(1, template_dir());
+  ModelOptions o;
+  o.effects["disk_contact"] = {{"clamp_radius_m", 0.02}, {"friction", 0.3}};
+  Model model(mesh, o);
+  const Eigen::VectorXd p = model.default_parameters();
+  const int n = model.num_dofs();
+  Term* term = nullptr;
+  for (const auto& t : model.terms())
+    if (t->name() == "disk_friction") term = t.get();
+  ASSERT_NE(term, nullptr);
+  Eigen::VectorXd xt = model.rest_positions();
+  const Eigen::VectorXd jitter = testing::random_vector(n, 31);
+  for (int i = 0; i < model.num_vertices(); ++i) xt[3 * i + 2] -= 2e-4 + 1e-4 * jitter[3 * i + 2];
+  const double h = 0.01;
+  for (double slip : {2e-6, 1e-4}) {  // within the stick zone (eps_v h = 1e-5 m) and sliding
+    const Eigen::VectorXd x = xt + slip * testing::random_vector(n, 32);
+    const Eigen::VectorXd lambda = testing::random_vector(n, 33), w = testing::random_vector(n, 34);
+    const double c = 0.7;
+    auto phi = [&](const Eigen::VectorXd& start) {
+      term->begin_step(start, p, h);
+      Eigen::VectorXd g = Eigen::VectorXd::Zero(n), Kw = Eigen::VectorXd::Zero(n);
+      term->add_gradient(x, p, g);
+      EXPECT_TRUE(term->add_step_matrix_product(x, p, w, 1.0, Kw));
+      return lambda.dot(g) + c * lambda.dot(Kw);
+    };
+    const Eigen::VectorXd d = testing::random_vector(n, 35);
+    const double e = 1e-9;
+    const double fd = (phi(xt + e * d) - phi(xt - e * d)) / (2 * e);
+    term->begin_step(xt, p, h);
+    Eigen::VectorXd gxt = Eigen::VectorXd::Zero(n);
+    term->add_step_start_adjoint(x, p, lambda, w, c, gxt);
+    std::printf("disk friction start adjoint (slip %g m): %.9g, central difference %.9g\n", slip, gxt.dot(d), fd);
+    EXPECT_NEAR(gxt.dot(d), fd, 1e-5 * std::abs(fd)) << "slip " << slip;
+  }
+}
+
 }  // namespace
 }  // namespace drapelab

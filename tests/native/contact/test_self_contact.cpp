@@ -277,14 +277,14 @@ TEST(SelfContact, LinearisedStepAdjointMatchesCentralDifferences) {
   }
 }
 
-// With friction acting from the step's start the adjoint includes how the slip's start x_t enters it
-// (Term::add_step_start_adjoint), not how the lagged normal forces and tangent frames (taken at x_t, IPC's
-// lagging) do: dL/dx_t is off by a few per cent (2.4 % and 3.1 % here; 3.5 % and 15 % without the slip's
-// start), dL/dv_t and dL/dp are exact.
+// With friction acting from the step's start the adjoint includes how x_t enters the lagged friction: as the
+// slip's start and through the lagged normal forces, normals and closest-point weights (Term::
+// add_step_start_adjoint; before, dL/dx_t was 2.4 % and 3.1 % off here without the lagged quantities' part, 3.5 %
+// and 15 % without the slip's start either).
 TEST(SelfContact, LinearisedStepAdjointWithLaggedFriction) {
   for (double gap : {4e-4, 8e-4}) {
     const auto e = linearised_step_errors(gap, 0.3);
-    EXPECT_LT(e[0], 0.05) << "dL/dx_t (lagged normal forces held), gap " << gap;
+    EXPECT_LT(e[0], 1e-5) << "dL/dx_t, gap " << gap;
     EXPECT_LT(e[1], 1e-5) << "dL/dv_t, gap " << gap;
     EXPECT_LT(e[2], 1e-4) << "dL/dp, gap " << gap;
   }
@@ -443,6 +443,124 @@ TEST(SelfContact, StartingIntersectedIsAnErrorNamingTheTriangles) {
     EXPECT_NE(std::string(e.what()).find("intersect"), std::string::npos) << e.what();
   }
   EXPECT_GT(contact_report(mesh.faces, model.rest_positions()).intersecting_pairs, 0);
+}
+
+// max_step's swept broad phase keeps its candidates for the states along its move (contact/pair_contact.cpp): the
+// active pairs found from them anywhere on the segment equal a fresh term's (its own broad phase at that state).
+TEST(SelfContact, SweptCandidatesGiveTheActivePairsAlongTheMove) {
+  const TriangleMesh mesh = stacked_sheets(7, 0.05, 2e-3);
+  Model model(mesh, self_contact_options(1e-3));
+  const Eigen::VectorXd p = model.default_parameters();
+  const auto& term = dynamic_cast<const PairContactTerm&>(term_named(model, "self_contact"));
+  const int n = model.num_dofs();
+  const Eigen::VectorXd x0 = jittered_start(model);
+  Eigen::VectorXd dx = 1e-4 * testing::random_vector(n, 5);
+  for (int i = model.num_vertices() / 2; i < model.num_vertices(); ++i) dx[3 * i + 2] -= 1.8e-3;  // 0.2 mm apart
+  const double alpha = term.max_step(x0, dx, p);
+  ASSERT_GT(alpha, 0.5);
+  size_t active_at_end = 0;
+  for (double s : {0.0, 0.3, 0.55, 0.8, 1.0}) {
+    const Eigen::VectorXd x = x0 + s * alpha * dx;
+    Model fresh_model(mesh, self_contact_options(1e-3));
+    const auto& fresh = dynamic_cast<const PairContactTerm&>(term_named(fresh_model, "self_contact"));
+    const std::vector<ActivePair> a = term.active_pairs(x, 1e-3), b = fresh.active_pairs(x, 1e-3);
+    ASSERT_EQ(a.size(), b.size()) << "s = " << s;
+    for (size_t k = 0; k < a.size(); ++k) {
+      EXPECT_EQ(a[k].kind, b[k].kind);
+      EXPECT_EQ(a[k].type, b[k].type);
+      EXPECT_EQ(a[k].v, b[k].v);
+    }
+    active_at_end = a.size();
+  }
+  EXPECT_GT(active_at_end, 20u) << "the layers end within the thickness";
+}
+
+// The state a step began with (SteppedContact::step_state: lagged friction pairs, active pairs and candidates at
+// its start), restored after other steps, gives the energy, gradient and friction start adjoint of a term that
+// began that step itself, bit for bit (the adjoint restores it instead of a broad phase; continue_step is
+// begin_step without the intersection check).
+TEST(SelfContact, RestoredStepStateMatchesABegunStep) {
+  const TriangleMesh mesh = stacked_sheets(5, 0.04, 2e-3);
+  ModelOptions o = self_contact_options(1e-3);
+  o.effects["self_contact"]["friction"] = 0.3;
+  Model model(mesh, o), other(mesh, o);
+  Eigen::VectorXd p = model.default_parameters();
+  p[model.layout().block("self_contact.friction").offset] = 0.3;
+  auto pair_term = [](const Model& m) {
+    for (const auto& t : m.terms())
+      if (t->name() == "self_contact") return dynamic_cast<PairContactTerm*>(t.get());
+    throw std::runtime_error("no self_contact term");
+  };
+  PairContactTerm *term = pair_term(model), *begun = pair_term(other);
+  const int n = model.num_dofs();
+  Eigen::VectorXd xt = jittered_start(model);
+  for (int i = model.num_vertices() / 2; i < model.num_vertices(); ++i) xt[3 * i + 2] -= 1.6e-3;  // 0.4 mm apart
+  const Eigen::VectorXd x = xt + 1e-5 * testing::random_vector(n, 3), lambda = testing::random_vector(n, 4);
+  const double h = 0.02;
+  term->begin_step(xt, p, h);
+  const std::shared_ptr<const void> state = term->step_state();
+  term->continue_step(xt + 1e-4 * testing::random_vector(n, 6), p, h);  // another step's state
+  term->restore_step(state);
+  begun->begin_step(xt, p, h);
+  auto evaluate = [&](const PairContactTerm& t, double& E, Eigen::VectorXd& g, Eigen::VectorXd& start) {
+    E = t.energy(x, p);
+    g = Eigen::VectorXd::Zero(n);
+    t.add_gradient(x, p, g);
+    start = Eigen::VectorXd::Zero(n);
+    t.add_step_start_adjoint(x, p, lambda, lambda, 1.0, start);
+  };
+  double Er, Eb;
+  Eigen::VectorXd gr, gb, sr, sb;
+  evaluate(*term, Er, gr, sr);
+  evaluate(*begun, Eb, gb, sb);
+  EXPECT_GT(sb.norm(), 0.0) << "friction pairs at the step's start";
+  EXPECT_EQ(Er, Eb);
+  EXPECT_EQ((gr - gb).lpNorm<Eigen::Infinity>(), 0.0);
+  EXPECT_EQ((sr - sb).lpNorm<Eigen::Infinity>(), 0.0);
+}
+
+// The pair friction's step-start adjoint (Term::add_step_start_adjoint): the x_t-derivative of
+// lambda . grad E(x) + c lambda^T K(x) w at fixed x, where the term began its step at x_t (the slip's start and
+// the lagged normal forces, normals and closest-point weights), against central differences of begin_step's x_t.
+TEST(SelfContact, FrictionStepStartAdjointMatchesCentralDifferences) {
+  const TriangleMesh mesh = stacked_sheets(5, 0.04, 2e-3);
+  ModelOptions o = self_contact_options(1e-3);
+  o.effects["self_contact"]["friction"] = 0.3;
+  Model model(mesh, o);
+  Eigen::VectorXd p = model.default_parameters();
+  p[model.layout().block("self_contact.friction").offset] = 0.3;
+  Term* term = nullptr;
+  for (const auto& t : model.terms())
+    if (t->name() == "self_contact") term = t.get();
+  ASSERT_NE(term, nullptr);
+  const int n = model.num_dofs();
+  Eigen::VectorXd xt = jittered_start(model);
+  for (int i = model.num_vertices() / 2; i < model.num_vertices(); ++i) xt[3 * i + 2] -= 1.5e-3;  // 0.5 mm apart
+  const double h = 0.02;
+  for (double slip : {5e-6, 2e-4}) {  // within the stick zone (eps_v h = 2e-5 m) and sliding
+    const Eigen::VectorXd x = xt + slip * testing::random_vector(n, 42);
+    const Eigen::VectorXd lambda = testing::random_vector(n, 43), w = testing::random_vector(n, 44);
+    const double c = 0.7;
+    auto phi = [&](const Eigen::VectorXd& start) {
+      term->resume_step(start, p, h);
+      Eigen::VectorXd g = Eigen::VectorXd::Zero(n), Kw = Eigen::VectorXd::Zero(n);
+      term->add_gradient(x, p, g);
+      // K w = the assembled diagonal blocks' product plus the off-pattern remainder's
+      Eigen::VectorXd values = Eigen::VectorXd::Zero(model.pattern().nnz());
+      term->add_step_matrix(x, p, 1.0, values);
+      Kw = symmetric_multiply(model.pattern(), values, w);
+      term->add_offpattern_step_matrix_product(x, p, w, Kw);
+      return lambda.dot(g) + c * lambda.dot(Kw);
+    };
+    const Eigen::VectorXd d = testing::random_vector(n, 45);
+    const double e = 1e-9;
+    const double fd = (phi(xt + e * d) - phi(xt - e * d)) / (2 * e);
+    term->resume_step(xt, p, h);
+    Eigen::VectorXd gxt = Eigen::VectorXd::Zero(n);
+    term->add_step_start_adjoint(x, p, lambda, w, c, gxt);
+    std::printf("pair friction start adjoint (slip %g m): %.9g, central difference %.9g\n", slip, gxt.dot(d), fd);
+    EXPECT_NEAR(gxt.dot(d), fd, 1e-5 * std::abs(fd)) << "slip " << slip;
+  }
 }
 
 }  // namespace
