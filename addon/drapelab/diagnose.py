@@ -316,11 +316,13 @@ def _joint_drapes(preset, observations, names, k, seed, config, threads, templat
     p_active = fit_effects.active_effect_values(pred.effects)
     mesh = infer.sim.cusick_specimen(pred.level, template_dir=template_dir)
     models = [infer.sim.ClothModel(mesh, heterogeneous=True, density=preset["density_kg_m2"],
-                                   effects={**p_active, **offs}) for _ in range(lanes)]
+                                   effects={**p_active, **offs}, px_per_m=pred.calibration.px_per_m)
+              for _ in range(lanes)]
     renderers = [render.SoftRenderer(pred.camera, sigma=config["render_sigma_px"]) for _ in range(lanes)]
     turned = {n: {**offs[n], **SECOND_DIRECTIONS[n]} for n in names if n in SECOND_DIRECTIONS}
     turned_models = [infer.sim.ClothModel(mesh, heterogeneous=True, density=preset["density_kg_m2"],
-                                          effects={**p_active, **turned}) for _ in range(lanes)] if turned else None
+                                          effects={**p_active, **turned}, px_per_m=pred.calibration.px_per_m)
+                     for _ in range(lanes)] if turned else None
     draws = infer.preset_bend_samples(preset, models[0].num_bending_edges, np.random.default_rng(seed), k)
     keys = [f"{n}.{p['name']}" for n in names for p in reg[n]["parameters"]]
     sigma_obs = float(config["sigma_obs"])
@@ -348,14 +350,14 @@ def _joint_drapes(preset, observations, names, k, seed, config, threads, templat
                 continue
             except Cancelled:  # mid-rollout: this draw is dropped, the finished ones are kept
                 return
-            hard = infer._hard_image(pred.camera, x, m.faces)
+            hard = infer._hard_image(pred.camera, infer._observed(m, x, p), m.faces)
             nodes = measure.analyse_nodes(measure.r_theta(hard, pred.calibration))
-            soft = r.render(x, m.faces)
+            soft = r.render(infer._observed(m, x, p), m.faces)
             g_image = np.zeros_like(soft)
             for o in observations:
                 g_image += infer.data_term(soft, o, sigma_obs, SCORE_SIGMA_DC)[1] / len(observations)
             try:
-                g = m.backward(r.backward(g_image), cancel_event=cancel_event)
+                g = infer._observed_backward(m, x, p, r.backward(g_image), cancel_event)
             except Cancelled:
                 return
             shapes[i] = {"x": x, "image": hard, "dc": measure.drape_coefficient(hard, pred.calibration.px_per_m),
@@ -374,12 +376,12 @@ def _joint_drapes(preset, observations, names, k, seed, config, threads, templat
                     grads[i] = None
                     shapes[i] = None
                     return
-                soft_t = r.render(xt, mt.faces)
+                soft_t = r.render(infer._observed(mt, xt, pt), mt.faces)
                 g_t = np.zeros_like(soft_t)
                 for o in observations:
                     g_t += infer.data_term(soft_t, o, sigma_obs, SCORE_SIGMA_DC)[1] / len(observations)
                 try:
-                    gt = mt.backward(r.backward(g_t), cancel_event=cancel_event)
+                    gt = infer._observed_backward(mt, xt, pt, r.backward(g_t), cancel_event)
                 except Cancelled:
                     grads[i] = None
                     shapes[i] = None

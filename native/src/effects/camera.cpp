@@ -89,12 +89,14 @@ EffectSpec make_camera_effect() {
   s.explanation = "the measurement model: scale error, centre offset (px) and perspective (inverse distance)";
   s.signature = "the silhouette scaled about (or shifted from) the tester's centre: MSE moves, the drape does not";
   s.parameters = {
-      // Moderate strengths: measured on circle3 against the re-drape floor (docs/lab/effect-recovery.md).
+      // Moderate strengths measured on circle3 (tools/observation_effects_probe.py, docs/lab/effect-recovery.md):
+      // scale_error 0.02 / 0.03: DC +0.048 / +0.072 (2.3x the 0.031 floor), MSE 0.017 / 0.026; cx_px 3 / 5: DC 0,
+      // MSE 0.018 / 0.031 (4 px: about scale_error's 0.026); inv_distance_per_m 0.5 / 1: DC -0.050 / -0.096.
       {"scale_error", "1", 0.0, -0.3, 0.3, 0.03, 0.03, "pixels per metre off by 1 + scale_error (fraction)"},
-      {"cx_px", "px", 0.0, -40.0, 40.0, 3.0, 3.0, "tester's centre right of the calibrated centre (columns)"},
-      {"cy_px", "px", 0.0, -40.0, 40.0, 3.0, 3.0, "tester's centre below the calibrated centre (rows)"},
+      {"cx_px", "px", 0.0, -40.0, 40.0, 4.0, 4.0, "tester's centre right of the calibrated centre (columns)"},
+      {"cy_px", "px", 0.0, -40.0, 40.0, 4.0, 4.0, "tester's centre below the calibrated centre (rows)"},
       // One-sided: 0 is orthographic, 3 /m a camera 33 cm above the support.
-      {"inv_distance_per_m", "1/m", 0.0, 0.0, 3.0, 1.0, 1.0, "perspective: 1 / camera height above the support"},
+      {"inv_distance_per_m", "1/m", 0.0, 0.0, 3.0, 1.0, 0.75, "perspective: 1 / camera height above the support"},
   };
   s.make_terms = [](const EffectContext&) { return std::vector<std::unique_ptr<Term>>{}; };  // no physics
   s.make_observation = [](const EffectContext& c) -> std::unique_ptr<PositionTransform> {

@@ -142,10 +142,13 @@ EffectSpec make_offset_effect() {
   s.name = "offset";
   s.explanation = "the specimen is not centred on the support disk: its centre is (dx, dy) from the disk's";
   s.signature = "a 1-fold r(theta) residual: the specimen hangs further out on the +d side; the silhouette shifts";
-  // Moderate strength 5 mm: measured on circle3 against the re-drape floor (docs/lab/effect-recovery.md).
+  // Moderate strength 1 cm: measured on circle3 (tools/observation_effects_probe.py, docs/lab/effect-recovery.md):
+  // the drape coefficient barely moves (dx 3 / 5 / 10 mm: DC +0.001 / +0.001 / -0.004), pixel MSE against the
+  // centred drape 0.017 / 0.010 / 0.034 (not monotonic: the folds rearrange), so 1 cm is the value at which it
+  // moves the silhouette as much as a DC-moving effect at its moderate strength (MSE 0.02-0.04).
   s.parameters = {
-      {"dx_m", "m", 0.0, -kMaxOffset, kMaxOffset, 0.005, 0.005, "specimen centre minus disk centre along x (weft)"},
-      {"dy_m", "m", 0.0, -kMaxOffset, kMaxOffset, 0.005, 0.005, "specimen centre minus disk centre along y (warp)"},
+      {"dx_m", "m", 0.0, -kMaxOffset, kMaxOffset, 0.01, 0.01, "specimen centre minus disk centre along x (weft)"},
+      {"dy_m", "m", 0.0, -kMaxOffset, kMaxOffset, 0.01, 0.01, "specimen centre minus disk centre along y (warp)"},
   };
   s.change_base_terms = [](const EffectContext& c, BaseTermChanges& changes) {
     check_combination(c);
