@@ -48,7 +48,8 @@ def test_camera_transform_is_the_documented_measurement_model():
     cam = render.orthographic_camera(500.0, centre=(128, 128), size=(256, 256))
     img = np.asarray(render.hard_silhouette(cam, y, m.faces), dtype=float)
     rows, cols = np.nonzero(img > 0.5)
-    assert abs(cols.mean() - 130.0) < 0.5 and abs(rows.mean() - 125.0) < 0.5
+    # pixel (r, c) covers [c, c + 1) x [r, r + 1): its centre is at + 0.5
+    assert abs(cols.mean() + 0.5 - 130.0) < 0.2 and abs(rows.mean() + 0.5 - 125.0) < 0.2
 
 
 def test_offset_shifts_the_silhouette_and_hangs_further_on_its_side():
@@ -58,12 +59,13 @@ def test_offset_shifts_the_silhouette_and_hangs_further_on_its_side():
     x = m.simulate(p, mode="dynamic", record=False)
     base = _model()
     xb = base.simulate(base.parameters(), mode="dynamic", record=False)
-    # the specimen's +x rim hangs lower than its -x rim (the support holds less of it on that side)
+    # the specimen's +x rim hangs lower than its -x rim (the support holds less of it on that side). Measured
+    # (circle1): rim height left minus right 3.7 mm centred (its folds), 23.5 mm at dx = +1 cm, -13.4 mm at -1 cm.
     r = np.linalg.norm(m.uv, axis=1)
     rim = r > 0.9 * r.max()
     right, left = rim & (m.uv[:, 0] > 0.1), rim & (m.uv[:, 0] < -0.1)
-    assert x[right, 2].mean() < x[left, 2].mean() - 0.002
-    assert abs(xb[right, 2].mean() - xb[left, 2].mean()) < 0.002
+    lean, lean_base = x[left, 2].mean() - x[right, 2].mean(), xb[left, 2].mean() - xb[right, 2].mean()
+    assert lean - lean_base > 0.01, (lean, lean_base)
     y = m.observe(x, p)
     np.testing.assert_array_equal(y[:, 0], x[:, 0] + 0.01)
 
@@ -115,7 +117,9 @@ def test_fit_gradient_through_the_observation_matches_central_differences(name, 
     job.theta["effect_mu"] = np.array([0.6 * value])
     terms, grads = job.objective(job.theta, 0)
     assert grads["effect_mu"][0] != 0
-    eps = 1e-4 * abs(value)
+    # A small step: the rollout's loss is rough on larger scales (offset on circle1, measured: central differences
+    # at 6e-7 / 1e-7 / 2e-8 / 5e-9 m gave -19430 / -37412 / -18564 / -18609.273 against the adjoint's -18609.279).
+    eps = 1e-6 * abs(value)
     plus, minus = copy.deepcopy(job.theta), copy.deepcopy(job.theta)
     plus["effect_mu"] = plus["effect_mu"] + eps
     minus["effect_mu"] = minus["effect_mu"] - eps
