@@ -159,7 +159,8 @@ def test_bad_values_and_combinations_are_clear_errors():
     with pytest.raises(InputError, match="camera.inv_distance_per_m"):
         _model({"camera": {"inv_distance_per_m": -1.0}})
     with pytest.raises(InputError, match="disk_contact"):
-        _model({"offset": {"dx_m": 0.01}, "disk_contact": {}})
+        _model({"offset": {"dx_m": 0.01}, "disk_contact": {"clamp_radius_m": 0.02}})
+    _model({"offset": {"dx_m": 0.01}, "disk_contact": {}})  # disk_contact at its off value: combines
     m = _model({"camera": {"inv_distance_per_m": 3.0}})
     x = m.rest_positions.copy()
     x[0, 2] = 0.4  # above the camera 0.33 m over the support

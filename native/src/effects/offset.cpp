@@ -14,8 +14,8 @@
 //    is about one ring spacing, so at any d some vertices are in transition and the drape responds smoothly.
 // 2. The silhouette is measured in the tester's frame, centred on the disk: the observation translates the
 //    drape by +d (Model::observe; y = x + (dx, dy, 0)).
-// Not combined with disk_contact (its obstacle and clamp would have to move with d too) or with a garment's
-// held vertices: both are InputErrors.
+// Not combined with disk_contact's small clamp (its obstacle and clamp would have to move with d too; at its off
+// value, the clamp as large as the disk, it combines) or with a garment's held vertices: both are InputErrors.
 #include <array>
 #include <cmath>
 
@@ -128,11 +128,15 @@ class OffsetObservation : public PositionTransform {
   int dx_, dy_;
 };
 
-void check_combination(const EffectContext& c) {
+// disk_contact registers before offset, so its change (a clamp smaller than the disk) is already in `changes`; at
+// its off value (the clamp as large as the disk) it adds nothing and the two combine (the diagnosis' joint model
+// has every candidate active at its off value).
+void check_combination(const EffectContext& c, const BaseTermChanges& changes) {
   if (!c.options.held_vertices.empty())
     throw InputError("offset: the effect shifts the Cusick support disk; a model with held_vertices has none");
-  if (c.options.effects.count("disk_contact"))
-    throw InputError("offset: not combined with disk_contact yet (its obstacle and clamp would move with the offset)");
+  if (!std::isnan(changes.handle_radius))
+    throw InputError("offset: not combined with disk_contact's small clamp yet (its obstacle and clamp would have to "
+                     "move with the offset)");
 }
 
 }  // namespace
@@ -151,7 +155,7 @@ EffectSpec make_offset_effect() {
       {"dy_m", "m", 0.0, -kMaxOffset, kMaxOffset, 0.01, 0.01, "specimen centre minus disk centre along y (warp)"},
   };
   s.change_base_terms = [](const EffectContext& c, BaseTermChanges& changes) {
-    check_combination(c);
+    check_combination(c, changes);
     changes.handle_replaced = true;
   };
   s.make_terms = [](const EffectContext& c) {
