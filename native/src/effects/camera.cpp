@@ -87,7 +87,9 @@ EffectSpec make_camera_effect() {
   EffectSpec s;
   s.name = "camera";
   s.explanation = "the measurement model: scale error, centre offset (px) and perspective (inverse distance)";
-  s.signature = "the silhouette scaled about (or shifted from) the tester's centre (scale and perspective move DC); the drape itself does not change";
+  s.signature =
+      "the silhouette scaled about (or shifted from) the tester's centre (scale and perspective move DC); the "
+      "drape itself does not change";
   s.parameters = {
       // Moderate strengths measured on circle3 (tools/observation_effects_probe.py, docs/lab/effect-recovery.md):
       // scale_error 0.02 / 0.03: DC +0.048 / +0.072 (2.3x the 0.031 floor), MSE 0.017 / 0.026; cx_px 3 / 5: DC 0,

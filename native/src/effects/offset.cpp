@@ -145,7 +145,9 @@ EffectSpec make_offset_effect() {
   EffectSpec s;
   s.name = "offset";
   s.explanation = "the specimen is not centred on the support disk: its centre is (dx, dy) from the disk's";
-  s.signature = "a 1-fold r(theta) residual: more fabric overhangs the disk on the +d side and hangs lower there; the silhouette shifts by d";
+  s.signature =
+      "a 1-fold r(theta) residual: more fabric overhangs the disk on the +d side and hangs lower there; the "
+      "silhouette shifts by d";
   // Moderate strength 1 cm: measured on circle3 (tools/observation_effects_probe.py, docs/lab/effect-recovery.md):
   // the drape coefficient barely moves (dx 3 / 5 / 10 mm: DC +0.001 / +0.001 / -0.004), pixel MSE against the
   // centred drape 0.017 / 0.010 / 0.034 (not monotonic: the folds rearrange), so 1 cm is the value at which it
