@@ -360,7 +360,7 @@ def _signature(obs, ok, best, calibration):
         {"r_measured": r_obs, "r_best": r_best, "residual": residual}
 
 
-def _pseudo_observations(pred, preset, models, j, seed, config, lanes, progress, cancel_event):
+def _pseudo_observations(pred, preset, models, offs, j, seed, config, lanes, progress, cancel_event):
     """`j` silhouettes of the preset's own predictive (posterior draws with placement noise, independent of the
     scored draws): what the measurement would look like if P were right. Forward drapes only (no record)."""
     draws = infer.preset_bend_samples(preset, models[0].num_bending_edges, np.random.default_rng([seed, 23]), j)
@@ -374,7 +374,7 @@ def _pseudo_observations(pred, preset, models, j, seed, config, lanes, progress,
         for i in range(lane, j, lanes):
             if cancel_event is not None and cancel_event.is_set():
                 return
-            p = m.parameters(stretch=pred.stretch, bend=draws[i], effects=effects[i] if effects else None)
+            p = m.parameters(stretch=pred.stretch, bend=draws[i], effects={**(effects[i] if effects else {}), **offs})
             v0 = infer.placement_velocities(rest, np.random.default_rng([seed, PSEUDO_SEED_OFFSET + i, 1]),
                                             amplitude, modes) if amplitude > 0 else None
             try:
@@ -384,7 +384,7 @@ def _pseudo_observations(pred, preset, models, j, seed, config, lanes, progress,
                 continue
             except Cancelled:
                 return
-            images[i] = infer._hard_image(pred.camera, x, m.faces)
+            images[i] = infer._hard_image(pred.camera, infer._observed(m, x, p), m.faces)
             _progress(progress, "draws", f"predictive silhouette {i + 1}/{j} draped (the score's null reference)")
 
     if lanes == 1:
@@ -432,11 +432,13 @@ def _joint_drapes(preset, observations, names, k, seed, config, threads, templat
     p_active = fit_effects.active_effect_values(pred.effects)
     mesh = infer.sim.cusick_specimen(pred.level, template_dir=template_dir)
     models = [infer.sim.ClothModel(mesh, heterogeneous=True, density=preset["density_kg_m2"],
-                                   effects={**p_active, **offs}) for _ in range(lanes)]
+                                   effects={**p_active, **offs}, px_per_m=pred.calibration.px_per_m)
+              for _ in range(lanes)]
     renderers = [render.SoftRenderer(pred.camera, sigma=config["render_sigma_px"]) for _ in range(lanes)]
     turned = {n: {**offs[n], **SECOND_DIRECTIONS[n]} for n in names if n in SECOND_DIRECTIONS}
     turned_models = [infer.sim.ClothModel(mesh, heterogeneous=True, density=preset["density_kg_m2"],
-                                          effects={**p_active, **turned}) for _ in range(lanes)] if turned else None
+                                          effects={**p_active, **turned}, px_per_m=pred.calibration.px_per_m)
+                     for _ in range(lanes)] if turned else None
     draws = infer.preset_bend_samples(preset, models[0].num_bending_edges, np.random.default_rng(seed), k)
     keys = [f"{n}.{p['name']}" for n in names for p in reg[n]["parameters"]]
     sigma_obs = float(config["sigma_obs"])
@@ -450,7 +452,7 @@ def _joint_drapes(preset, observations, names, k, seed, config, threads, templat
     # the null reference: P's own predictive silhouettes, as many as there are images (at least PSEUDO_MIN)
     observed = [o.mask for o in observations]
     j = max(PSEUDO_MIN, len(observed))
-    pseudo = _pseudo_observations(pred, preset, models, j, seed, config, lanes, progress, cancel_event)
+    pseudo = _pseudo_observations(pred, preset, models, offs, j, seed, config, lanes, progress, cancel_event)
     if len(pseudo) < PSEUDO_MIN:
         if cancel_event is not None and cancel_event.is_set():
             return pred, models, shapes, grads, time.monotonic() - t0, lanes, pseudo
@@ -461,10 +463,10 @@ def _joint_drapes(preset, observations, names, k, seed, config, threads, templat
     pseudo_pairs = _pairs(len(pseudo))
     observed_pairs = _pairs(len(observed))
 
-    def scores(m, r, image_grads, bend, prefix_keys):
+    def scores(m, r, x, p, image_grads, bend, prefix_keys):
         out = []
         for w in image_grads:
-            g = m.backward(r.backward(w), cancel_event=cancel_event)
+            g = infer._observed_backward(m, x, p, r.backward(w), cancel_event)
             d = {key: float(g[key]) for key in prefix_keys}
             # the nuisance direction: the material's overall bending scale, d data / d log(scale)
             d["bend.log_scale"] = float(np.sum(np.asarray(g["bend"]) * bend))
@@ -488,14 +490,14 @@ def _joint_drapes(preset, observations, names, k, seed, config, threads, templat
                 continue
             except Cancelled:  # mid-rollout: this draw is dropped, the finished ones are kept
                 return
-            hard = infer._hard_image(pred.camera, x, m.faces)
+            hard = infer._hard_image(pred.camera, infer._observed(m, x, p), m.faces)
             nodes = measure.analyse_nodes(measure.r_theta(hard, pred.calibration))
-            r.render(x, m.faces)  # the soft render whose adjoint carries the scores back
+            r.render(infer._observed(m, x, p), m.faces)  # the soft render whose adjoint carries the scores back
             # draws 2m and 2m + 1 share a scatter image: the cross products of their scatter scores estimate the
             # covariance through the mean adjoint (score_test)
             scatter = _scatter_image(i // 2, pseudo, observed, pseudo_pairs, observed_pairs) * scale
             try:
-                g, gu = scores(m, r, [excess, scatter], draws[i], keys)
+                g, gu = scores(m, r, x, p, [excess, scatter], draws[i], keys)
             except Cancelled:
                 return
             shapes[i] = {"x": x, "image": hard, "dc": measure.drape_coefficient(hard, pred.calibration.px_per_m),
@@ -508,9 +510,9 @@ def _joint_drapes(preset, observations, names, k, seed, config, threads, templat
                 try:
                     xt = mt.simulate(pt, mode="dynamic", record=True, velocities0=v0, cancel_event=cancel_event,
                                      **config["dynamic"])
-                    r.render(xt, mt.faces)
+                    r.render(infer._observed(mt, xt, pt), mt.faces)
                     turned_keys = [f"{n}.{reg[n]['parameters'][0]['name']}" for n in turned]
-                    gt, gtu = scores(mt, r, [excess, scatter], draws[i], turned_keys)
+                    gt, gtu = scores(mt, r, xt, pt, [excess, scatter], draws[i], turned_keys)
                 except Cancelled:
                     shapes[i] = None
                     return

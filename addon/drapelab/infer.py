@@ -216,9 +216,11 @@ def _camera_for(kind, calibration, shape):
 class _Worker:
     """One Monte Carlo lane: its own model, solver state (warm start) and renderer."""
 
-    def __init__(self, mesh, heterogeneous, density, stretch, config, camera, plan=None):
+    def __init__(self, mesh, heterogeneous, density, stretch, config, camera, plan=None, px_per_m=720.0):
         self.plan = plan or fit_effects.EffectPlan()
-        self.model = sim.ClothModel(mesh, heterogeneous=heterogeneous, density=density, effects=self.plan.values())
+        self.model = sim.ClothModel(mesh, heterogeneous=heterogeneous, density=density, effects=self.plan.values(),
+                                    px_per_m=px_per_m)
+        self.params = None  # the last drape's parameters (the observation's transforms read them)
         self.stretch = stretch
         self.config = config
         self.renderer = render.SoftRenderer(camera, sigma=config["render_sigma_px"])
@@ -230,6 +232,7 @@ class _Worker:
         depend on which lane ran it) and stores the new one."""
         p = self.model.parameters(stretch=self.stretch, bend=bend,
                                   effects=self.plan.values(effects) if effects is not None else None)
+        self.params = p
         cfg = self.config
         if cfg["forward"] == "static":
             if warm.get(key) is None:  # first solve: the paper's rollout from flat, then Newton to rest
@@ -257,11 +260,25 @@ class _Worker:
         """Data term, dL/dB (shaped like bend), positions, image and dL/d(fitted effect parameters) (a vector in
         the plan's order) for one drape against one observation."""
         x = self.drape(bend, warm, key, velocities0, effects, cancel_event)
-        image = self.renderer.render(x, self.faces)
+        image = self.renderer.render(_observed(self.model, x, self.params), self.faces)
         data, g_image = data_term(image, obs, sigma_obs, sigma_dc, dc_bias)
         g_x = self.renderer.backward(g_image)
-        g = self.model.backward(g_x, cancel_event=cancel_event)
+        g = _observed_backward(self.model, x, self.params, g_x, cancel_event)
         return data, g["bend"], x, image, self.plan.gather(g)
+
+
+def _observed(model, x, params):
+    """The positions the renderer sees (the active effects' measurement transforms; x when none)."""
+    return model.observe(x, params) if model.has_observation else x
+
+
+def _observed_backward(model, x, params, g_observed, cancel_event=None):
+    """Parameter gradients (a split dict) of a loss of the rendered positions _observed(model, x, params), given
+    its gradient there: back through the measurement transforms (camera, offset), then the drape's adjoint."""
+    if not model.has_observation:
+        return model.backward(g_observed, cancel_event=cancel_event)
+    g_x, g_direct = model.observe_backward(x, params, g_observed, flat=True)
+    return model.split(model.backward(g_x, flat=True, cancel_event=cancel_event) + g_direct)
 
 
 class FitJob:
@@ -314,7 +331,7 @@ class FitJob:
         lanes = min(self.threads, max(self.samples, len(self.observations)))
         self.plan = fit_effects.EffectPlan(effects)
         self.workers = [_Worker(self.mesh, heterogeneous, self.density, self.stretch, self.config, self.camera,
-                                self.plan) for _ in range(lanes)]
+                                self.plan, self.observations[0].calibration["px_per_m"]) for _ in range(lanes)]
         self.num_edges = self.workers[0].model.num_bending_edges
         self.theta = self.family.initial(self.log_bend0, self.num_edges, float(self.config["init"]["bdp_std"]))
         # Fitted effect parameters (fit_effects.EffectPlan): their means (MAP values for homo/heter) start at
@@ -459,7 +476,7 @@ class FitJob:
                                  **self.config["dynamic"])
         except SolverError:
             return np.inf
-        img = np.asarray(render.hard_silhouette(self.camera, x, w.faces), dtype=np.float64)
+        img = np.asarray(render.hard_silhouette(self.camera, _observed(w.model, x, params), w.faces), dtype=np.float64)
         return float(np.mean([data_term(img, o, self.sigma_obs, self.sigma_dc)[0] for o in self.observations]))
 
     def scale_search(self, cancel_event=None):
@@ -512,8 +529,9 @@ class FitJob:
         w = self.workers[0]
         bend = self.family.tables(self.theta, self.num_edges)
         effects = self.plan.values(self.theta["effect_mu"]) if self.plan.size else None
-        x = w.model.simulate(w.model.parameters(stretch=self.stretch, bend=bend, effects=effects), mode="dynamic",
-                             record=False, cancel_event=cancel_event, **self.config["dynamic"])
+        p = w.model.parameters(stretch=self.stretch, bend=bend, effects=effects)
+        x = _observed(w.model, w.model.simulate(p, mode="dynamic", record=False, cancel_event=cancel_event,
+                                                **self.config["dynamic"]), p)
         px = self.observations[0].calibration["px_per_m"]
         soft = soft_drape_coefficient(w.renderer.render(x, w.faces), px)[0]
         hard = soft_drape_coefficient(np.asarray(render.hard_silhouette(self.camera, x, w.faces), dtype=float), px)[0]
@@ -1219,7 +1237,8 @@ class _Predictive:
         mesh = sim.cusick_specimen(self.level, template_dir=template_dir)
         self.effects = preset.get("active_effects") or {}
         self.models = [sim.ClothModel(mesh, heterogeneous=True, density=preset["density_kg_m2"],
-                                      effects=fit_effects.active_effect_values(self.effects)) for _ in range(lanes)]
+                                      effects=fit_effects.active_effect_values(self.effects), px_per_m=cal["px_per_m"])
+                       for _ in range(lanes)]
         self.num_edges = self.models[0].num_bending_edges
         self.stretch = np.asarray(preset["stretch_N_m"])
         self.forward = forward or config["evaluate"]["forward"]
@@ -1261,7 +1280,7 @@ def _drape_draws(models, stretch, draws, fwd, mode_opts, placement, seed, camera
             except SolverError as e:  # a draw whose drape fails is reported, not fatal
                 shapes[i] = {"error": str(e)}
                 continue
-            img = _hard_image(camera, x, m.faces)
+            img = _hard_image(camera, _observed(m, x, p), m.faces)
             nodes = measure.analyse_nodes(measure.r_theta(img, cal_obj))
             shapes[i] = {"x": x, "image": img, "dc": measure.drape_coefficient(img, cal_obj.px_per_m),
                          "nodes": nodes.count, "amplitude": nodes.amplitude_m}

@@ -321,7 +321,8 @@ class ClothModel:
 
     def __init__(self, mesh_or_path, heterogeneous=False, density=DEFAULT_DENSITY,
                  handle_stiffness=DEFAULT_HANDLE_STIFFNESS, support_radius=DEFAULT_SUPPORT_RADIUS,
-                 gravity=DEFAULT_GRAVITY, effects=None, held_vertices=None, seams=None, seam_stiffness=1e3):
+                 gravity=DEFAULT_GRAVITY, effects=None, held_vertices=None, seams=None, seam_stiffness=1e3,
+                 px_per_m=720.0):
         mesh = _mesh_arg(mesh_or_path)
         held = [] if held_vertices is None else _index_list(held_vertices, "held_vertices")
         seam_pairs = [] if seams is None or len(seams) == 0 else np.asarray(seams)
@@ -333,10 +334,11 @@ class ClothModel:
         handle_stiffness = _scalar(handle_stiffness, "handle_stiffness", 0.0, unit="N/m")
         support_radius = _scalar(support_radius, "support_radius", 0.0, strictly=True, unit="m")
         gravity = _scalar(gravity, "gravity", 0.0, unit="m/s^2")
+        px_per_m = _scalar(px_per_m, "px_per_m", 0.0, strictly=True, unit="px/m")
         self._native = native.Model(mesh, heterogeneous=bool(heterogeneous), support_radius=support_radius,
                                     gravity=gravity, density=density, handle_stiffness=handle_stiffness,
                                     effects=effect_values(effects), held_vertices=held, seams=seam_pairs,
-                                    seam_stiffness=seam_stiffness)
+                                    seam_stiffness=seam_stiffness, px_per_m=px_per_m)
         self._blocks = {b["name"]: b for b in self._native.layout}
         self._mesh = self._native.mesh
         self._dynamic = None
@@ -566,6 +568,30 @@ class ClothModel:
         """dE/dx (V, 3) in N."""
         g = self._native.gradient(self._positions(positions).ravel(), self._params(params))
         return np.asarray(g).reshape(-1, 3)
+
+    # -- observation (the measurement model: effects' position transforms before the silhouette render)
+    @property
+    def has_observation(self):
+        """True when an active effect transforms positions before the render (offset, camera)."""
+        return bool(self._native.has_observation)
+
+    def observe(self, positions, params):
+        """The positions (V, 3) the silhouette renderer sees: ``positions`` through the active effects' transforms
+        (offset: the tester's frame; camera: scale, centre offset, perspective); a copy when none is active."""
+        x = self._positions(positions)
+        if not self.has_observation:
+            return x.copy()
+        return np.asarray(self._native.observe(x.ravel(), self._params(params))).reshape(-1, 3)
+
+    def observe_backward(self, positions, params, dL_dobserved, flat=False):
+        """(dL/dpositions (V, 3), dL/dparams) of a loss of ``observe(positions, params)`` given its gradient
+        (V, 3); dL/dparams as a ``split`` dict (or the flat vector): the transforms' direct parameter gradient."""
+        x = self._positions(positions)
+        g = self._positions(dL_dobserved, "dL_dobserved")
+        p = self._params(params)
+        gx, gp = self._native.observe_backward(x.ravel(), p, g.ravel())
+        gp = np.asarray(gp)
+        return np.asarray(gx).reshape(-1, 3), (gp if flat else self.split(gp))
 
     # -- simulation
     def simulate(self, params, mode="dynamic", steps=DEFAULT_STEPS, time_step=DEFAULT_TIME_STEP, progress=None,

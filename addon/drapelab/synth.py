@@ -212,7 +212,8 @@ def synth(out, density, effects=None, material=None, count=DEFAULT_COUNT, seed=0
     mesh = sim.cusick_specimen(level, template_dir=template_dir)
     # Builds the model (the native registry checks effect names and ranges, naming "effect.param") before the
     # folder is touched.
-    model = sim.ClothModel(mesh, heterogeneous=per_drape, density=density, effects=effects)
+    model = sim.ClothModel(mesh, heterogeneous=per_drape, density=density, effects=effects,
+                           px_per_m=measure.DATASET_PX_PER_M)
     base = model.parameters(stretch=mat["stretch_N_m"], bend=mat["bend_N_m"], density=density, effects=effects)
     blocks = model.split(base)
     registry = {e["name"]: e["parameters"] for e in sim.effects()}
@@ -275,7 +276,8 @@ def synth(out, density, effects=None, material=None, count=DEFAULT_COUNT, seed=0
                               f"in {out}") from None
         except Cancelled:
             raise Cancelled(f"synth: cancelled after {i} of {count} drapes (kept in {out})") from None
-        mask = np.asarray(render.hard_silhouette(camera, x, model.faces), dtype=np.float64)
+        # the measurement model (camera, offset's tester frame) before the render; the OBJ keeps the drape itself
+        mask = np.asarray(render.hard_silhouette(camera, infer._observed(model, x, p), model.faces), dtype=np.float64)
         silhouette, mesh_path = _relative_paths(sample)
         sim.write_obj(os.path.join(out, mesh_path), x, model.faces)
         measure.write_image(os.path.join(out, silhouette), 1.0 - mask)

@@ -207,8 +207,9 @@ void bind_physics(py::module_& m) {
       .def(py::init([](const TriangleMesh& mesh, bool heterogeneous, double support_radius, double gravity,
                        double density, double handle_stiffness, const EffectValues& effects,
                        const std::vector<int>& held_vertices, const std::vector<std::array<int, 2>>& seams,
-                       double seam_stiffness) {
+                       double seam_stiffness, double px_per_m) {
              ModelOptions o;
+             o.px_per_m = px_per_m;
              o.held_vertices = held_vertices;
              o.seams = seams;
              o.seam_stiffness = seam_stiffness;
@@ -223,7 +224,8 @@ void bind_physics(py::module_& m) {
            py::arg("mesh"), py::arg("heterogeneous") = false, py::arg("support_radius") = 0.09,
            py::arg("gravity") = 9.8, py::arg("density") = 0.192, py::arg("handle_stiffness") = 1e3,
            py::arg("effects") = EffectValues{}, py::arg("held_vertices") = std::vector<int>{},
-           py::arg("seams") = std::vector<std::array<int, 2>>{}, py::arg("seam_stiffness") = 1e3)
+           py::arg("seams") = std::vector<std::array<int, 2>>{}, py::arg("seam_stiffness") = 1e3,
+           py::arg("px_per_m") = 720.0)
       .def("add_body_contact",
            [](Model& s, const std::vector<std::tuple<Eigen::Vector3d, std::vector<double>, std::vector<double>>>& parts,
               const Vector& kappa, double activation) {
@@ -242,6 +244,25 @@ void bind_physics(py::module_& m) {
       .def("set_handle_anchors", &Model::set_handle_anchors, py::arg("anchors"),
            "Moves the handle's anchors (H x 3, metres, in handle_vertices order): a kinematic attachment.")
       .def_property_readonly("active_effects", &Model::active_effects)
+      .def("observe",
+           [](const Model& s, const Vector& x, const Vector& p) {
+             s.validate_parameters(p);
+             return Vector(s.observe(x, p));
+           },
+           py::arg("positions"), py::arg("parameters"),
+           "The positions the silhouette renderer sees (flat 3V): x through the active effects' position "
+           "transforms (offset, camera); x itself when none is active.")
+      .def("observe_backward",
+           [](const Model& s, const Vector& x, const Vector& p, const Vector& gy) {
+             s.validate_parameters(p);
+             Eigen::VectorXd gx = Eigen::VectorXd::Zero(s.num_dofs()), gp = Eigen::VectorXd::Zero(p.size());
+             s.add_observe_vjp(x, p, gy, gx, gp);
+             return py::make_tuple(Vector(gx), Vector(gp));
+           },
+           py::arg("positions"), py::arg("parameters"), py::arg("dL_dobserved"),
+           "(dL/dx (3V), dL/dp (the layout's size)) of a loss of the observed positions.")
+      .def_property_readonly("has_observation", &Model::has_observation)
+      .def_property_readonly("px_per_m", [](const Model& s) { return s.options().px_per_m; })
       .def_property_readonly("num_vertices", &Model::num_vertices)
       .def_property_readonly("num_dofs", &Model::num_dofs)
       .def_property_readonly("num_faces", [](const Model& s) { return s.mesh().num_faces(); })

@@ -37,7 +37,10 @@ def register(subparsers):
                    help="skip the bdp drape calibration (fit.json calibration.enabled false)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", required=True, metavar="PRESET.json")
-    p.add_argument("--camera", choices=["ortho", "perspective"], default="ortho")
+    p.add_argument("--camera", choices=["ortho", "perspective"], default="ortho",
+                   help="shorthand for the camera effect: perspective = camera.inv_distance_per_m fixed at "
+                        "1/0.7 m (the paper's camera height) on the images' calibration; ortho = the calibration "
+                        "as it is. Any other camera model: --effects camera.PARAM=VALUE (or a bare camera: fitted)")
     p.add_argument("--mesh-level", type=int, default=None, choices=[1, 2, 3, 4, 5],
                    help="Cusick template mesh circleN used for simulation (default from fit.json)")
     p.add_argument("--config", default=None, metavar="FIT.json", help="fit settings (default addon/drapelab/config/fit.json)")
@@ -50,11 +53,30 @@ def register(subparsers):
     p.set_defaults(func=run)
 
 
+PAPER_CAMERA_HEIGHT_M = 0.7  # the paper's released scripts: eye 0.7 m above the support (render.perspective_camera)
+
+
+def camera_shorthand(camera, effects):
+    """--camera as the camera effect (CONVENTIONS.md: the effect is the one place the measurement model is set):
+    'perspective' fixes camera.inv_distance_per_m at 1 / PAPER_CAMERA_HEIGHT_M; 'ortho' changes nothing."""
+    from .._native import InputError
+
+    if camera != "perspective":
+        return effects
+    effects = dict(effects or {})
+    given = effects.get("camera")
+    if given is not None and (not given or "inv_distance_per_m" in given):
+        raise InputError("--camera perspective and --effects camera both set the perspective; give one "
+                         "(e.g. --effects camera.inv_distance_per_m=1.43)")
+    effects["camera"] = {**(given or {}), "inv_distance_per_m": 1.0 / PAPER_CAMERA_HEIGHT_M}
+    return effects
+
+
 def run(args):
     from .. import infer, measure, sim
 
     measure.check_output_path(args.out, "preset")
-    effects = sim.parse_effects_arg(args.effects, bare=None)  # {name: {}}: fitted; values: fixed
+    effects = camera_shorthand(args.camera, sim.parse_effects_arg(args.effects, bare=None))
     config = infer.load_config(args.config)
     if args.no_calibration:
         config["calibration"] = dict(config.get("calibration") or {}, enabled=False)
@@ -86,7 +108,7 @@ def run(args):
                            plan_progress=plan_progress,
                            cancel_event=cancel,
                            fabric={"name": args.name} if args.name else None, config=config,
-                           camera=args.camera, mesh_level=args.mesh_level, threads=args.threads, effects=effects)
+                           camera="ortho", mesh_level=args.mesh_level, threads=args.threads, effects=effects)
     except infer.Cancelled:
         print(f"fit cancelled; the last checkpoint is {checkpoint} (resume with --resume)", file=sys.stderr)
         return 130

@@ -81,6 +81,9 @@ struct BaseTermChanges {
   // The handle holds the vertices whose rest radius is below this [m] instead of the model's support radius
   // (disk_contact: a small centre clamp; the rest of the specimen lies on the support disk). NaN: unchanged.
   double handle_radius = std::nan("");
+  // The effect builds the support's hold itself (offset: a smooth hold of the disk shifted under the specimen),
+  // so the model adds no HandleTerm. handle_vertices() stays the base set.
+  bool handle_replaced = false;
 };
 
 }  // namespace drapelab

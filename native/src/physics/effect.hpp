@@ -55,6 +55,19 @@ struct EffectContext {
   const ModelOptions& options;
 };
 
+// A transform of positions before the silhouette render (the measurement model: `camera`; the tester's frame:
+// `offset`), y = T(x; p), vertex by vertex (3V -> 3V). Active effects' transforms compose in registry order
+// (Model::observe). At the effect's off values T is the identity bit for bit. `add_vjp` adds the
+// vector-Jacobian products g_y^T dT/dx to g_x and g_y^T dT/dp to g_p (exact; tests/native/physics/test_effects.cpp
+// checks them against central differences for every effect that has one).
+class PositionTransform {
+ public:
+  virtual ~PositionTransform() = default;
+  virtual void apply(const Eigen::VectorXd& x, const Eigen::VectorXd& p, Eigen::VectorXd& y) const = 0;
+  virtual void add_vjp(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& gy,
+                       Eigen::VectorXd& gx, Eigen::VectorXd& gp) const = 0;
+};
+
 struct EffectSpec {
   std::string name;
   std::string explanation;  // one plain line: what physical cause it models
@@ -67,6 +80,9 @@ struct EffectSpec {
   // True for an effect that acts only over a dynamic rollout's time steps (damping): a static drape is the same
   // with or without it (its terms are zero at h = 0), and sim's static simulate says so.
   bool dynamic_only = false;
+  // Optional: the transform of positions the effect applies before the silhouette render (see
+  // PositionTransform); empty for effects that change only the physics.
+  std::function<std::unique_ptr<PositionTransform>(const EffectContext&)> make_observation;
 };
 
 // Effect name -> parameter name -> value; an effect present here is active (missing parameters take their

@@ -104,12 +104,18 @@ Model::Model(const TriangleMesh& mesh, const ModelOptions& options) : mesh_(mesh
   terms_.push_back(std::make_unique<StretchTerm>(mesh_, stretch_off, shared, changes.stretch_rest));
   terms_.push_back(std::make_unique<BendTerm>(mesh_, edges_, bend_off, shared, changes.bend, changes.bend_rest));
   terms_.push_back(std::make_unique<GravityTerm>(area_weights_, density_off, options.gravity));
-  auto handle = std::make_unique<HandleTerm>(handle_vertices_, anchors, handle_off);
-  handle_ = handle.get();
-  terms_.push_back(std::move(handle));
+  if (!changes.handle_replaced) {
+    auto handle = std::make_unique<HandleTerm>(handle_vertices_, anchors, handle_off);
+    handle_ = handle.get();
+    terms_.push_back(std::move(handle));
+  }
   if (!options.seams.empty()) terms_.push_back(std::make_unique<SeamTerm>(options.seams, options.seam_stiffness));
-  for (const std::string& name : active_effects_)
-    for (auto& t : find_effect(name).make_terms(context)) terms_.push_back(std::move(t));
+  for (const std::string& name : active_effects_) {
+    const EffectSpec& spec = find_effect(name);
+    if (spec.make_terms)
+      for (auto& t : spec.make_terms(context)) terms_.push_back(std::move(t));
+    if (spec.make_observation) observations_.push_back(spec.make_observation(context));
+  }
 
   std::vector<std::vector<int>> stencils;
   for (const auto& t : terms_) {
@@ -134,7 +140,44 @@ Model::Model(const TriangleMesh& mesh, const ModelOptions& options) : mesh_(mesh
   validate_parameters(defaults_);
 }
 
+Eigen::VectorXd Model::observe(const Eigen::VectorXd& x, const Eigen::VectorXd& p) const {
+  if (x.size() != num_dofs())
+    throw InputError("observe: expected " + std::to_string(num_dofs()) + " position values, got " +
+                     std::to_string(x.size()));
+  Eigen::VectorXd y = x, next(x.size());
+  for (const auto& t : observations_) {
+    t->apply(y, p, next);
+    y.swap(next);
+  }
+  return y;
+}
+
+void Model::add_observe_vjp(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& gy,
+                            Eigen::VectorXd& gx, Eigen::VectorXd& gp) const {
+  if (x.size() != num_dofs() || gy.size() != num_dofs() || gx.size() != num_dofs() || gp.size() != layout_.size())
+    throw InputError("observe: position, gradient or parameter vector of the wrong size");
+  if (observations_.empty()) {
+    gx += gy;
+    return;
+  }
+  // The inputs of each transform (forward again), then the chain backwards.
+  std::vector<Eigen::VectorXd> inputs{x};
+  for (size_t k = 0; k + 1 < observations_.size(); ++k) {
+    Eigen::VectorXd next(x.size());
+    observations_[k]->apply(inputs.back(), p, next);
+    inputs.push_back(std::move(next));
+  }
+  Eigen::VectorXd g = gy;
+  for (size_t k = observations_.size(); k-- > 0;) {
+    Eigen::VectorXd gin = Eigen::VectorXd::Zero(x.size());
+    observations_[k]->add_vjp(inputs[k], p, g, gin, gp);
+    g.swap(gin);
+  }
+  gx += g;
+}
+
 void Model::set_handle_anchors(const MatrixX3d& anchors) {
+  if (handle_ == nullptr) throw InputError("handle anchors: an effect (offset) replaces the handle; it has no anchors");
   if (anchors.rows() != static_cast<Eigen::Index>(handle_vertices_.size()))
     throw InputError("handle anchors: expected " + std::to_string(handle_vertices_.size()) + " rows, got " +
                      std::to_string(anchors.rows()));

@@ -32,6 +32,9 @@ struct ModelOptions {
   // Garments: pairs of seam vertices (one per pattern piece) held together (physics/seam.hpp).
   std::vector<std::array<int, 2>> seams;
   double seam_stiffness = 1e3;  // N/m per seam pair
+  // The images' calibration (px per metre at the support's plane): the `camera` effect converts its pixel
+  // offsets with it. 720: the bundled Cusick data.
+  double px_per_m = 720.0;
 };
 
 class HandleTerm;
@@ -61,6 +64,14 @@ class Model {
   void set_handle_anchors(const MatrixX3d& anchors);
   // Names of the active effects, in registry order.
   const std::vector<std::string>& active_effects() const { return active_effects_; }
+
+  // The positions the silhouette renderer sees: x through the active effects' position transforms (offset:
+  // the tester's frame; camera: the measurement model), in registry order; x itself when none is active.
+  Eigen::VectorXd observe(const Eigen::VectorXd& x, const Eigen::VectorXd& p) const;
+  // Adds g_y^T d observe/dx to gx and g_y^T d observe/dp to gp (gx: 3V, gp: the layout's size).
+  void add_observe_vjp(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& gy,
+                       Eigen::VectorXd& gx, Eigen::VectorXd& gp) const;
+  bool has_observation() const { return !observations_.empty(); }
 
   // Rest positions, flattened (3V), metres.
   Eigen::VectorXd rest_positions() const;
@@ -102,6 +113,7 @@ class Model {
   std::vector<int> handle_vertices_;
   std::vector<std::string> active_effects_;
   std::vector<std::unique_ptr<Term>> terms_;
+  std::vector<std::unique_ptr<PositionTransform>> observations_;  // active effects' transforms, registry order
   HandleTerm* handle_ = nullptr;  // owned by terms_
   SparsePattern pattern_;
 };

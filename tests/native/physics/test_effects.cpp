@@ -82,6 +82,7 @@ TEST_P(EffectSuite, OffValueIsTheBaseModelBitForBit) {
   base.add_gradient(x, pb, gb);
   off.add_gradient(x, po, go);
   EXPECT_EQ(gb, go);
+  EXPECT_EQ(base.observe(x, pb), off.observe(x, po)) << "observation (Model::observe) differs at the off value";
   RolloutOptions ro;
   ro.steps = 5;
   ImplicitEuler sb(base), so(off);
@@ -219,6 +220,37 @@ TEST_P(EffectSuite, TermDerivativesMatchCentralDifferencesAtModerateStrength) {
   }
 }
 
+// An effect's position transform before the render (EffectSpec::make_observation: camera, offset): its
+// vector-Jacobian products in positions and in every parameter against central differences.
+TEST_P(EffectSuite, ObservationDerivativesMatchCentralDifferences) {
+  const EffectSpec& spec = find_effect(GetParam());
+  if (!spec.make_observation) GTEST_SKIP() << "no observation";
+  ModelOptions o;
+  o.effects = moderate_effect_values(spec, 23);
+  Model model(make_cusick_specimen(60), o);
+  ASSERT_TRUE(model.has_observation());
+  const Eigen::VectorXd p = model.default_parameters();
+  Eigen::VectorXd x = perturbed_positions(model, 2e-3, 6);
+  for (int i = 0; i < model.num_vertices(); ++i) x[3 * i + 2] -= 0.05 * model.mesh().uv.row(i).norm();  // a skirt
+  const int n = model.num_dofs(), np = static_cast<int>(p.size());
+  const Eigen::VectorXd gy = random_vector(n, 401), d = random_vector(n, 402);
+  Eigen::VectorXd gx = Eigen::VectorXd::Zero(n), gp = Eigen::VectorXd::Zero(np);
+  model.add_observe_vjp(x, p, gy, gx, gp);
+  const Eigen::VectorXd y = model.observe(x, p);
+  EXPECT_GT((y - x).norm(), 1e-6) << "the observation at a moderate strength changes the positions";
+  const double eps = 1e-6;
+  const double fdx = (gy.dot(model.observe(x + eps * d, p)) - gy.dot(model.observe(x - eps * d, p))) / (2 * eps);
+  EXPECT_NEAR(gx.dot(d), fdx, 1e-7 * std::max(1.0, std::abs(fdx))) << "d/dx";
+  for (int k = 0; k < np; ++k) {
+    const double h = 1e-6 * std::max(1.0, std::abs(p[k]));
+    Eigen::VectorXd pp = p, pm = p;
+    pp[k] += h;
+    pm[k] -= h;
+    const double fd = (gy.dot(model.observe(x, pp)) - gy.dot(model.observe(x, pm))) / (2 * h);
+    EXPECT_NEAR(gp[k], fd, 1e-6 * std::max(1.0, std::abs(fd))) << "d/dp[" << k << "]";
+  }
+}
+
 TEST_P(EffectSuite, DrapeAdjointsMatchCentralDifferencesInTheEffectParameters) {
   const EffectSpec& spec = find_effect(GetParam());
   ModelOptions o;
@@ -227,6 +259,15 @@ TEST_P(EffectSuite, DrapeAdjointsMatchCentralDifferencesInTheEffectParameters) {
   const Eigen::VectorXd p = model.default_parameters();
   const Eigen::VectorXd w = random_vector(model.num_dofs(), 8);
   const std::vector<int> idx = effect_indices(model, spec);
+  // L = w . observe(x(p), p): the drape's adjoint of dL/dx plus the observation's direct dL/dp (identity and 0
+  // for effects without one).
+  auto loss = [&](const Eigen::VectorXd& x, const Eigen::VectorXd& pp) { return w.dot(model.observe(x, pp)); };
+  auto chain = [&](const Eigen::VectorXd& x, const Eigen::VectorXd& pp, Eigen::VectorXd& direct) {
+    Eigen::VectorXd gx = Eigen::VectorXd::Zero(model.num_dofs());
+    direct = Eigen::VectorXd::Zero(pp.size());
+    model.add_observe_vjp(x, pp, w, gx, direct);
+    return gx;
+  };
   // Dynamic rollout (20 steps of 0.05 s); with contact, in both step modes (linearised, Newton to the minimiser).
   ImplicitEuler sim(model);
   const bool contact = has_contact(model);
@@ -236,8 +277,10 @@ TEST_P(EffectSuite, DrapeAdjointsMatchCentralDifferencesInTheEffectParameters) {
     RolloutOptions ro;
     ro.steps = 20;
     ro.contact_step = mode;
-    sim.forward(p, ro);
-    const RolloutGradient g = sim.backward(w);
+    const Eigen::VectorXd xf = sim.forward(p, ro);
+    Eigen::VectorXd direct;
+    RolloutGradient g = sim.backward(chain(xf, p, direct));
+    g.parameters += direct;
     RolloutOptions fo = ro;
     fo.record = false;
     // Step 1e-6 in the parameter's own scale (its prior scale, when below 1): the rollout map is only piecewise
@@ -249,7 +292,7 @@ TEST_P(EffectSuite, DrapeAdjointsMatchCentralDifferencesInTheEffectParameters) {
       Eigen::VectorXd pp = p, pm = p;
       pp[idx[k]] += h;
       pm[idx[k]] -= h;
-      const double fd = (w.dot(sim.forward(pp, fo)) - w.dot(sim.forward(pm, fo))) / (2 * h);
+      const double fd = (loss(sim.forward(pp, fo), pp) - loss(sim.forward(pm, fo), pm)) / (2 * h);
       EXPECT_NEAR(g.parameters[idx[k]], fd, adjoint_tolerance(spec, g.parameters, idx, k, fd))
           << label << spec.parameters[k].name;
     }
@@ -259,7 +302,8 @@ TEST_P(EffectSuite, DrapeAdjointsMatchCentralDifferencesInTheEffectParameters) {
   StaticOptions tight;
   tight.force_tolerance = 1e-10;
   const StaticResult r = solver.solve(p, tight);
-  const Eigen::VectorXd gs = solver.adjoint(w);
+  Eigen::VectorXd direct;
+  const Eigen::VectorXd gs = solver.adjoint(chain(r.positions, p, direct)) + direct;
   // Step 1e-4 in the parameter's own scale (its prior scale, when below 1): each solve stops at a residual of
   // 1e-10 vertex weights, so L carries noise of ~1e-10 relative, amplified by 1/h; the truncation error is
   // O(h^2). Both stay below 1e-5 relative here, against the 1e-4 tolerance (at h = 1e-7 the noise alone reached
@@ -271,8 +315,8 @@ TEST_P(EffectSuite, DrapeAdjointsMatchCentralDifferencesInTheEffectParameters) {
     Eigen::VectorXd pp = p, pm = p;
     pp[idx[k]] += h;
     pm[idx[k]] -= h;
-    const double lp = w.dot(solver.solve(pp, tight, nullptr, &r.positions).positions);
-    const double lm = w.dot(solver.solve(pm, tight, nullptr, &r.positions).positions);
+    const double lp = loss(solver.solve(pp, tight, nullptr, &r.positions).positions, pp);
+    const double lm = loss(solver.solve(pm, tight, nullptr, &r.positions).positions, pm);
     const double fd = (lp - lm) / (2 * h);
     EXPECT_NEAR(gs[idx[k]], fd, adjoint_tolerance(spec, gs, idx, k, fd)) << "static, " << spec.parameters[k].name;
   }
