@@ -115,21 +115,23 @@ def test_score_test_statistic():
     assert noisy["statistic"] < exact["statistic"] / 5
 
 
-def test_tilted_drape_ranks_tilt_first_and_the_control_is_clean(images, tmp_path):
+def test_tilted_drape_finds_the_shift_family_and_the_control_is_clean(images, tmp_path):
     # Fabric 2's preset on circle1, images of its mean material draped once (placement seed 0), K = 16 draws.
-    # Measured: tilt T^2 35.8, p 9.2e-5, first; control: smallest p 0.046 (density_variation), nothing
-    # significant. Not every placement is this clean (docs/diagnose.md, 9 seeds): the tilt was first and
-    # significant in 6 of 9 (seed 2: p 0.26, not first), other candidates passed the threshold too in 2 (seed 1:
-    # density_variation, prestrain), and one control of 9 had a significant candidate (seed 3:
-    # heterogeneity_map, p 2.8e-4). With 12 draws (seed 0) tilt was first but p 0.094.
+    # Measured (excess score, 2026-11-23): tilted drape offset T^2 103 p 1e-6, camera 118 p 2.6e-5, tilt 28
+    # p 7.9e-4, then density_variation 0.023; control: smallest p 0.074 (prestrain), camera 0.14. On one image a
+    # tilted tester, an off-centre specimen and a shifted camera centre all move the silhouette sideways: the score
+    # test says that the data differ, the refits (MAX_REFITS, the CLI test runs one) say which
+    # (docs/diagnose.md).
     cfg = small_config()
     out = str(tmp_path / "tilt")
     tilt = diagnose.diagnose(PRESET, [images["tilt"]], samples=16, seed=0, config=cfg, mesh_level=1,
                              time_budget=1.0, out_dir=out)  # no time for a refit: the CLI test runs one
     assert sorted(e["effect"] for e in tilt["ranking"]) == sorted(fit_effects.registry())
-    assert tilt["ranking"][0]["effect"] == "tilt", tilt["ranking"]
     tested = sum(not e["switch"] for e in tilt["ranking"])  # Bonferroni over the score-tested effects
-    assert tilt["ranking"][0]["p_value"] < tilt["threshold"] == pytest.approx(0.01 / tested)
+    assert tilt["threshold"] == pytest.approx(0.01 / tested)
+    significant = {e["effect"] for e in tilt["ranking"] if e["p_value"] is not None and e["p_value"] < tilt["threshold"]}
+    assert "tilt" in significant and significant <= {"tilt", "offset", "camera"}, tilt["ranking"]
+    assert {e["effect"] for e in tilt["ranking"][:diagnose.MAX_REFITS]} == {"tilt", "offset", "camera"}
     control = diagnose.diagnose(PRESET, [images["control"]], samples=16, seed=0, config=cfg, mesh_level=1,
                                 time_budget=1.0)
     assert control["recommended"] is None
