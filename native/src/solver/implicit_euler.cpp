@@ -231,9 +231,8 @@ constexpr double kOffpatternTolerance = 1e-10;
 constexpr int kOffpatternMaxIterations = 200;
 // The Newton directions of the contact step only need to descend (the line search and the residual test decide):
 // CG stops at this relative residual (inexact Newton: a forcing term this small keeps the local convergence),
-// and a capped CG's iterate is used up to kInexactDirection.
+// and a capped CG's iterate is used if it descends.
 constexpr double kNewtonDirectionTolerance = 1e-6;
-constexpr double kInexactDirection = 1e-3;
 // Linearised contact steps: the shortest cut move (a fraction of the linearised move) before the step gives up.
 constexpr double kMinCut = 1.0 / (1 << 30);
 // The remainder that goes with contact_matrix's kind.
@@ -322,7 +321,11 @@ Eigen::VectorXd ImplicitEuler::contact_step(const Eigen::VectorXd& p, const Roll
     double solve_seconds = 0;
     const int first_kind = (last_kind == 0 || ++since_probe % 4 == 0) ? 0 : last_kind;
     if (first_kind == 0) since_probe = 0;
-    for (int kind = first_kind; kind < 4 && !factorised; ++kind) {
+    // From the last kind that worked up; failing all those, the ones before it.
+    for (int k = 0; k < 4 && !factorised; ++k) {
+      const int kind = (first_kind + k) % 4;
+      if (k > 0 && kind == 0 && debug_crossing)
+        std::fprintf(stderr, "step %d it %d kinds %d-3 failed: from 0\n", step, it, first_kind);
       contact_matrix(kind, x, p, inv_h2, m, A);
       factorised = solver_.factorize(A);
       ++timing_.factorizations;
@@ -336,10 +339,9 @@ Eigen::VectorXd ImplicitEuler::contact_step(const Eigen::VectorXd& p, const Roll
           bool solved = solve_with_offpattern(model_, solver_, A, x, p, offpattern_operator(kind), g, y,
                                               kNewtonDirectionTolerance, kOffpatternMaxIterations, &cg);
           // CG that ran out of iterations on a definite operator still gives a descent direction (every CG
-          // iterate does): an inexact Newton step, if it is close to the direction (a stiff contact's
-          // ill-conditioned operator; before, the step failed as "not positive definite").
-          if (!solved && cg.iterations == kOffpatternMaxIterations && cg.relative_residual <= kInexactDirection)
-            solved = y.allFinite();
+          // iterate does): an inexact Newton step (a stiff contact's ill-conditioned operator; before, the step
+          // failed as "not positive definite").
+          if (!solved && cg.iterations == kOffpatternMaxIterations) solved = y.allFinite();
           timing_.cg_iterations += cg.iterations;
           factorised = solved && g.dot(y) > 0;
           if (debug_crossing && !factorised)
