@@ -232,7 +232,7 @@ constexpr int kOffpatternMaxIterations = 200;
 // The Newton directions of the contact step only need to descend (the line search and the residual test decide):
 // CG stops at this relative residual (inexact Newton: a forcing term this small keeps the local convergence),
 // and a capped CG's iterate is used if it descends.
-constexpr double kNewtonDirectionTolerance = 1e-6;
+constexpr double kNewtonDirectionTolerance = 1e-3;
 // Linearised contact steps: the shortest cut move (a fraction of the linearised move) before the step gives up.
 constexpr double kMinCut = 1.0 / (1 << 30);
 // The remainder that goes with contact_matrix's kind.
