@@ -171,3 +171,31 @@ def test_cli_writes_caches_objs_stats_and_a_render(tmp_path, capsys):
     assert png.stat().st_size > 10_000
     assert cli.main(["drape", "--preset", WOOL, "--body", "robot.obj", "--out", str(tmp_path / "x")]) == 2
     assert "only the bundled dress form" in capsys.readouterr().err
+
+
+def test_a_soft_fabric_step_with_an_ill_conditioned_contact_operator_converges():
+    """2k viscose walking, frame 10 (its state saved in data/): the first Newton direction's CG (self contact's
+    couplings, preconditioned with the assembled part) ran out of iterations at a relative residual of 1.5e-8 and
+    the step failed as "contact Newton matrix is not positive definite"; a capped CG's iterate still descends."""
+    g = skirt.make_skirt("flared", vertices=2000)
+    body = bodymod.make_body()
+    m = material.sample_garment_material(VISCOSE, g, seed=0)[0]
+    model, params, contact, welded = simulate.build_model(g, m, body)
+    state = np.load(os.path.join(os.path.dirname(__file__), "data", "garment_viscose_walk_2k_frame10.npz"))
+    x, v = state["x"], state["v"].copy()
+    assert sim.contact_report(welded.faces, x, max_listed=0)["intersecting_pairs"] == 0
+    fps, n, frame = simulate.DEFAULT_FPS, simulate.DEFAULT_SUBSTEPS, 10
+    h = 1.0 / (fps * n)
+    transforms = bodymod.part_transforms(body, "walk", (frame - 1 + np.arange(2) / n) / fps, fps)
+    waist = np.asarray(model.handle_vertices)
+    rest = welded.positions[waist]
+    start, end = transforms[0, 0], transforms[1, 0]
+    a0, a1 = rest @ start[:3, :3].T + start[:3, 3], rest @ end[:3, :3].T + end[:3, 3]
+    model.set_handle_anchors(a1)
+    v[waist] = (a1 - a0) / h
+    contact.set_poses(list(transforms[0]), list(transforms[1]))
+    x1 = model.simulate(params, steps=1, time_step=h, record=False, positions0=x, velocities0=v,
+                        contact_force_tolerance=simulate.FORCE_TOLERANCE, contact_step="newton")
+    assert np.isfinite(x1).all() and np.abs(x1 - x).max() > 0
+    assert np.asarray(contact.clearance(x1.ravel())).min() > 0
+    assert sim.contact_report(welded.faces, x1, max_listed=0)["intersecting_pairs"] == 0

@@ -240,6 +240,10 @@ constexpr double kNegligibleMove = 1e-9;
 // adjoints): far below the Newton iterations' own accuracy.
 constexpr double kOffpatternTolerance = 1e-10;
 constexpr int kOffpatternMaxIterations = 200;
+// The Newton directions of the contact step only need to descend (the line search and the residual test decide):
+// CG stops at this relative residual (inexact Newton: a forcing term this small keeps the local convergence),
+// and a capped CG's iterate is used if it descends.
+constexpr double kNewtonDirectionTolerance = 1e-3;
 // Linearised contact steps: the shortest cut move (a fraction of the linearised move) before the step gives up.
 constexpr double kMinCut = 1.0 / (1 << 30);
 // The remainder that goes with contact_matrix's kind.
@@ -274,6 +278,19 @@ Eigen::VectorXd ImplicitEuler::contact_step(const Eigen::VectorXd& p, const Roll
   const bool offpattern = has_offpattern_terms(model_);
   Eigen::VectorXd x = x_, g, A, dx, xn;
   for (const auto& t : model_.terms()) t->carry_start(x);
+  const bool debug_crossing = std::getenv("DRAPELAB_DEBUG_CROSSING") != nullptr;
+  auto crossed = [&](const Eigen::VectorXd& y, const char* where) {
+    if (!debug_crossing) return;
+    for (const auto& t : model_.terms()) {
+      try {
+        t->begin_step(y, p, h);
+      } catch (const std::exception& e) {
+        std::fprintf(stderr, "step %d CROSSED %s: %s\n", step, where, e.what());
+      }
+      t->begin_step(x_, p, h);
+    }
+  };
+  crossed(x, "after carry_start");
   double Phi = potential(x);
   if (!std::isfinite(Phi)) {
     std::ostringstream s;
@@ -292,10 +309,14 @@ Eigen::VectorXd ImplicitEuler::contact_step(const Eigen::VectorXd& p, const Roll
     if (std::isfinite(Pn) && Pn < Phi) {
       x = xn;
       Phi = Pn;
+      crossed(x, "after the inertial start");
     }
   }
   gradient(x, g);
-  int exact_fails = 0;  // the exact Hessian is tried again only after it factorised (or every 4th iteration)
+  // Each iteration starts with the matrix kind that served the last one (every 4th iteration tries from the exact
+  // Hessian again): a kind that did not factorise usually fails again next iteration, and each failure costs an
+  // assembly and a factorisation (soft viscose walking: kinds 0-2 failed in most iterations, 4 factorisations each).
+  int last_kind = 0, since_probe = 0;
   for (int it = 0; it < options.contact_max_iterations; ++it) {
     const double r = residual(g);
     if (r < options.contact_force_tolerance) break;
@@ -309,26 +330,41 @@ Eigen::VectorXd ImplicitEuler::contact_step(const Eigen::VectorXd& p, const Roll
     // preconditioned CG (solver/contact_linear_solve.hpp); an indefinite full operator moves on to the next kind.
     bool factorised = false;
     double solve_seconds = 0;
-    for (int kind = (exact_fails % 4 == 0 ? 0 : 1); kind < 4 && !factorised; ++kind) {
+    const int first_kind = (last_kind == 0 || ++since_probe % 4 == 0) ? 0 : last_kind;
+    if (first_kind == 0) since_probe = 0;
+    // From the last kind that worked up; failing all those, the ones before it.
+    for (int k = 0; k < 4 && !factorised; ++k) {
+      const int kind = (first_kind + k) % 4;
+      if (k > 0 && kind == 0 && debug_crossing)
+        std::fprintf(stderr, "step %d it %d kinds %d-3 failed: from 0\n", step, it, first_kind);
       contact_matrix(kind, x, p, inv_h2, m, A);
       factorised = solver_.factorize(A);
       ++timing_.factorizations;
+      if (debug_crossing && !factorised) std::fprintf(stderr, "step %d it %d kind %d not factorised\n", step, it, kind);
       if (factorised) {
         const auto ts = std::chrono::steady_clock::now();
         if (offpattern) {
           Eigen::VectorXd y;
           // an indefinite full operator may still let CG finish: a direction that does not descend moves on too
-          factorised = solve_with_offpattern(model_, solver_, A, x, p, offpattern_operator(kind), g, y,
-                                             kOffpatternTolerance) &&
-                       g.dot(y) > 0;
+          OffpatternSolveStats cg;
+          bool solved = solve_with_offpattern(model_, solver_, A, x, p, offpattern_operator(kind), g, y,
+                                              kNewtonDirectionTolerance, kOffpatternMaxIterations, &cg);
+          // CG that ran out of iterations on a definite operator still gives a descent direction (every CG
+          // iterate does): an inexact Newton step (a stiff contact's ill-conditioned operator; before, the step
+          // failed as "not positive definite").
+          if (!solved && cg.iterations == kOffpatternMaxIterations) solved = y.allFinite();
+          timing_.cg_iterations += cg.iterations;
+          factorised = solved && g.dot(y) > 0;
+          if (debug_crossing && !factorised)
+            std::fprintf(stderr, "step %d it %d kind %d CG %s after %d iterations (relative residual %.3g), g.y %.3g\n",
+                         step, it, kind, solved ? "solved" : "failed", cg.iterations, cg.relative_residual, g.dot(y));
           dx = -y;
         } else {
           dx = -solver_.solve(g);
         }
         solve_seconds += seconds_since(ts);
       }
-      if (kind == 0) exact_fails = factorised ? 0 : exact_fails + 1;
-      else if (kind == 1 && exact_fails > 0) ++exact_fails;
+      if (factorised) last_kind = kind;
     }
     if (!factorised) {
       std::ostringstream s;
@@ -345,6 +381,7 @@ Eigen::VectorXd ImplicitEuler::contact_step(const Eigen::VectorXd& p, const Roll
     }
     double alpha = 1.0;
     for (const auto& t : model_.terms()) alpha = std::min(alpha, t->max_step(x, dx, p));
+    const double bound = alpha;  // collision detection's bound: no move beyond it
     const double slope = g.dot(dx);
     bool accepted = false;
     for (; alpha > kMinStep; alpha *= 0.5) {
@@ -354,6 +391,7 @@ Eigen::VectorXd ImplicitEuler::contact_step(const Eigen::VectorXd& p, const Roll
         x = xn;
         Phi = Pn;
         accepted = true;
+        crossed(x, "after a line search");
         break;
       }
     }
@@ -362,12 +400,15 @@ Eigen::VectorXd ImplicitEuler::contact_step(const Eigen::VectorXd& p, const Roll
                    [&] { double c = 1; for (const auto& t : model_.terms()) c = std::min(c, t->max_step(x, dx, p)); return c; }(),
                    accepted ? alpha : 0.0, dx.lpNorm<Eigen::Infinity>());
     if (!accepted) {
-      // Round-off: the potential no longer resolves the decrease; accept a step that lowers the residual.
-      xn = x + dx * std::min(1.0, alpha * 2);
+      // Round-off: the potential no longer resolves the decrease; accept a step that lowers the residual: the
+      // last one tried, within the collision bound (a bound below kMinStep tried none: 2 alpha would exceed it).
+      xn = x + dx * std::min(bound, alpha * 2);
       Eigen::VectorXd gn;
       gradient(xn, gn);
+      if (debug_crossing) std::fprintf(stderr, "step %d it %d round-off fallback alpha %.3g\n", step, it, alpha);
       if (std::isfinite(potential(xn)) && residual(gn) < r) {
         x = xn;
+        crossed(x, "after the round-off fallback");
         Phi = potential(x);
         g = gn;
         continue;
