@@ -317,6 +317,7 @@ Eigen::VectorXd ImplicitEuler::contact_step(const Eigen::VectorXd& p, const Roll
   // Hessian again): a kind that did not factorise usually fails again next iteration, and each failure costs an
   // assembly and a factorisation (soft viscose walking: kinds 0-2 failed in most iterations, 4 factorisations each).
   int last_kind = 0, since_probe = 0;
+  bool probe_exact = false;
   for (int it = 0; it < options.contact_max_iterations; ++it) {
     const double r = residual(g);
     if (r < options.contact_force_tolerance) break;
@@ -330,8 +331,10 @@ Eigen::VectorXd ImplicitEuler::contact_step(const Eigen::VectorXd& p, const Roll
     // preconditioned CG (solver/contact_linear_solve.hpp); an indefinite full operator moves on to the next kind.
     bool factorised = false;
     double solve_seconds = 0;
-    const int first_kind = (last_kind == 0 || ++since_probe % 4 == 0) ? 0 : last_kind;
+    const int first_kind = (last_kind == 0 || probe_exact || ++since_probe % 4 == 0) ? 0 : last_kind;
     if (first_kind == 0) since_probe = 0;
+    const bool probed = probe_exact;
+    probe_exact = false;
     // From the last kind that worked up; failing all those, the ones before it.
     for (int k = 0; k < 4 && !factorised; ++k) {
       const int kind = (first_kind + k) % 4;
@@ -374,10 +377,15 @@ Eigen::VectorXd ImplicitEuler::contact_step(const Eigen::VectorXd& p, const Roll
     timing_.factorize += seconds_since(t0) - solve_seconds;
     timing_.solve += solve_seconds;
     ++timing_.newton_iterations;
-    if (dx.lpNorm<Eigen::Infinity>() < kNegligibleMove) {  // below what the potential resolves: converged
+    if (dx.lpNorm<Eigen::Infinity>() < kNegligibleMove) {  // below what the potential resolves
       xn = x + dx;
       if (std::isfinite(potential(xn))) x = xn;
-      break;
+      // Converged only if the exact Hessian gave the move: a substitute (projected or step matrix) can give a
+      // negligible move while soft directions still carry force (the adjoint differentiates the minimiser).
+      if (last_kind == 0 || probed) break;  // (the exact Hessian was tried and did not factorise: as converged as
+      probe_exact = true;                   // the substitutes can make it)
+      gradient(x, g);
+      continue;
     }
     double alpha = 1.0;
     for (const auto& t : model_.terms()) alpha = std::min(alpha, t->max_step(x, dx, p));
@@ -400,13 +408,20 @@ Eigen::VectorXd ImplicitEuler::contact_step(const Eigen::VectorXd& p, const Roll
                    [&] { double c = 1; for (const auto& t : model_.terms()) c = std::min(c, t->max_step(x, dx, p)); return c; }(),
                    accepted ? alpha : 0.0, dx.lpNorm<Eigen::Infinity>());
     if (!accepted) {
-      // Round-off: the potential no longer resolves the decrease; accept a step that lowers the residual: the
-      // last one tried, within the collision bound (a bound below kMinStep tried none: 2 alpha would exceed it).
-      xn = x + dx * std::min(bound, alpha * 2);
+      // Round-off: the potential no longer resolves the decrease (its value is large against the step's change).
+      // The Newton direction still lowers the residual: backtrack on the residual instead, from the collision
+      // bound down, and keep the first step that lowers it (the line search on the potential ends near 1e-6 of
+      // the weight, which left the forward short of the minimiser its adjoint differentiates).
       Eigen::VectorXd gn;
-      gradient(xn, gn);
-      if (debug_crossing) std::fprintf(stderr, "step %d it %d round-off fallback alpha %.3g\n", step, it, alpha);
-      if (std::isfinite(potential(xn)) && residual(gn) < r) {
+      bool lowered = false;
+      for (double a = bound; a > kMinStep && !lowered; a *= 0.5) {
+        xn = x + a * dx;
+        if (!std::isfinite(potential(xn))) continue;
+        gradient(xn, gn);
+        lowered = residual(gn) < r;
+      }
+      if (debug_crossing) std::fprintf(stderr, "step %d it %d round-off fallback %s\n", step, it, lowered ? "lowered" : "failed");
+      if (lowered) {
         x = xn;
         crossed(x, "after the round-off fallback");
         Phi = potential(x);
@@ -417,6 +432,7 @@ Eigen::VectorXd ImplicitEuler::contact_step(const Eigen::VectorXd& p, const Roll
     }
     gradient(x, g);
   }
+  if (debug_crossing) { gradient(x, g); std::fprintf(stderr, "step %d end residual %.3g kind %d\n", step, residual(g), last_kind); }
   Eigen::VectorXd v_next = (x - x_) / h;
   check_not_diverged(v_next, options, step);
   return v_next;
