@@ -91,6 +91,9 @@ def main():
                    "first_p": first["p_value"] if first else None, "recommended": d["recommended"],
                    "threshold": d["threshold"], "base_mse": d["base"]["mse"],
                    "refit_mse": rec["refit"]["mse"] if rec and rec.get("refit") else None,
+                   "redrape_mse": d["base"].get("redrape_mse"),
+                   "falls_of_redrape": {e["effect"]: e.get("fall_of_redrape") for e in d["ranking"]
+                                        if e.get("fall_of_redrape") is not None},
                    "p_values": {e["effect"]: e["p_value"] for e in tested},
                    "seconds": time.monotonic() - t0}
             rows.append(row)
