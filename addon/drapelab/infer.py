@@ -96,10 +96,6 @@ def softplus(x):
     return np.logaddexp(0.0, x)
 
 
-def sigmoid(x):
-    return 0.5 * (1.0 + np.tanh(0.5 * x))
-
-
 def inverse_softplus(y):
     return np.log(np.expm1(y))
 
