@@ -13,9 +13,15 @@
 // speed eps_v. The lagging is IPC's approximation: within a step the normal force and the tangent plane are
 // those of its start. The adjoint differentiates them in x_t (add_step_start_adjoint), not in the rim radius
 // (its gradient misses their part). A static drape has no friction.
-// Only the vertices whose rest radius lies between the clamp and the disk's edge touch the disk (the rest hang
-// beyond its rim from the start); edges are not tested against the rim, so the rim radius should exceed the
-// mesh's sag between two vertices over it (2 mm against 0.6 mm on circle3).
+// Every free vertex (rest radius outside the clamp, those beyond the rim too) has this barrier, and so has every
+// edge between two free vertices (DiskEdgeBarrierTerm): E_e = kappa_e m b(d_e) with d_e the segment's clearance
+// at an interior minimiser over the rounded rim (contact/disk_edge.hpp: exact gradient and Hessian through the
+// implicit minimiser), kappa_e = kWeightScale (w_a + w_b) / 6 rho g dhat, and m a C2 smooth step of how far the
+// edge dips below its ends' distances (0 when the minimum is at an end or level with it: the vertex barrier's
+// case; 1 from a dip of kEdgeDip = 0.1 mm), so a cloth edge cannot cut the rim between two vertices however
+// coarse the mesh. The edges have no friction (the vertices' friction acts on the same contact; an edge's
+// lagged friction is not modelled). Collision detection bounds every step for vertices and edges alike
+// (conservative advancement on each one's clearance, kCcdGapFraction).
 #include <algorithm>
 #include <array>
 #include <cmath>
