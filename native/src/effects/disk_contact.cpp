@@ -13,14 +13,21 @@
 // speed eps_v. The lagging is IPC's approximation: within a step the normal force and the tangent plane are
 // those of its start. The adjoint differentiates them in x_t (add_step_start_adjoint), not in the rim radius
 // (its gradient misses their part). A static drape has no friction.
-// Only the vertices whose rest radius lies between the clamp and the disk's edge touch the disk (the rest hang
-// beyond its rim from the start); edges are not tested against the rim, so the rim radius should exceed the
-// mesh's sag between two vertices over it (2 mm against 0.6 mm on circle3).
+// Every free vertex (rest radius outside the clamp, those beyond the rim too) has this barrier, and so has every
+// edge between two free vertices (DiskEdgeBarrierTerm): E_e = kappa_e m b(d_e) with d_e the segment's clearance
+// at an interior minimiser over the rounded rim (contact/disk_edge.hpp: exact gradient and Hessian through the
+// implicit minimiser), kappa_e = kWeightScale (w_a + w_b) / 6 rho g dhat, and m a C2 smooth step of how far the
+// edge dips below its ends' distances (0 when the minimum is at an end or level with it: the vertex barrier's
+// case; 1 from a dip of kEdgeDip = 0.1 mm), so a cloth edge cannot cut the rim between two vertices however
+// coarse the mesh. The edges have no friction (the vertices' friction acts on the same contact; an edge's
+// lagged friction is not modelled). Collision detection bounds every step for vertices and edges alike
+// (conservative advancement on each one's clearance, kCcdGapFraction).
 #include <algorithm>
 #include <array>
 #include <cmath>
 
 #include "contact/barrier.hpp"
+#include "contact/disk_edge.hpp"
 #include "contact/distance.hpp"
 #include "physics/effect.hpp"
 #include "physics/element_term.hpp"
@@ -32,7 +39,8 @@ namespace {
 constexpr double kActivation = 5e-4;     // dhat [m]: the barrier acts within 0.5 mm of the disk
 constexpr double kWeightScale = 1.0;     // barrier stiffness in units of the vertex's weight (see header)
 constexpr double kSlipSpeed = 1e-3;      // eps_v [m/s]: below this slip speed friction is smoothed (static)
-constexpr double kCcdGapFraction = 0.1;  // a step may close at most 90 % of a vertex's distance to the disk
+constexpr double kCcdGapFraction = 0.1;  // a step may close at most 90 % of a vertex's (edge's) distance to the disk
+constexpr double kEdgeDip = 1e-4;        // [m] the edge term fades in as its minimum dips below its ends' distances
 
 double clamp_radius(const EffectContext& c) {
   const auto it = c.options.effects.find("disk_contact");
@@ -43,10 +51,12 @@ double clamp_radius(const EffectContext& c) {
   return find_effect("disk_contact").parameters[0].off;
 }
 
-// The free vertices over the disk, its geometry and their barrier stiffnesses (shared by both terms).
+// The free vertices and edges, the disk's geometry and their barrier stiffnesses (shared by the terms).
 struct DiskSetup {
   std::vector<std::array<int, 1>> vertices;
   std::vector<double> kappa;
+  std::vector<std::array<int, 2>> edges;
+  std::vector<double> edge_kappa;
   SupportDisk disk;
   DiskSetup(const EffectContext& c) {
     const double clamp = clamp_radius(c), support = c.options.support_radius;
@@ -55,13 +65,38 @@ struct DiskSetup {
     top /= std::max<size_t>(1, c.handle_vertices.size());
     disk.radius = support;
     disk.top = top - kActivation;
+    const double unit = kWeightScale * c.options.density * c.options.gravity * kActivation;
+    // Every free vertex (rest radius outside the clamp; those beyond the rim too: a hanging vertex may swing
+    // back under it). A vertex beyond the barrier's reach costs one distance evaluation.
+    std::vector<char> free(c.mesh.num_vertices(), 0);
     for (int i = 0; i < c.mesh.num_vertices(); ++i) {
-      const double r = c.mesh.uv.row(i).norm();
-      if (r >= clamp && r < support) {
+      if (c.mesh.uv.row(i).norm() >= clamp) {
+        free[i] = 1;
         vertices.push_back({i});
-        kappa.push_back(kWeightScale * c.area_weights[i] * c.options.density * c.options.gravity * kActivation);
+        kappa.push_back(unit * c.area_weights[i]);
       }
     }
+    if (vertices.empty()) return;
+    // Every mesh edge between two free vertices, once; its stiffness is a third of its ends' mean weight
+    // (a vertex has about six edges, each shared by two vertices: the edges around a vertex carry about its
+    // weight, like its own vertex barrier).
+    std::vector<std::array<int, 2>> all;
+    all.reserve(3 * c.mesh.num_faces());
+    for (int f = 0; f < c.mesh.num_faces(); ++f)
+      for (int k = 0; k < 3; ++k) {
+        int a = c.mesh.faces(f, k), b = c.mesh.faces(f, (k + 1) % 3);
+        if (a > b) std::swap(a, b);
+        if (free[a] && free[b]) all.push_back({a, b});
+      }
+    std::sort(all.begin(), all.end());
+    all.erase(std::unique(all.begin(), all.end()), all.end());
+    edges = std::move(all);
+    for (const auto& e : edges) edge_kappa.push_back(unit * (c.area_weights[e[0]] + c.area_weights[e[1]]) / 6.0);
+  }
+  SupportDisk disk_with_rim(double rim) const {
+    SupportDisk d = disk;
+    d.rim_radius = rim;
+    return d;
   }
   template <class T>
   T distance(const T* x, const T& rim) const {
@@ -77,6 +112,36 @@ struct DiskSetup {
     return sqrt(dr * dr + dz * dz) - rim;
   }
 };
+
+// d(lambda^T K w)/d(rim) of a one-residual barrier term K_e = J_r S J_r^T whose residual r = d(x, rim) depends on
+// the rim radius (the torus normal turns with it): ElementTerm's generic version differentiates S only
+// (element_term.hpp assumes residuals independent of p), so these terms add S' (J.l)(J.w) + S (J'.l)(J.w) +
+// S (J.l)(J'.w) themselves, with jets over (l, w) inside a jet over the rim.
+template <class Term, int D>
+void add_rim_step_matrix_derivative(const Term& term, const std::vector<std::array<int, D / 3>>& elements,
+                                    const Eigen::VectorXd& x, const Eigen::VectorXd& p, int rim,
+                                    const Eigen::VectorXd& lambda, const Eigen::VectorXd& w, double scale,
+                                    Eigen::VectorXd& gp) {
+  using In = Jet<double, 2>;
+  using U = Jet<In, 1>;
+  U xe[D], pe[1], r[1], S[1];
+  for (size_t e = 0; e < elements.size(); ++e) {
+    for (int i = 0; i < D; ++i) {
+      const int dof = 3 * elements[e][i / 3] + i % 3;
+      In inner(x[dof]);
+      inner.v[0] = lambda[dof];
+      inner.v[1] = w[dof];
+      xe[i] = U(0.0);
+      xe[i].a = inner;
+    }
+    pe[0] = U(0.0);
+    pe[0].a = In(p[rim]);
+    pe[0].v[0] = In(1.0);
+    term.template element_gauss_newton<U>(static_cast<int>(e), xe, pe, r, S);
+    const double Jl = r[0].a.v[0], Jw = r[0].a.v[1], S0 = S[0].a.a;
+    gp[rim] += scale * (S[0].v[0].a * Jl * Jw + S0 * (r[0].v[0].v[0] * Jw + Jl * r[0].v[0].v[1]));
+  }
+}
 
 class DiskBarrierTerm : public ElementTerm<DiskBarrierTerm, 1, 1, 1> {
  public:
@@ -110,6 +175,14 @@ class DiskBarrierTerm : public ElementTerm<DiskBarrierTerm, 1, 1, 1> {
     S[0] = setup_->kappa[e] * (-2.0 * l - 4.0 * e1 / d + e1 * e1 / (d * d)) / (kActivation * kActivation);
   }
 
+  void add_step_matrix_derivatives(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& lambda,
+                                   const Eigen::VectorXd& w, double scale, Eigen::VectorXd& gx,
+                                   Eigen::VectorXd& gp) const override {
+    Eigen::VectorXd partial = Eigen::VectorXd::Zero(p.size());  // the generic p part (S only): replaced below
+    ElementTerm::add_step_matrix_derivatives(x, p, lambda, w, scale, gx, partial);
+    add_rim_step_matrix_derivative<DiskBarrierTerm, D>(*this, setup_->vertices, x, p, rim_, lambda, w, scale, gp);
+  }
+
   double max_step(const Eigen::VectorXd& x, const Eigen::VectorXd& dx, const Eigen::VectorXd& p) const override {
     // Conservative advancement: the distance is 1-Lipschitz in the vertex position, so along x + t dx it stays
     // above kCcdGapFraction of its start while t |dx_i| <= (1 - kCcdGapFraction) d_i(x) (and beyond that, the
@@ -127,6 +200,117 @@ class DiskBarrierTerm : public ElementTerm<DiskBarrierTerm, 1, 1, 1> {
       for (int it = 0; it < 64 && t < alpha; ++it) {
         const Eigen::Vector3d y = xi + t * d;
         const double dist = setup_->distance(y.data(), rim);
+        if (dist <= kCcdGapFraction * d0) break;
+        t += (dist - kCcdGapFraction * d0) / len;
+        if (t >= alpha) {
+          t = alpha;
+          break;
+        }
+      }
+      alpha = std::min(alpha, t);
+    }
+    return alpha;
+  }
+
+ private:
+  std::shared_ptr<const DiskSetup> setup_;
+  int rim_;
+};
+
+// The edge barrier: E_e = kappa_e m b(d_e), with d_e the clearance of the segment to the disk at an interior
+// minimiser t* (contact/disk_edge.hpp) and m = q(dip_a / kEdgeDip) q(dip_b / kEdgeDip) with dip_a = d(x_a) - d_e,
+// dip_b = d(x_b) - d_e (contact/disk_edge.hpp dip_weight): an edge counts only as far as it dips below what its
+// ends' vertex barriers already see, so a minimum moving to an end, or an edge lying level over the face (its
+// minimum a plateau that reaches an end), hands over to the vertex term continuously (C1; C2 where the vertex
+// distances are) without double counting. At contact (d_e -> 0 inside, the ends still apart) both dips are
+// positive, so E_e -> infinity: the barrier guarantee holds for the whole segment.
+class DiskEdgeBarrierTerm : public ElementTerm<DiskEdgeBarrierTerm, 2, 1, 1> {
+ public:
+  DiskEdgeBarrierTerm(const EffectContext& c, std::shared_ptr<const DiskSetup> setup)
+      : setup_(std::move(setup)), rim_(c.layout.block(effect_block_name("disk_contact", "rim_radius_m")).offset) {}
+  std::string name() const override { return "disk_edge_contact"; }
+  bool is_contact() const override { return true; }
+  int num_elements() const { return static_cast<int>(setup_->edges.size()); }
+  const std::array<int, 2>& element_vertices(int e) const { return setup_->edges[e]; }
+  int parameter_offset(int) const { return rim_; }
+
+  // The interior minimum when it may be within reach (cheap exclusion first: the distance is 1-Lipschitz, so
+  // the segment is at least min(d(a), d(b)) - |b - a| / 2 away).
+  template <class T>
+  bool active(const T* x, const T& rim, SegmentDiskMinimum& m) const {
+    double a[3], b[3];
+    for (int k = 0; k < 3; ++k) {
+      a[k] = value_of(x[k]);
+      b[k] = value_of(x[3 + k]);
+    }
+    const SupportDisk disk = setup_->disk_with_rim(value_of(rim));
+    const double half = 0.5 * std::sqrt((b[0] - a[0]) * (b[0] - a[0]) + (b[1] - a[1]) * (b[1] - a[1]) +
+                                        (b[2] - a[2]) * (b[2] - a[2]));
+    if (std::min(support_disk_distance(disk, a), support_disk_distance(disk, b)) - half >= kActivation) return false;
+    m = segment_support_disk_minimum(disk, a, b);
+    return m.interior && m.distance < kActivation;
+  }
+
+  template <class T>
+  T element_energy(int e, const T* x, const T* p) const {
+    SegmentDiskMinimum m;
+    if (!active(x, p[0], m)) return T(0.0);
+    if (!(m.distance > 0)) return T(std::numeric_limits<double>::infinity());
+    T t;
+    const T d = segment_support_disk_distance(setup_->disk, x, x + 3, p[0], m.t, t);
+    if (!(value_of(d) > 0)) return T(std::numeric_limits<double>::infinity());
+    return setup_->edge_kappa[e] * weight(x, p[0], d) * barrier(d, kActivation);
+  }
+  template <class T>
+  T weight(const T* x, const T& rim, const T& d) const {
+    return dip_weight(setup_->distance(x, rim) - d, kEdgeDip) * dip_weight(setup_->distance(x + 3, rim) - d, kEdgeDip);
+  }
+  // Gauss-Newton: r = d_e, S = kappa_e m b''(d_e) >= 0 (dropped: b' Hess d_e, negative semidefinite as d_e is
+  // convex in the edge's ends, and the weight's derivative terms).
+  template <class T>
+  void element_gauss_newton(int e, const T* x, const T* p, T* r, T* S) const {
+    SegmentDiskMinimum m;
+    r[0] = T(0.0);
+    S[0] = T(0.0);
+    if (!active(x, p[0], m) || !(m.distance > 0)) return;
+    T t;
+    const T d = segment_support_disk_distance(setup_->disk, x, x + 3, p[0], m.t, t);
+    r[0] = d;
+    if (!(value_of(d) > 0) || value_of(d) >= kActivation) return;
+    const T e1 = d - kActivation;
+    const T l = log_of(d / kActivation);
+    S[0] = setup_->edge_kappa[e] * weight(x, p[0], d) *
+           (-2.0 * l - 4.0 * e1 / d + e1 * e1 / (d * d)) / (kActivation * kActivation);
+  }
+
+  void add_step_matrix_derivatives(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& lambda,
+                                   const Eigen::VectorXd& w, double scale, Eigen::VectorXd& gx,
+                                   Eigen::VectorXd& gp) const override {
+    Eigen::VectorXd partial = Eigen::VectorXd::Zero(p.size());  // the generic p part (S only): replaced below
+    ElementTerm::add_step_matrix_derivatives(x, p, lambda, w, scale, gx, partial);
+    add_rim_step_matrix_derivative<DiskEdgeBarrierTerm, D>(*this, setup_->edges, x, p, rim_, lambda, w, scale, gp);
+  }
+
+  double max_step(const Eigen::VectorXd& x, const Eigen::VectorXd& dx, const Eigen::VectorXd& p) const override {
+    // Conservative advancement on the segment's clearance (ends included): every point of the segment moves by
+    // a convex combination of its ends' moves, so the clearance changes at most at L = max(|dx_a|, |dx_b|) per
+    // unit of t, and stays above kCcdGapFraction of its start while t L <= (1 - kCcdGapFraction) d_e(x).
+    const SupportDisk disk = setup_->disk_with_rim(p[rim_]);
+    double alpha = 1.0;
+    for (const auto& v : setup_->edges) {
+      const Eigen::Vector3d a = x.segment<3>(3 * v[0]), b = x.segment<3>(3 * v[1]);
+      const Eigen::Vector3d da = dx.segment<3>(3 * v[0]), db = dx.segment<3>(3 * v[1]);
+      const double len = std::max(da.norm(), db.norm());
+      if (len == 0) continue;
+      // cheap: the lower bound min(d(a), d(b)) - |b - a| / 2 already allows the whole step
+      const double lower =
+          std::min(support_disk_distance(disk, a.data()), support_disk_distance(disk, b.data())) - 0.5 * (b - a).norm();
+      if (lower > 0 && alpha * len <= (1.0 - kCcdGapFraction) * lower) continue;
+      const double d0 = segment_support_disk_minimum(disk, a.data(), b.data()).distance;
+      double t = 0;
+      for (int it = 0; it < 64 && t < alpha; ++it) {
+        const Eigen::Vector3d ya = a + t * da, yb = b + t * db;
+        const double dist = segment_support_disk_minimum(disk, ya.data(), yb.data()).distance;
         if (dist <= kCcdGapFraction * d0) break;
         t += (dist - kCcdGapFraction * d0) / len;
         if (t >= alpha) {
@@ -336,9 +520,11 @@ EffectSpec make_disk_contact_effect() {
   };
   s.make_terms = [](const EffectContext& c) {
     std::vector<std::unique_ptr<Term>> terms;
+    if (clamp_radius(c) >= c.options.support_radius) return terms;  // the clamp covers the disk: the base model
     auto setup = std::make_shared<const DiskSetup>(c);
-    if (setup->vertices.empty()) return terms;  // the clamp covers the disk: the base model
+    if (setup->vertices.empty()) return terms;
     terms.push_back(std::make_unique<DiskBarrierTerm>(c, setup));
+    if (!setup->edges.empty()) terms.push_back(std::make_unique<DiskEdgeBarrierTerm>(c, setup));
     terms.push_back(std::make_unique<DiskFrictionTerm>(c, setup));
     return terms;
   };

@@ -1,0 +1,360 @@
+// Edge-against-disk contact (contact/disk_edge.hpp and disk_contact.cpp's edge term): the segment's clearance
+// against dense sampling, its gradient and Hessian (and those of the minimiser t*) against central differences,
+// and a coarse cloth whose edge would cut the rounded rim between two vertices that the vertex barrier alone
+// accepts, the edge term rejects and the step bound stops short of.
+#include <gtest/gtest.h>
+
+#include <random>
+
+#include "../test_support.hpp"
+#include "contact/barrier.hpp"
+#include "contact/disk_edge.hpp"
+#include "contact/distance.hpp"
+#include "physics/effect.hpp"
+#include "physics/model.hpp"
+#include "physics/sparse_pattern.hpp"
+#include "solver/implicit_euler.hpp"
+
+namespace drapelab {
+namespace {
+
+std::mt19937 rng(11);
+double uniform(double a, double b) { return std::uniform_real_distribution<double>(a, b)(rng); }
+
+double sampled_minimum(const SupportDisk& disk, const double* a, const double* b, double* t_best = nullptr) {
+  double best = INFINITY;
+  const int n = 100000;
+  for (int i = 0; i <= n; ++i) {
+    const double t = double(i) / n;
+    const double x[3] = {a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1]), a[2] + t * (b[2] - a[2])};
+    const double d = support_disk_distance(disk, x);
+    if (d < best) {
+      best = d;
+      if (t_best) *t_best = t;
+    }
+  }
+  return best;
+}
+
+// A random cloth-sized edge (1-6 mm) near the rim of the default disk (R 9 cm, rim 2 mm, top z = 0), outside it.
+void random_edge(const SupportDisk& disk, double* a, double* b) {
+  for (;;) {
+    const double phi = uniform(0, 6.283), r = uniform(0.085, 0.094), z = uniform(-0.004, 0.002);
+    const double len = uniform(0.001, 0.006), th = uniform(0, 6.283), el = uniform(-1.2, 1.2);
+    a[0] = r * std::cos(phi);
+    a[1] = r * std::sin(phi);
+    a[2] = z;
+    b[0] = a[0] + len * std::cos(el) * std::cos(th);
+    b[1] = a[1] + len * std::cos(el) * std::sin(th);
+    b[2] = a[2] + len * std::sin(el);
+    if (support_disk_distance(disk, a) > 1e-5 && support_disk_distance(disk, b) > 1e-5) return;
+  }
+}
+
+// d_e and t* as functions of y = (a, b, rim) for the jets: the minimiser is found at the double values.
+template <class T>
+T edge_clearance(const SupportDisk& base, const T* y, T* t_out = nullptr) {
+  SupportDisk disk = base;
+  disk.rim_radius = value_of(y[6]);
+  double a[3], b[3];
+  for (int k = 0; k < 3; ++k) {
+    a[k] = value_of(y[k]);
+    b[k] = value_of(y[3 + k]);
+  }
+  const SegmentDiskMinimum m = segment_support_disk_minimum(disk, a, b);
+  T t;
+  const T d = segment_support_disk_distance(disk, y, y + 3, y[6], m.t, t);
+  if (t_out) *t_out = t;
+  return d;
+}
+double clearance_value(const SupportDisk& base, const double* y, bool want_t = false) {
+  SupportDisk disk = base;
+  disk.rim_radius = y[6];
+  const SegmentDiskMinimum m = segment_support_disk_minimum(disk, y, y + 3);
+  return want_t ? m.t : m.distance;
+}
+
+TEST(DiskEdge, SegmentMinimumMatchesDenseSampling) {
+  SupportDisk disk;
+  int interior = 0;
+  for (int trial = 0; trial < 300; ++trial) {
+    double a[3], b[3], t_best;
+    random_edge(disk, a, b);
+    const SegmentDiskMinimum m = segment_support_disk_minimum(disk, a, b);
+    const double sampled = sampled_minimum(disk, a, b, &t_best);
+    EXPECT_LE(m.distance, sampled + 1e-13) << "trial " << trial;
+    EXPECT_NEAR(m.distance, sampled, 1e-9) << "trial " << trial;  // the sampling's own error: (1e-5 * 6 mm)^2 / rho
+    if (m.interior) {
+      ++interior;
+      EXPECT_GT(m.t, 0.0);
+      EXPECT_LT(m.t, 1.0);
+      EXPECT_LT(m.distance, std::min(support_disk_distance(disk, a), support_disk_distance(disk, b)));
+    }
+  }
+  EXPECT_GT(interior, 30) << "too few interior minima to test";
+  // A chord of the rim: both ends 0.2 mm off the rounded edge, its middle cuts through it.
+  const double c = 0.088, zc = -0.002, rho = 0.0022, half = 0.6;
+  const double a[3] = {c + rho * std::cos(half), 0, zc + rho * std::sin(half)};
+  const double b[3] = {c + rho * std::cos(-half), 0, zc + rho * std::sin(-half)};
+  const SegmentDiskMinimum m = segment_support_disk_minimum(disk, a, b);
+  EXPECT_TRUE(m.interior);
+  EXPECT_NEAR(support_disk_distance(disk, a), 2e-4, 1e-15);
+  EXPECT_LT(m.distance, 0.0) << "the chord's middle lies inside the rim";
+}
+
+TEST(DiskEdge, ClearanceAndMinimiserDerivativesMatchCentralDifferences) {
+  SupportDisk disk;
+  int tested = 0;
+  for (int trial = 0; trial < 400 && tested < 40; ++trial) {
+    double y[7];
+    random_edge(disk, y, y + 3);
+    y[6] = uniform(0.001, 0.004);
+    SupportDisk d2 = disk;
+    d2.rim_radius = y[6];
+    const SegmentDiskMinimum m = segment_support_disk_minimum(d2, y, y + 3);
+    if (!m.interior || m.t < 0.02 || m.t > 0.98 || m.distance < 1e-5) continue;
+    ++tested;
+    double v, g[7], H[49], tv, tg[7], tH[49];
+    distance_gradient_hessian<7>([&](const auto* yy) { return edge_clearance(disk, yy); }, y, v, g, H);
+    distance_gradient_hessian<7>(
+        [&](const auto* yy) {
+          std::remove_const_t<std::remove_reference_t<decltype(yy[0])>> t;
+          edge_clearance(disk, yy, &t);
+          return t;
+        },
+        y, tv, tg, tH);
+    EXPECT_NEAR(v, m.distance, 1e-15);
+    EXPECT_NEAR(tv, m.t, 1e-12);
+    const double h = 1e-7;
+    for (int k = 0; k < 7; ++k) {
+      double yp[7], ym[7];
+      std::copy(y, y + 7, yp);
+      std::copy(y, y + 7, ym);
+      yp[k] += h;
+      ym[k] -= h;
+      EXPECT_NEAR(g[k], (clearance_value(disk, yp) - clearance_value(disk, ym)) / (2 * h), 1e-6) << "grad " << k;
+      EXPECT_NEAR(tg[k], (clearance_value(disk, yp, true) - clearance_value(disk, ym, true)) / (2 * h),
+                  1e-5 * std::max(1.0, std::abs(tg[k])))
+          << "dt*/dy " << k;
+      // Hessian rows: central differences of the jets' gradient
+      double vp, gp[7], Hp[49], vm, gm[7], Hm[49];
+      distance_gradient_hessian<7>([&](const auto* yy) { return edge_clearance(disk, yy); }, yp, vp, gp, Hp);
+      distance_gradient_hessian<7>([&](const auto* yy) { return edge_clearance(disk, yy); }, ym, vm, gm, Hm);
+      for (int j = 0; j < 7; ++j) {
+        const double fd = (gp[j] - gm[j]) / (2 * h);
+        EXPECT_NEAR(H[k * 7 + j], fd, 1e-5 * std::max(1.0, std::abs(fd))) << "Hess " << k << "," << j;
+        EXPECT_NEAR(H[k * 7 + j], H[j * 7 + k], 1e-9 * std::max(1.0, std::abs(fd)));
+      }
+      distance_gradient_hessian<7>(
+          [&](const auto* yy) {
+            std::remove_const_t<std::remove_reference_t<decltype(yy[0])>> t;
+            edge_clearance(disk, yy, &t);
+            return t;
+          },
+          yp, vp, gp, Hp);
+      distance_gradient_hessian<7>(
+          [&](const auto* yy) {
+            std::remove_const_t<std::remove_reference_t<decltype(yy[0])>> t;
+            edge_clearance(disk, yy, &t);
+            return t;
+          },
+          ym, vm, gm, Hm);
+      for (int j = 0; j < 7; ++j) {
+        const double fd = (gp[j] - gm[j]) / (2 * h);
+        EXPECT_NEAR(tH[k * 7 + j], fd, 1e-4 * std::max(1.0, std::abs(fd))) << "Hess t* " << k << "," << j;
+      }
+    }
+  }
+  EXPECT_GE(tested, 40);
+}
+
+TEST(DiskEdge, DipWeightIsASmoothStep) {
+  using J = Jet<Jet<double, 1>, 1>;
+  for (double s : {-0.1, 0.0, 0.2, 0.5, 0.9, 1.0, 1.3}) {
+    const J w = dip_weight(J(Jet<double, 1>(s * 1e-4, 0), 0), 1e-4);
+    const double h = 1e-6;
+    const double fd = (dip_weight((s + h) * 1e-4, 1e-4) - dip_weight((s - h) * 1e-4, 1e-4)) / (2 * h * 1e-4);
+    EXPECT_NEAR(w.v[0].a, fd, 1e-6 * std::max(1.0, std::abs(fd)) + 1e-3) << s;
+    EXPECT_GE(w.a.a, 0.0);
+    EXPECT_LE(w.a.a, 1.0);
+  }
+  EXPECT_EQ(dip_weight(0.0, 1e-4), 0.0);
+  EXPECT_EQ(dip_weight(1e-4, 1e-4), 1.0);
+}
+
+const Term* find_term(const Model& model, const std::string& name) {
+  for (const auto& t : model.terms())
+    if (t->name() == name) return t.get();
+  return nullptr;
+}
+
+// circle1 (coarse: ~1 cm edges) bent over the rounded rim: the flat part `gap` above the face, the part beyond
+// R - rho wrapped a quarter turn around the rim's centre circle at radius rho + gap, the rest hanging straight
+// down (arc length kept), so every vertex is at least `gap` from the disk while a chord between two neighbours
+// across the bend sags towards the rim.
+Eigen::VectorXd wrapped_over_rim(const Model& model, double rim, double gap, double top) {
+  Eigen::VectorXd x = model.rest_positions();
+  const double inner = model.options().support_radius - rim, zc = top - rim, R = rim + gap;
+  for (int i = 0; i < model.num_vertices(); ++i) {
+    const double r = x.segment<2>(3 * i).norm();
+    if (r <= inner) {
+      x[3 * i + 2] = top + gap;
+      continue;
+    }
+    const double s = r - inner, quarter = 0.5 * M_PI * R;
+    double rr, z;
+    if (s < quarter) {
+      rr = inner + R * std::sin(s / R);
+      z = zc + R * std::cos(s / R);
+    } else {
+      rr = inner + R;
+      z = zc - (s - quarter);
+    }
+    x[3 * i] *= rr / r;
+    x[3 * i + 1] *= rr / r;
+    x[3 * i + 2] = z;
+  }
+  return x;
+}
+
+double worst_chord(const Model& model, const Eigen::VectorXd& x, const SupportDisk& disk) {
+  double worst = INFINITY;
+  for (int f = 0; f < model.mesh().num_faces(); ++f)
+    for (int k = 0; k < 3; ++k) {
+      const int a = model.mesh().faces(f, k), b = model.mesh().faces(f, (k + 1) % 3);
+      if (model.mesh().uv.row(a).norm() < 0.02 || model.mesh().uv.row(b).norm() < 0.02) continue;
+      worst = std::min(worst, segment_support_disk_minimum(disk, x.data() + 3 * a, x.data() + 3 * b).distance);
+    }
+  return worst;
+}
+
+TEST(DiskEdge, CoarseClothCannotCutTheRimBetweenTwoVertices) {
+  ModelOptions o;
+  o.effects["disk_contact"] = {{"clamp_radius_m", 0.02}};
+  const Model model(load_cusick_template(1, testing::template_dir()), o);
+  Eigen::VectorXd p = model.default_parameters();
+  const double rim = p[model.layout().block("disk_contact.rim_radius_m").offset];
+  const double top = model.rest_positions()[2] - 5e-4;  // the disk's top face (0.5 mm below the rest plane)
+  const Term* vertex_term = find_term(model, "disk_contact");
+  const Term* edge_term = find_term(model, "disk_edge_contact");
+  ASSERT_NE(vertex_term, nullptr);
+  ASSERT_NE(edge_term, nullptr);
+  // Every vertex 0.2 mm off the rim: the vertex barrier is finite, but circle1's chords cut into the rim.
+  const Eigen::VectorXd cut = wrapped_over_rim(model, rim, 2e-4, top);
+  SupportDisk disk;
+  disk.radius = model.options().support_radius;
+  disk.rim_radius = rim;
+  disk.top = top;
+  double worst_vertex = INFINITY;
+  for (int i = 0; i < model.num_vertices(); ++i)
+    if (model.mesh().uv.row(i).norm() >= 0.02) worst_vertex = std::min(worst_vertex, support_disk_distance(disk, cut.data() + 3 * i));
+  const double worst_edge = worst_chord(model, cut, disk);
+  EXPECT_NEAR(worst_vertex, 2e-4, 1e-9);
+  EXPECT_LT(worst_edge, 0.0) << "the test state should have an edge through the rim";
+  EXPECT_TRUE(std::isfinite(vertex_term->energy(cut, p))) << "the vertex barrier alone accepts the cut";
+  EXPECT_FALSE(std::isfinite(edge_term->energy(cut, p))) << "the edge barrier rejects it";
+  // A safe state (every chord clear of the rim): the cloth wrapped 2 cm off it; the step towards the cut state
+  // is bounded.
+  const Eigen::VectorXd safe = wrapped_over_rim(model, rim, 2e-2, top);
+  const double safe_edge = worst_chord(model, safe, disk);
+  ASSERT_GT(safe_edge, 0.0);
+  EXPECT_TRUE(std::isfinite(edge_term->energy(safe, p)));
+  const Eigen::VectorXd dx = cut - safe;
+  // The vertex bound alone lets the step through to a state whose chords cut the rim.
+  const double alpha_vertex = vertex_term->max_step(safe, dx, p);
+  const Eigen::VectorXd vertex_stop = safe + alpha_vertex * dx;
+  const double vertex_stop_edge = worst_chord(model, vertex_stop, disk);
+  EXPECT_LT(vertex_stop_edge, 0.0) << "without the edge term the step would cut the rim";
+  const double alpha = edge_term->max_step(safe, dx, p);
+  EXPECT_LT(alpha, 1.0);
+  EXPECT_GT(alpha, 0.0);
+  const Eigen::VectorXd stop = safe + alpha * dx;
+  const double stop_edge = worst_chord(model, stop, disk);
+  EXPECT_GT(stop_edge, 0.0) << "the bounded step keeps every edge off the rim";
+  EXPECT_TRUE(std::isfinite(edge_term->energy(stop, p)));
+  std::printf("coarse cloth over the rim (circle1, rim %.1f mm): vertex clearance %.3f mm, worst chord %.3f mm; vertex "
+              "CCD alone: alpha %.3f, chord clearance %.3f mm; with the edge CCD: alpha %.3f, chord clearance %.4f mm\n",
+              rim * 1e3, worst_vertex * 1e3, worst_edge * 1e3, alpha_vertex, vertex_stop_edge * 1e3, alpha, stop_edge * 1e3);
+}
+
+}  // namespace
+}  // namespace drapelab
+
+namespace drapelab {
+namespace {
+
+// The edge term alone on circle1 wrapped over the rim with a gap where its chords dip into the barrier's reach
+// (and on the registry suite's state, tests/native/physics/test_effects.cpp, to show the suite exercises it):
+// energy, gradient, Hessian products and the rim radius derivative against central differences.
+TEST(DiskEdge, EdgeTermDerivativesMatchCentralDifferencesOverTheRim) {
+  ModelOptions o;
+  o.effects["disk_contact"] = {{"clamp_radius_m", 0.02}};
+  const Model model(load_cusick_template(1, testing::template_dir()), o);
+  const Eigen::VectorXd p = model.default_parameters();
+  const int rim_index = model.layout().block("disk_contact.rim_radius_m").offset;
+  const double rim = p[rim_index];
+  const double top = model.rest_positions()[2] - 5e-4;
+  const Term* edge_term = find_term(model, "disk_edge_contact");
+  ASSERT_NE(edge_term, nullptr);
+  // the smallest gap at which circle1's chords over the rim stay 0.1-0.4 mm off it (within the 0.5 mm reach)
+  SupportDisk disk;
+  disk.radius = model.options().support_radius;
+  disk.rim_radius = rim;
+  disk.top = top;
+  Eigen::VectorXd x;
+  double gap = 0;
+  for (gap = 2e-4; gap < 3e-2; gap += 5e-5) {
+    x = wrapped_over_rim(model, rim, gap, top);
+    const double w = worst_chord(model, x, disk);
+    if (w > 1e-4 && w < 4e-4) break;
+  }
+  ASSERT_LT(gap, 3e-2) << "no gap puts the chords within reach";
+  std::mt19937 g(3);
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  for (int i = 0; i < x.size(); ++i) x[i] += 2e-5 * u(g);
+  const double E = edge_term->energy(x, p);
+  ASSERT_TRUE(std::isfinite(E));
+  ASSERT_GT(E, 0.0) << "no edge within the barrier's reach: move the state";
+  const int n = static_cast<int>(x.size());
+  const Eigen::VectorXd dir = testing::random_vector(n, 5);
+  Eigen::VectorXd grad = Eigen::VectorXd::Zero(n);
+  edge_term->add_gradient(x, p, grad);
+  const double eps = 1e-9;
+  const double fd = (edge_term->energy(x + eps * dir, p) - edge_term->energy(x - eps * dir, p)) / (2 * eps);
+  EXPECT_NEAR(grad.dot(dir), fd, 1e-5 * std::abs(fd));
+  Eigen::VectorXd Hd = Eigen::VectorXd::Zero(n), gp = Eigen::VectorXd::Zero(n), gm = Eigen::VectorXd::Zero(n);
+  edge_term->add_hessian_product(x, p, dir, Hd);
+  edge_term->add_gradient(x + eps * dir, p, gp);
+  edge_term->add_gradient(x - eps * dir, p, gm);
+  const Eigen::VectorXd fdH = (gp - gm) / (2 * eps);
+  EXPECT_LT((Hd - fdH).norm(), 1e-4 * fdH.norm());
+  Eigen::VectorXd dEdp = Eigen::VectorXd::Zero(p.size());
+  edge_term->add_energy_parameter_gradient(x, p, dEdp);
+  const double h = 1e-9;
+  Eigen::VectorXd pp = p, pm = p;
+  pp[rim_index] += h;
+  pm[rim_index] -= h;
+  const double fdp = (edge_term->energy(x, pp) - edge_term->energy(x, pm)) / (2 * h);
+  EXPECT_NEAR(dEdp[rim_index], fdp, 1e-5 * std::abs(fdp));
+  std::printf("edge term over the rim: E %.4g J, dE/drim %.4g (fd %.4g)\n", E, dEdp[rim_index], fdp);
+
+  // The registry suite's contact state (make_cusick_specimen(60), every vertex lowered 0.1-0.3 mm): some edges
+  // straddling R - rho dip below their ends within reach, so the suite's central differences cover the term.
+  ModelOptions mo;
+  mo.effects["disk_contact"] = {{"clamp_radius_m", 0.02}};
+  const Model specimen(make_cusick_specimen(60), mo);
+  Eigen::VectorXd y = specimen.rest_positions();
+  std::mt19937 rng5(5);
+  std::uniform_real_distribution<double> u01(0.0, 1.0);
+  for (int i = 0; i < specimen.num_vertices(); ++i) {
+    y[3 * i] += 1e-4 * (u01(rng5) - 0.5);
+    y[3 * i + 1] += 1e-4 * (u01(rng5) - 0.5);
+    y[3 * i + 2] -= 1e-4 + 2e-4 * u01(rng5);
+  }
+  const Term* suite_term = find_term(specimen, "disk_edge_contact");
+  ASSERT_NE(suite_term, nullptr);
+  EXPECT_GT(suite_term->energy(y, specimen.default_parameters()), 0.0);
+}
+
+}  // namespace
+}  // namespace drapelab
