@@ -127,10 +127,16 @@ def test_fit_gradient_through_the_observation_matches_central_differences(name, 
     assert grads["effect_mu"][0] == pytest.approx(fd, rel=1e-3, abs=1e-6)
 
 
-@pytest.mark.parametrize("name,param", [("camera", "scale_error"), ("camera", "cx_px"), ("offset", "dx_m")])
-def test_recovery_round_trip_with_the_material_known(name, param, tmp_path):
-    # The parameter at its moderate strength on one circle1 drape; bending held at the truth; MAP fit from off.
-    value = {p["name"]: p for p in {e["name"]: e for e in sim.effects()}[name]["parameters"]}[param]["moderate"]
+@pytest.mark.parametrize("name,param,factor", [("camera", "scale_error", 0.7), ("camera", "cx_px", 1.0),
+                                               ("offset", "dx_m", 0.7)])
+def test_recovery_round_trip_with_the_material_known(name, param, factor, tmp_path):
+    # The parameter at `factor` x its moderate strength on one circle1 drape; bending held at the truth; MAP fit
+    # from off. A primary parameter's moderate strength is one of the start search's candidates (0, +- moderate),
+    # so at it the search alone would return the truth and the gradient epochs would not be tested
+    # (docs/lab/effect-recovery.md, "offset: why it is not recovered"): primaries at 0.7 x. Measured (offset):
+    # truth 7 mm -> 6.4 mm after 20 epochs from the 1 cm candidate (7.5 mm -> 8.9 mm). cx_px (not a primary)
+    # starts at 0; at 2.8 px it came back at 2.0 (Adam still oscillating at epoch 20), at 4 px within 25 %.
+    value = factor * {p["name"]: p for p in {e["name"]: e for e in sim.effects()}[name]["parameters"]}[param]["moderate"]
     bend = tables.COTTON_BLUE.bend
     path = str(tmp_path / "effect.png")
     _effect_image(path, {name: {param: value}}, bend)
@@ -141,6 +147,7 @@ def test_recovery_round_trip_with_the_material_known(name, param, tmp_path):
                        effects={name: {param: None}})
     job.run(epochs=20)
     (fitted,) = job.theta["effect_mu"]
+    assert job.effect_start["chosen"][0] != pytest.approx(value, rel=0.25)  # the epochs, not the search, got there
     assert fitted == pytest.approx(value, rel=0.25), (job.effect_start, [h.get("effects") for h in job.history])
 
 

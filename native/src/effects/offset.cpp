@@ -10,8 +10,11 @@
 //    the shifted disk's edge and free beyond the edge, with a smooth transition over the band b. The band is the
 //    gap between the disk's edge and the outermost vertex the base handle holds (at most kMaxBand, times
 //    kBandFraction < 1 so that vertex stays at weight exactly 1): at d = 0 every weight is exactly 1 on the base
-//    handle's vertices and exactly 0 elsewhere, so the model is the base model bit for bit. On circle3 the band
-//    is about one ring spacing, so at any d some vertices are in transition and the drape responds smoothly.
+//    handle's vertices and exactly 0 elsewhere, so the model is the base model bit for bit. The templates have a
+//    vertex just inside 9 cm, so the band is narrow (measured: 0.36 mm on circle1, 0.067 mm on circle3): the
+//    hold's edge moves from vertex to vertex, and the drape is smooth in d only between the d at which a vertex
+//    crosses the edge or the folds rearrange (on circle1 about 1-5 mm apart; docs/lab/effect-recovery.md "offset:
+//    why it is not recovered"; a 1 cm band with the weight's decades spread across it made it no smoother).
 // 2. The silhouette is measured in the tester's frame, centred on the disk: the observation translates the
 //    drape by +d (Model::observe; y = x + (dx, dy, 0)).
 // Not combined with disk_contact's small clamp (its obstacle and clamp would have to move with d too; at its off
@@ -146,8 +149,8 @@ EffectSpec make_offset_effect() {
   s.name = "offset";
   s.explanation = "the specimen is not centred on the support disk: its centre is (dx, dy) from the disk's";
   s.signature =
-      "a 1-fold r(theta) residual: more fabric overhangs the disk on the +d side and hangs lower there; the "
-      "silhouette shifts by d";
+      "more fabric overhangs the disk on the +d side and hangs lower there; the silhouette moves by a fraction of d "
+      "(it hangs from the disk's edge; 1 cm: ~1.5 mm on circle1) and its folds rearrange";
   // Moderate strength 1 cm: measured on circle3 (tools/observation_effects_probe.py, docs/lab/effect-recovery.md):
   // the drape coefficient barely moves (dx 3 / 5 / 10 mm: DC +0.001 / +0.001 / -0.004), pixel MSE against the
   // centred drape 0.017 / 0.010 / 0.034 (not monotonic: the folds rearrange), so 1 cm is the value at which it
