@@ -29,7 +29,7 @@ random placements (fit.json's placement velocities, seeds 0..N-1) with the conta
 values (disk_contact: 2 cm clamp) beside the same placements without contact, forward + backward timed per step:
   contact: draws, effects, forward_ratio, backward_ratio (contact / contact-free, means over the draws, one run),
            forward_ms_per_step, backward_ms_per_step, base_forward_ms_per_step, base_backward_ms_per_step,
-           min_signed_distance_m (the smallest clearance of a free vertex over the disk),
+           min_signed_distance_m (the smallest clearance to the disk of a free vertex or a point along a free edge),
            vertices_below_disk_max, intersecting_pairs_max (sim.contact_report of each draw's last state),
            min_self_distance_m (its smallest distance between primitives sharing no vertex, within the mean edge
            length; null if none is that close)
@@ -475,18 +475,31 @@ def child_effect(task):
 DISK_TOP_M = -5e-4
 
 
-def disk_clearance(positions, rest_radius, clamp, rim, radius=0.09):
-    """Clearance (m) of each vertex that may touch the disk (rest radius in [clamp, radius)) above its surface."""
+def disk_clearance(positions, rest_radius, clamp, rim, radius=0.09, edges=None, samples=64):
+    """Signed clearance (m) above the disk's surface (a plate with a rim rounded by `rim`) of each free vertex (rest
+    radius >= clamp: disk_contact tests them all) and, with `edges` (E x 2 vertex indices), of points sampled along
+    each edge between two free vertices (disk_contact's edge term keeps them out too)."""
     import numpy as np
 
     x = np.asarray(positions, dtype=float)
-    on = (rest_radius >= clamp) & (rest_radius < radius)
+    on = rest_radius >= clamp
     inner, zc = radius - rim, DISK_TOP_M - rim
-    r = np.hypot(x[on, 0], x[on, 1])
-    dz = x[on, 2] - zc
-    flat = np.where(dz >= 0, x[on, 2] - DISK_TOP_M, zc - rim - x[on, 2])
-    rounded = np.hypot(r - inner, dz) - rim
-    return np.where(r <= inner, flat, rounded)
+
+    def signed(q):
+        r = np.hypot(q[..., 0], q[..., 1])
+        dz = q[..., 2] - zc
+        flat = np.where(dz >= 0, q[..., 2] - DISK_TOP_M, zc - rim - q[..., 2])
+        return np.where(r <= inner, flat, np.hypot(r - inner, dz) - rim)
+
+    out = [signed(x[on])]
+    if edges is not None:
+        e = np.asarray(edges)
+        e = e[on[e[:, 0]] & on[e[:, 1]]]
+        t = np.linspace(0.0, 1.0, samples)[None, :, None]
+        for k in range(0, len(e), 512):
+            a, b = x[e[k:k + 512, 0]][:, None, :], x[e[k:k + 512, 1]][:, None, :]
+            out.append(signed(a + t * (b - a)).min(axis=1))
+    return np.concatenate(out)
 
 
 def child_contact(task):
@@ -510,6 +523,8 @@ def child_contact(task):
     clamp = effects.get("disk_contact", {}).get("clamp_radius_m", 0.09)
     rim = next(q["off"] for e in sim.effects() if e["name"] == "disk_contact" for q in e["parameters"]
                if q["name"] == "rim_radius_m")
+    faces = np.asarray(mesh.faces)
+    edges = np.unique(np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1), axis=0)
     weights = np.random.default_rng(0).standard_normal((base.num_vertices, 3))
     times = {"base_f": 0.0, "base_b": 0.0, "f": 0.0, "b": 0.0}
     clearances, below, crossings, self_distances = [], [], [], []
@@ -525,9 +540,8 @@ def child_contact(task):
             times[key + "f"] += t1 - t0
             times[key + "b"] += t2 - t1
         if "disk_contact" in effects:
-            c = disk_clearance(x, rest_radius, clamp, rim)
-            clearances.append(float(c.min()))
-            below.append(int((c <= 0).sum()))
+            clearances.append(float(disk_clearance(x, rest_radius, clamp, rim, edges=edges).min()))
+            below.append(int((disk_clearance(x, rest_radius, clamp, rim) <= 0).sum()))
         report = sim.contact_report(mesh.faces, x)
         crossings.append(report["intersecting_pairs"])
         if np.isfinite(report["min_distance_m"]):
