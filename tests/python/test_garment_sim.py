@@ -199,3 +199,36 @@ def test_a_soft_fabric_step_with_an_ill_conditioned_contact_operator_converges()
     assert np.isfinite(x1).all() and np.abs(x1 - x).max() > 0
     assert np.asarray(contact.clearance(x1.ravel())).min() > 0
     assert sim.contact_report(welded.faces, x1, max_listed=0)["intersecting_pairs"] == 0
+
+
+def test_the_moving_body_does_not_carry_one_layer_through_another():
+    """2k viscose walking, frame 13 (its start state saved in data/, replayed from frame 10 on ea3dbf4): two layers
+    lie on the left leg near the pelvis; the body's old per-vertex carry (each reached vertex teleported rigidly with
+    its nearest part, outside the self-contact CCD) moved one layer through the other in substep 1 ("cloth triangle
+    1823 and cloth triangle 1987 intersect", 8 crossing pairs at the frame's end). The body now moves inside the
+    step, every move of the cloth bounded by collision detection: no crossing, no vertex inside the body."""
+    g = skirt.make_skirt("flared", vertices=2000)
+    body = bodymod.make_body()
+    m = material.sample_garment_material(VISCOSE, g, seed=0)[0]
+    model, params, contact, welded = simulate.build_model(g, m, body)
+    state = np.load(os.path.join(os.path.dirname(__file__), "data", "garment_viscose_walk_2k_frame13.npz"))
+    x, v = state["x"], state["v"].copy()
+    assert sim.contact_report(welded.faces, x, max_listed=0)["intersecting_pairs"] == 0
+    fps, n, frame = simulate.DEFAULT_FPS, simulate.DEFAULT_SUBSTEPS, 13
+    h = 1.0 / (fps * n)
+    transforms = bodymod.part_transforms(body, "walk", (frame - 1 + np.arange(n + 1) / n) / fps, fps)
+    waist = np.asarray(model.handle_vertices)
+    rest = welded.positions[waist]
+    for j in range(n):
+        start, end = transforms[j, 0], transforms[j + 1, 0]
+        a0, a1 = rest @ start[:3, :3].T + start[:3, 3], rest @ end[:3, :3].T + end[:3, 3]
+        model.set_handle_anchors(a1)
+        v[waist] = (a1 - a0) / h
+        contact.set_poses(list(transforms[j]), list(transforms[j + 1]))
+        x1 = model.simulate(params, steps=1, time_step=h, record=False, positions0=x, velocities0=v,
+                            contact_force_tolerance=simulate.FORCE_TOLERANCE, contact_step="newton")
+        v = model.velocities.copy()
+        assert np.isfinite(x1).all() and np.abs(x1 - x).max() > 1e-4  # the cloth moved with the body
+        assert np.asarray(contact.clearance(x1.ravel())).min() > 0  # at the body's end pose
+        assert sim.contact_report(welded.faces, x1, max_listed=0)["intersecting_pairs"] == 0, f"substep {j}"
+        x = x1

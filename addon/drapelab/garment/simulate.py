@@ -16,8 +16,11 @@ anchors carried by the pelvis; contact with the body's parts (rigid surfaces of 
 between non-adjacent point-triangle and edge-edge pairs closer than the fabric's thickness, with friction
 ``SELF_FRICTION``; contact/pair_contact.hpp), so every step is an IPC step (Newton on the incremental potential,
 bounded by continuous collision detection: no cloth vertex ever enters the body, the cloth never passes through
-itself). The start placement must be free of self-intersections (an InputError names the first pair). Not yet:
-friction with the body, cloth edges against the body (vertices only).
+itself). The body moves inside each step (native ImplicitEuler contact_step: it advances from its start pose as
+far as collision detection on the relative motion allows, carrying the cloth near it along a smooth displacement
+field bounded by the self contact's CCD, and the rest between Newton iterations). The start placement must be free
+of self-intersections (an InputError names the first pair). Not yet: friction with the body, cloth edges against
+the body (vertices only).
 
 Time: ``fps`` frames per second with ``substeps`` implicit steps each; the body and the waist anchors move
 continuously (poses at each substep's start and end). Deterministic: the same inputs give the same frames.
@@ -282,9 +285,10 @@ def drape(garment, material, body=None, motion="static", frames=48, fps=DEFAULT_
         if writer:
             writer.write_frame(welded.to_garment(x))
         for frame in range(1, frames):
-            # A frame whose step fails, or that ends with the cloth through itself (the body carries the cloth it
-            # reaches to its end pose at each step's start, vertex by vertex, outside the self-contact bound), is
-            # done again from its start with twice the substeps (smaller body moves), up to MAX_SUBSTEP_SPLITS times.
+            # A frame whose step fails (e.g. cloth pinched so that the body cannot reach its end pose within the
+            # step's Newton iterations), or that ends with the cloth through itself (a safety net: every move of
+            # the cloth, the body's carry included, is bounded by collision detection), is done again from its
+            # start with twice the substeps (smaller body moves), up to MAX_SUBSTEP_SPLITS times.
             n, error = substeps, None
             for attempt in range(MAX_SUBSTEP_SPLITS + 1):
                 try:

@@ -1,7 +1,10 @@
 #include "garment/revolved_body.hpp"
 
+#include <Eigen/Geometry>
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
+#include <cstdlib>
 #include <limits>
 
 #include "contact/barrier.hpp"
@@ -13,7 +16,14 @@ namespace drapelab {
 
 namespace {
 constexpr double kCcdGapFraction = 0.1;  // a step may close at most 90 % of a vertex's clearance
-constexpr double kCarryReach = 0.02;     // m: cloth this close to a moving part starts the step carried by it
+constexpr double kCarryFull = 0.01;   // m: cloth this close to the body moves with it (obstacle_carry)
+constexpr double kCarryReach = 0.03;  // m: ... falling smoothly to none at this clearance
+constexpr double kBlendWidth = 0.005; // m: least width of the softmin that blends the parts' motions ...
+constexpr double kBlendSpreadFactor = 2.0;  // ... else this times the spread of their motions
+constexpr double kBlendContactFactor = 0.02; // ... times min(1, clearance / kCarryFull), at least this
+constexpr double kSpreadReach = 0.05;       // m: parts this much farther than the nearest count in the spread
+constexpr double kCarryWidthFactor = 4.0;   // the falloff is at least this times the motion wide
+constexpr double kMaxCarry = 0.1;           // m: no part moves more than this in a step (where the carry looks)
 }
 
 RevolvedBodyContact::RevolvedBodyContact(std::vector<RevolvedPart> parts, Eigen::VectorXd kappa, double activation)
@@ -39,6 +49,7 @@ RevolvedBodyContact::RevolvedBodyContact(std::vector<RevolvedPart> parts, Eigen:
   }
   start_.assign(parts_.size(), RigidPose{});
   end_ = start_;
+  current_ = start_;
 }
 
 void RevolvedBodyContact::set_poses(const std::vector<RigidPose>& start, const std::vector<RigidPose>& end) {
@@ -46,6 +57,27 @@ void RevolvedBodyContact::set_poses(const std::vector<RigidPose>& start, const s
     throw InputError("body: expected " + std::to_string(parts_.size()) + " poses per time");
   start_ = start;
   end_ = end;
+  current_ = start;
+  progress_ = 0.0;
+}
+
+RigidPose RevolvedBodyContact::interpolate(const RigidPose& a, const RigidPose& b, double t) {
+  const Eigen::AngleAxisd rel(a.R.transpose() * b.R);
+  RigidPose out;
+  out.R = a.R * Eigen::AngleAxisd(t * rel.angle(), rel.axis()).toRotationMatrix();
+  out.c = a.c + t * (b.c - a.c);
+  return out;
+}
+
+void RevolvedBodyContact::advance_obstacle(double tau) {
+  if (!(tau >= 0)) throw SolverError("body: advance by " + std::to_string(tau) + " of its motion");
+  if (tau >= 1) {
+    current_ = end_;
+    progress_ = 1.0;
+    return;
+  }
+  for (size_t k = 0; k < parts_.size(); ++k) current_[k] = interpolate(current_[k], end_[k], tau);
+  progress_ += tau * (1.0 - progress_);
 }
 
 // Clearance of a point y in part k's rest frame; gradient and Hessian in that frame.
@@ -78,9 +110,13 @@ static double local_clearance(const RevolvedPart& part, const Eigen::Vector3d& y
   return rho - r;
 }
 
+double RevolvedBodyContact::part_clearance_at(int k, const RigidPose& P, const Eigen::Vector3d& q) const {
+  return local_clearance(parts_[k], P.R.transpose() * (q - P.c), nullptr, nullptr);
+}
+
 double RevolvedBodyContact::part_clearance(int k, const Eigen::Vector3d& q, Eigen::Vector3d* grad,
-                                           Eigen::Matrix3d* hess, bool at_start) const {
-  const RigidPose& P = at_start ? start_[k] : end_[k];
+                                           Eigen::Matrix3d* hess) const {
+  const RigidPose& P = current_[k];
   const Eigen::Vector3d y = P.R.transpose() * (q - P.c);
   Eigen::Vector3d gl;
   Eigen::Matrix3d Hl;
@@ -225,29 +261,96 @@ double RevolvedBodyContact::max_step(const Eigen::VectorXd& x, const Eigen::Vect
   return alpha;
 }
 
-void RevolvedBodyContact::carry_start(Eigen::VectorXd& x) const {
+void RevolvedBodyContact::obstacle_carry(const Eigen::VectorXd& x, Eigen::VectorXd& u) const {
+  if (progress_ >= 1) return;
   const int nparts = static_cast<int>(parts_.size());
+  std::vector<double> c(nparts);
+  std::vector<Eigen::Vector3d> D(nparts);
   for (int i = 0; i < kappa_.size(); ++i) {
     const Eigen::Vector3d q = x.segment<3>(3 * i);
-    bool clear_already = true;  // only cloth the moving body would reach (or pass) needs carrying
-    for (int k = 0; k < nparts && clear_already; ++k) clear_already = part_clearance(k, q) > 0.5 * dhat_;
-    if (clear_already) continue;
-    int nearest = -1;
-    double best = kCarryReach;
+    double cmin = std::numeric_limits<double>::infinity();
+    int nearest = 0;
     for (int k = 0; k < nparts; ++k) {
-      const double c = part_clearance(k, q, nullptr, nullptr, true);
-      if (c < best) {
-        best = c;
-        nearest = k;
-      }
+      c[k] = part_clearance(k, q) / lipschitz_[k];  // gradient norm <= 1
+      if (c[k] < cmin) cmin = c[k], nearest = k;
     }
-    if (nearest < 0) continue;
-    const RigidPose &a = start_[nearest], &b = end_[nearest];
-    const Eigen::Vector3d moved = b.R * (a.R.transpose() * (q - a.c)) + b.c;
-    bool clear = true;
-    for (int k = 0; k < nparts && clear; ++k) clear = part_clearance(k, moved) > 0;
-    if (clear) x.segment<3>(3 * i) = moved;
+    if (!(cmin < kCarryReach + kCarryWidthFactor * kMaxCarry)) continue;
+    for (int k = 0; k < nparts; ++k) {
+      const RigidPose &a = current_[k], &b = end_[k];
+      D[k] = b.R * (a.R.transpose() * (q - a.c)) + b.c - q;  // part k's rigid motion of q
+    }
+    // Widths scale with the motion so that the field's gradient stays below 1 (the carried map is injective and
+    // layers 0.5 mm apart move nearly together): the blend with the parts' motions' spread, the falloff with the
+    // motion itself.
+    double spread = 0;
+    for (int k = 0; k < nparts; ++k)
+      spread = std::max(spread, (D[k] - D[nearest]).norm() * std::max(0.0, 1.0 - (c[k] - cmin) / kSpreadReach));
+    // ... and shrinks toward contact: cloth touching one part moves with that part only (no motion relative to
+    // it, so the bound on the relative motion does not hold it back).
+    const double sigma = std::max(kBlendWidth, kBlendSpreadFactor * spread) *
+                         std::clamp(cmin / kCarryFull, kBlendContactFactor, 1.0);
+    Eigen::Vector3d d = Eigen::Vector3d::Zero();
+    double wsum = 0;
+    for (int k = 0; k < nparts; ++k) {
+      const double w = std::exp(-(c[k] - cmin) / sigma);
+      if (w < 1e-12) continue;
+      d += w * D[k];
+      wsum += w;
+    }
+    d /= wsum;
+    const double width = std::max(kCarryReach - kCarryFull, kCarryWidthFactor * d.norm());
+    if (cmin >= kCarryFull + width) continue;
+    double f = 1.0;
+    if (cmin > kCarryFull) {
+      const double t = (cmin - kCarryFull) / width;
+      f = 1.0 - t * t * (3.0 - 2.0 * t);
+    }
+    u.segment<3>(3 * i) += f * d;
   }
+}
+
+double RevolvedBodyContact::obstacle_max_advance(const Eigen::VectorXd& x, const Eigen::VectorXd& u) const {
+  if (progress_ >= 1) return 1.0;
+  const int nparts = static_cast<int>(parts_.size());
+  // Per part: the rotation from the current to the end pose (angle theta about the world axis n) and the translation.
+  std::vector<Eigen::Vector3d> axis(nparts), shift(nparts);
+  std::vector<double> angle(nparts);
+  for (int k = 0; k < nparts; ++k) {
+    const RigidPose &a = current_[k], &b = end_[k];
+    const Eigen::AngleAxisd rel(a.R.transpose() * b.R);
+    angle[k] = std::abs(rel.angle());
+    axis[k] = a.R * rel.axis() * (rel.angle() < 0 ? -1.0 : 1.0);
+    shift[k] = b.c - a.c;
+  }
+  double alpha = 1.0;
+  for (int i = 0; i < kappa_.size(); ++i) {
+    const Eigen::Vector3d q = x.segment<3>(3 * i), d = u.segment<3>(3 * i);
+    for (int k = 0; k < nparts; ++k) {
+      // The vertex in the part's frame, y(t) = R(t)^T (q + t d - c(t)), moves at
+      // |y'| = |(d - dc) - theta n x (q - c0 + t (d - dc))| <= |w0| + theta |d - dc| = V.
+      const Eigen::Vector3d rel_move = d - shift[k];
+      const Eigen::Vector3d w0 = rel_move - angle[k] * axis[k].cross(q - current_[k].c);
+      const double V = w0.norm() + angle[k] * rel_move.norm();
+      if (V == 0) continue;
+      const double L = lipschitz_[k];
+      const double c0 = part_clearance(k, q);
+      if (c0 - alpha * L * V > kCcdGapFraction * c0) continue;  // cannot come close within this advance
+      double t = 0;
+      for (int it = 0; it < 64 && t < alpha; ++it) {
+        const double c = part_clearance_at(k, interpolate(current_[k], end_[k], t), q + t * d);
+        if (c <= kCcdGapFraction * c0) break;
+        t += (c - kCcdGapFraction * c0) / (L * V);
+      }
+      if (t < alpha && std::getenv("DRAPELAB_DEBUG_CROSSING")) {
+        std::fprintf(stderr, "  body advance limited to %.3g by vertex %d (%.4f %.4f %.4f) part %d: clearance %.3g, "
+                     "others", t, i, q.x(), q.y(), q.z(), k, c0);
+        for (size_t j = 0; j < parts_.size(); ++j) std::fprintf(stderr, " %.3g", part_clearance(static_cast<int>(j), q));
+        std::fprintf(stderr, ", move %.3g, bound speed %.3g\n", d.norm(), V);
+      }
+      alpha = std::min(alpha, t);
+    }
+  }
+  return alpha;
 }
 
 }  // namespace drapelab

@@ -11,8 +11,14 @@
 // which the collision check uses (conservative advancement with Lipschitz constant L_k).
 // Energy (one contact per cloth vertex and part, as disk_contact): E = sum kappa_i b(g_ik) with the IPC barrier
 // b of reach dhat (contact/barrier.hpp), kappa_i = weight-scaled as in disk_contact; no friction (yet).
-// Within one time step the body is at its end pose (set before the step); the collision check follows each
-// vertex's path relative to the part from the step's start pose to its end pose (both rigid).
+// Within one time step the body moves from its start pose to its end pose (set_poses) as the stepper advances it
+// (Term::obstacle_progress): its current pose is the geodesic interpolation (rotation about a fixed axis, linear
+// translation) at the progress reached, and the energy, derivatives, max_step and clearance are those of the
+// current pose. Each advance carries the cloth near the body along a smooth displacement field (obstacle_carry:
+// a partition of unity over the parts, each part's rigid motion, times a falloff with the clearance, so stacked
+// layers move together) and is bounded by conservative advancement on each vertex's motion relative to each moving
+// part (obstacle_max_advance); the stepper bounds the same move by the self contact's CCD. No cloth is moved
+// outside collision detection's bound.
 #pragma once
 #include <Eigen/Core>
 #include <memory>
@@ -39,9 +45,9 @@ class RevolvedBodyContact : public Term {
   std::string name() const override { return "body_contact"; }
   bool is_contact() const override { return true; }
   bool provides_step_matrix_derivatives() const override { return false; }
-  // The poses at the start and the end of the next step (one per part).
+  // The poses at the start and the end of the next step (one per part); the body is at its start pose (progress 0).
   void set_poses(const std::vector<RigidPose>& start, const std::vector<RigidPose>& end);
-  // Clearance of each point (N x 3 flat) against the body at its end pose (min over parts), metres.
+  // Clearance of each point (N x 3 flat) against the body at its current pose (min over parts), metres.
   Eigen::VectorXd clearance(const Eigen::VectorXd& x) const;
 
   std::vector<std::vector<int>> stencils() const override;
@@ -63,20 +69,30 @@ class RevolvedBodyContact : public Term {
                                    const Eigen::VectorXd&, double, Eigen::VectorXd&, Eigen::VectorXd&) const override;
   double max_step(const Eigen::VectorXd& x, const Eigen::VectorXd& dx, const Eigen::VectorXd& p) const override;
 
-  // g and its gradient / Hessian (world frame) of point q against part k at its end pose.
+  // g and its gradient / Hessian (world frame) of point q against part k at its current pose.
   double part_clearance(int k, const Eigen::Vector3d& q, Eigen::Vector3d* grad = nullptr,
-                        Eigen::Matrix3d* hess = nullptr, bool at_start = false) const;
-  // Cloth vertices that the body at its end pose would reach (clearance below half the barrier's reach) and that
-  // lay within kCarryReach of a part at the start pose move rigidly with that part to its end pose (where that
-  // keeps them clear of every part): the IPC step's first iterate when the body moves; the others stay.
-  void carry_start(Eigen::VectorXd& x) const override;
+                        Eigen::Matrix3d* hess = nullptr) const;
+  // The same at a given pose of the part.
+  double part_clearance_at(int k, const RigidPose& pose, const Eigen::Vector3d& q) const;
+
+  double obstacle_progress() const override { return progress_; }
+  // u_i += f(c_i) sum_k w_ik D_k(q_i): D_k part k's rigid motion of q_i from its current to its end pose, w_ik a
+  // partition of unity over the parts (softmin of the clearances g_k / L_k, its width at least kBlendWidth and
+  // the spread of the D_k), f = 1 within kCarryFull of the body falling smoothly (C1) to 0 over at least
+  // kCarryReach - kCarryFull and 4 |D|: the field's gradient stays below 1, stacked layers move together.
+  void obstacle_carry(const Eigen::VectorXd& x, Eigen::VectorXd& u) const override;
+  double obstacle_max_advance(const Eigen::VectorXd& x, const Eigen::VectorXd& u) const override;
+  void advance_obstacle(double tau) override;
+  // The pose between a and b at the fraction t (rotation about the fixed axis of a^T b, linear translation).
+  static RigidPose interpolate(const RigidPose& a, const RigidPose& b, double t);
 
  private:
   // Per vertex: E_i = sum_k kappa_i b(g_ik); value, gradient and (exact or Gauss-Newton) Hessian.
   double vertex_terms(int i, const Eigen::Vector3d& q, Eigen::Vector3d* g, Eigen::Matrix3d* H, int kind) const;
   std::vector<RevolvedPart> parts_;
   std::vector<double> lipschitz_;
-  std::vector<RigidPose> start_, end_;
+  std::vector<RigidPose> start_, end_, current_;
+  double progress_ = 1.0;
   Eigen::VectorXd kappa_;
   double dhat_;
   std::vector<int> diag_;  // pattern index of each vertex's 3x3 diagonal block, upper triangle (6 per vertex)

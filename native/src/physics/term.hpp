@@ -76,9 +76,19 @@ class Term {
   // (friction's normal forces and tangent frames, IPC's lagged friction) are taken from it. h = 0: a
   // static solve (no friction: the static equilibrium is the frictionless one).
   virtual void begin_step(const Eigen::VectorXd& /*x*/, const Eigen::VectorXd& /*p*/, double /*h*/) {}
-  // Moving obstacles (a garment's body): moves the step's first iterate x (the start state) so that it is clear
-  // of the obstacle at its end-of-step pose (cloth near a part is carried along with it).
-  virtual void carry_start(Eigen::VectorXd& /*x*/) const {}
+  // Kinematic obstacles that move within a step (a garment's body, garment/revolved_body.hpp). A step starts with
+  // the obstacle at its start pose (progress 0; the start state is clear of it there) and must end with it at its
+  // end pose (progress 1). The stepper advances it as far as collision detection allows, the cloth near it carried
+  // along (obstacle_carry), every move checked (obstacle_max_advance on the relative motion, every other term's
+  // max_step on the cloth's), and the rest between Newton iterations. Defaults: no moving obstacle.
+  virtual double obstacle_progress() const { return 1.0; }
+  // u += the cloth displacement that accompanies the rest of the obstacle's motion (zero away from it).
+  virtual void obstacle_carry(const Eigen::VectorXd& /*x*/, Eigen::VectorXd& /*u*/) const {}
+  // Largest fraction tau in [0, 1] of the rest of the obstacle's motion such that the cloth moving along
+  // x + t u stays clear of the obstacle moving with it, t in [0, tau] (conservative).
+  virtual double obstacle_max_advance(const Eigen::VectorXd& /*x*/, const Eigen::VectorXd& /*u*/) const { return 1.0; }
+  // Moves the obstacle by the fraction tau of the rest of its motion (tau = 1: to its end pose).
+  virtual void advance_obstacle(double /*tau*/) {}
   // The adjoint's return to a step that the forward began (begin_step) and accepted: the same lagged state,
   // without begin_step's checks (which that state passed). Default: begin_step.
   virtual void resume_step(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double h) { begin_step(x, p, h); }

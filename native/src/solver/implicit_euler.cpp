@@ -39,6 +39,33 @@ void factorize_step(CholmodSolver& solver, const Eigen::VectorXd& A, int step) {
     throw SolverError(s.str());
   }
 }
+
+// Moving obstacles (Term::obstacle_progress, a garment's body): each advances toward its end pose with the cloth
+// near it carried along (obstacle_carry), as far as collision detection allows: the obstacle's own check on the
+// relative motion and every other term's max_step on the cloth's move (self contact's CCD). Returns true when
+// every obstacle is at its end pose; x stays intersection-free and clear of the obstacles.
+bool advance_obstacles(const Model& model, Eigen::VectorXd& x, const Eigen::VectorXd& p) {
+  bool done = true;
+  for (const auto& t : model.terms()) {
+    if (t->obstacle_progress() >= 1) continue;
+    Eigen::VectorXd u = Eigen::VectorXd::Zero(x.size());
+    t->obstacle_carry(x, u);
+    double tau = t->obstacle_max_advance(x, u);
+    const double own = tau;
+    if (u.lpNorm<Eigen::Infinity>() > 0)
+      for (const auto& o : model.terms())
+        if (o.get() != t.get()) tau = std::min(tau, o->max_step(x, u, p));
+    if (std::getenv("DRAPELAB_DEBUG_CROSSING"))
+      std::fprintf(stderr, "obstacle advance: %.3g (its own bound %.3g), carry up to %.3g m\n", tau, own,
+                   u.lpNorm<Eigen::Infinity>());
+    if (tau > 0) {
+      x += tau * u;
+      t->advance_obstacle(tau);
+    }
+    done = done && t->obstacle_progress() >= 1;
+  }
+  return done;
+}
 }  // namespace
 
 ImplicitEuler::ImplicitEuler(const Model& model) : model_(model), solver_(model.pattern()) {}
@@ -277,7 +304,9 @@ Eigen::VectorXd ImplicitEuler::contact_step(const Eigen::VectorXd& p, const Roll
   };
   const bool offpattern = has_offpattern_terms(model_);
   Eigen::VectorXd x = x_, g, A, dx, xn;
-  for (const auto& t : model_.terms()) t->carry_start(x);
+  // The body moves within the step (its start pose first): as far as collision detection allows now, the rest
+  // between Newton iterations (which move the cloth it presses out of its way).
+  bool obstacles_done = advance_obstacles(model_, x, p);
   const bool debug_crossing = std::getenv("DRAPELAB_DEBUG_CROSSING") != nullptr;
   auto crossed = [&](const Eigen::VectorXd& y, const char* where) {
     if (!debug_crossing) return;
@@ -290,7 +319,7 @@ Eigen::VectorXd ImplicitEuler::contact_step(const Eigen::VectorXd& p, const Roll
       t->begin_step(x_, p, h);
     }
   };
-  crossed(x, "after carry_start");
+  crossed(x, "after the body's first advance");
   double Phi = potential(x);
   if (!std::isfinite(Phi)) {
     std::ostringstream s;
@@ -319,8 +348,19 @@ Eigen::VectorXd ImplicitEuler::contact_step(const Eigen::VectorXd& p, const Roll
   int last_kind = 0, since_probe = 0;
   bool probe_exact = false;
   for (int it = 0; it < options.contact_max_iterations; ++it) {
+    if (!obstacles_done) {
+      obstacles_done = advance_obstacles(model_, x, p);
+      Phi = potential(x);
+      gradient(x, g);
+      crossed(x, "after the body's advance");
+      if (debug_crossing) {
+        double progress = 1;
+        for (const auto& t : model_.terms()) progress = std::min(progress, t->obstacle_progress());
+        std::fprintf(stderr, "step %d it %d body at %.6f of its motion, potential %.6g\n", step, it, progress, Phi);
+      }
+    }
     const double r = residual(g);
-    if (r < options.contact_force_tolerance) break;
+    if (r < options.contact_force_tolerance && obstacles_done) break;
     auto t0 = std::chrono::steady_clock::now();
     // Newton matrix: the static solve's (exact stretch with its compression softening, Gauss-Newton bending;
     // StaticSolver) plus the contact terms' exact Hessians (over the rounded rim the barrier's Hessian is
@@ -382,8 +422,8 @@ Eigen::VectorXd ImplicitEuler::contact_step(const Eigen::VectorXd& p, const Roll
       if (std::isfinite(potential(xn))) x = xn;
       // Converged only if the exact Hessian gave the move: a substitute (projected or step matrix) can give a
       // negligible move while soft directions still carry force (the adjoint differentiates the minimiser).
-      if (last_kind == 0 || probed) break;  // (the exact Hessian was tried and did not factorise: as converged as
-      probe_exact = true;                   // the substitutes can make it)
+      if ((last_kind == 0 || probed) && obstacles_done) break;  // (the exact Hessian was tried and did not
+      probe_exact = true;                   // factorise: as converged as the substitutes can make it)
       gradient(x, g);
       continue;
     }
@@ -428,9 +468,16 @@ Eigen::VectorXd ImplicitEuler::contact_step(const Eigen::VectorXd& p, const Roll
         g = gn;
         continue;
       }
-      break;  // the last collision-free iterate is kept
+      if (obstacles_done) break;  // the last collision-free iterate is kept
+      continue;                   // (the body still moves: its advance changes the state)
     }
     gradient(x, g);
+  }
+  if (!obstacles_done) {
+    std::ostringstream s;
+    s << "rollout: step " << step << " the moving body did not reach its end pose in "
+      << options.contact_max_iterations << " Newton iterations (cloth caught against it): use shorter steps";
+    throw SolverError(s.str());
   }
   if (debug_crossing) { gradient(x, g); std::fprintf(stderr, "step %d end residual %.3g kind %d\n", step, residual(g), last_kind); }
   Eigen::VectorXd v_next = (x - x_) / h;
@@ -523,7 +570,12 @@ Eigen::VectorXd ImplicitEuler::linear_contact_step(const Eigen::VectorXd& p, con
   }
   const Eigen::VectorXd x_hat = x_ + h * v_;
   Eigen::VectorXd x = x_, A, g, dx;
-  for (const auto& t : model_.terms()) t->carry_start(x);
+  if (!advance_obstacles(model_, x, p)) {  // the body moves within the step: only the Newton step finishes it
+    std::ostringstream s;
+    s << "rollout: step " << step << " the moving body cannot reach its end pose within collision detection's "
+      << "bound in one move (use contact_step = newton, or shorter steps)";
+    throw SolverError(s.str());
+  }
   // Only a contact term's energy can be infinite (a state in contact).
   double contact_energy = 0;
   for (const auto& t : model_.terms())
