@@ -107,7 +107,8 @@ class PairContactTerm : public Term, public SteppedContact {
     start_step(x, p, h, false, false);
   }
   // SteppedContact (contact/stepped_contact.hpp): begin_step without the intersection check, unless a moving
-  // obstacle may have carried the cloth (carry_start moves it outside the CCD bound); the sweep check stays.
+  // obstacle may have carried the cloth (obstacle_carry in physics/term.hpp moves it outside the CCD bound); the
+  // sweep check stays.
   void continue_step(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double h) override {
     start_step(x, p, h, obstacle_moves(), true);
   }
