@@ -57,8 +57,8 @@ EffectSpec make_tilt_effect() {
   s.name = "tilt";
   s.explanation = "the tester is not level: gravity is off vertical by an angle towards an azimuth";
   s.signature = "a 1-fold r(theta) residual: the specimen hangs further out on the downhill side";
-  // A 4 degree tilt is below the re-drape noise on circle3 (CONVENTIONS.md); 0.15 rad (8.6 degrees) is the
-  // provisional moderate strength until the registry's moderate values are measured against the noise floor.
+  // A 4 degree tilt is below the re-drape noise on circle3 (CONVENTIONS.md). The moderate 0.15 rad (8.6 degrees)
+  // moves circle3's silhouette by a pixel MSE of 0.017 and its DC by < 0.001 (docs/physics.md, tilt).
   s.parameters = {
       // Signed: a negative angle tilts towards azimuth + pi. The off value is then inside the range, so the fit
       // and the diagnosis' score test see a continuous effect at zero (CONVENTIONS.md).
