@@ -36,8 +36,8 @@
    their norms are capped at fit.json gradient_clip.factor x the median first, as the fitter does (the scatter
    with the same factor). The threshold is alpha = 0.01, Bonferroni-corrected over the candidates tested. A
    parameter without gradient at the off point (a tilt's azimuth at zero angle) drops out of the rank; the
-   tilt's angle is therefore also scored with the azimuth turned by 90 degrees (SECOND_DIRECTIONS: one more
-   rollout per draw), so both tilt directions are seen.
+   tilt's angle is therefore also scored with the azimuth turned by 90 degrees (the registry's
+   `second_direction`: one more rollout per draw), so both tilt directions are seen.
    The material is a nuisance: what a change of its overall bending scale explains (a drape coefficient off the
    measured one pulls on every effect that moves it) is projected out of each draw's score first (the efficient
    score, with the information estimated by the outer product of the per-draw gradients; one dof lost).
@@ -103,13 +103,18 @@ RANK_TOLERANCE = 1e-9     # eigenvalues of the scaled gradient covariance below 
 MATERIAL_LEARNING_RATE_FACTOR = 0.0  # refits hold the material at P's posterior (module doc)
 REPORT_RESERVE_S = 5.0    # seconds kept back from the refits for the evaluation bookkeeping and the report
 SCORE_SIGMA_DC = 0.0      # the score test's data term: pixel term only (see the module doc)
-# Effects whose primary parameter acts along a direction parameter that has no gradient at the off value (a
-# tilt's azimuth at zero angle): the primary's score is also taken with the direction parameter at this value
-# (still the base model, the primary being off), so that the test sees the effect in every direction, at the
-# cost of one more recorded rollout and backward per draw. Key in the gradients: "tilt.angle_rad@azimuth_rad".
 PSEUDO_MIN = 4            # predictive silhouettes drawn as the null reference (at least; as many as images)
 PSEUDO_SEED_OFFSET = 100000  # their placement seeds: [seed, offset + j, 1], apart from the scored draws' [seed, i, 1]
-SECOND_DIRECTIONS = {"tilt": {"azimuth_rad": math.pi / 2}}
+
+
+def second_directions(reg):
+    """{effect: {parameter: value}} from the registry's `second_direction`: effects whose primary parameter acts
+    along a direction parameter that has no gradient at the off value (a tilt's azimuth at zero angle). The
+    primary's score is also taken with the direction parameter at this value (still the base model, the primary
+    being off), so that the test sees the effect in every direction, at the cost of one more recorded rollout and
+    backward per draw. Key in the gradients: "tilt.angle_rad@azimuth_rad"."""
+    entries = reg.values() if isinstance(reg, dict) else reg
+    return {e["name"]: dict(e["second_direction"]) for e in entries if e.get("second_direction")}
 FOLD_WORDS = {
     1: "1-fold: the drape hangs further out on one side (offset, tilt, a density or stiffness gradient)",
     2: "2-fold: the drape is longer along one axis (warp-weft anisotropy or shrinkage, camera aspect)",
@@ -452,7 +457,8 @@ def _joint_drapes(preset, observations, names, k, seed, config, threads, templat
                                    effects={**p_active, **offs}, px_per_m=pred.calibration.px_per_m)
               for _ in range(lanes)]
     renderers = [render.SoftRenderer(pred.camera, sigma=config["render_sigma_px"]) for _ in range(lanes)]
-    turned = {n: {**offs[n], **SECOND_DIRECTIONS[n]} for n in names if n in SECOND_DIRECTIONS}
+    second = second_directions(reg)
+    turned = {n: {**offs[n], **second[n]} for n in names if n in second}
     turned_models = [infer.sim.ClothModel(mesh, heterogeneous=True, density=preset["density_kg_m2"],
                                           effects={**p_active, **turned}, px_per_m=pred.calibration.px_per_m)
                      for _ in range(lanes)] if turned else None
@@ -535,7 +541,7 @@ def _joint_drapes(preset, observations, names, k, seed, config, threads, templat
                     return
                 for n in turned:
                     primary = reg[n]["parameters"][0]["name"]
-                    for q in SECOND_DIRECTIONS[n]:
+                    for q in second[n]:
                         g[f"{n}.{primary}@{q}"] = gt[f"{n}.{primary}"]
                         gu[f"{n}.{primary}@{q}"] = gtu[f"{n}.{primary}"]
             grads[i] = g
@@ -618,6 +624,7 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
         measure.check_output_path(os.path.join(out_dir, "diagnosis.json"), "diagnosis")
     observations = _observations(images)
     reg = fit_effects.registry()
+    second = second_directions(reg)
     alpha = float(alpha)
     if not 0 < alpha <= 1:
         raise InputError(f"alpha: a significance level in (0, 1], got {alpha}")
@@ -686,7 +693,7 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
             params = reg[n]["parameters"]
             keys = [f"{n}.{q['name']}" for q in params]
             scales = [q["prior_scale"] for q in params]
-            for q in SECOND_DIRECTIONS.get(n, {}):
+            for q in second.get(n, {}):
                 keys.append(f"{keys[0]}@{q}")
                 scales.append(params[0]["prior_scale"])
             entry = {"effect": n, "parameters": keys, "statistic": None, "p_value": None, "refit": None,

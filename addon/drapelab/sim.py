@@ -57,9 +57,11 @@ TABLE_SHAPES = {"stretch": tables.STRETCH_SHAPE, "bend": tables.BEND_SHAPE}
 
 # ---------------------------------------------------------------- effects
 def effects():
-    """The effect registry: a list of {name, explanation, signature, dynamic_only, parameters: [{name, unit, off,
-    lower, upper, prior_scale, moderate, description}]} (the first parameter is the primary one; dynamic_only: the
-    effect acts only over a dynamic rollout's time steps, e.g. damping, and a static drape ignores it)."""
+    """The effect registry: a list of {name, explanation, signature, dynamic_only, second_direction, parameters:
+    [{name, unit, off, lower, upper, prior_scale, moderate, structural, description}]} (the first parameter is the
+    primary one; dynamic_only: the effect acts only over a dynamic rollout's time steps, e.g. damping, and a static
+    drape ignores it; second_direction: {parameter: value} under which the diagnosis scores the primary again,
+    e.g. a tilt's azimuth turned by 90 degrees)."""
     return [dict(e) for e in native.effects()]
 
 

@@ -119,6 +119,9 @@ py::list effect_list() {
     d["signature"] = e.signature;
     d["dynamic_only"] = e.dynamic_only;
     d["parameters"] = params;
+    py::dict second;
+    for (const auto& [name, value] : e.second_direction) second[py::str(name)] = value;
+    d["second_direction"] = second;
     out.append(d);
   }
   return out;

@@ -3,6 +3,7 @@ differences, a tilted drape (tilt ranked first) and a control (nothing significa
 import copy
 import types
 import json
+import math
 import os
 
 import numpy as np
@@ -85,7 +86,9 @@ def test_score_gradient_matches_central_differences(images, key):
     assert grads[key] == pytest.approx(fd, rel=1e-4, abs=1e-6), key
     if name == "tilt":
         assert grads["tilt.azimuth_rad"] == 0.0  # no gradient at zero angle: the angle is scored turned too
-        offs["tilt"]["azimuth_rad"] = diagnose.SECOND_DIRECTIONS["tilt"]["azimuth_rad"]
+        turn = diagnose.second_directions(sim.effects())["tilt"]
+        assert turn == {"azimuth_rad": pytest.approx(math.pi / 2)}  # the registry's second_direction
+        offs["tilt"]["azimuth_rad"] = turn["azimuth_rad"]
         fd = (data(eps) - data(-eps)) / (2 * eps)
         assert grads["tilt.angle_rad@azimuth_rad"] == pytest.approx(fd, rel=1e-4, abs=1e-6)
         assert abs(fd - grads[key]) > 1e-3 * abs(fd)  # another direction

@@ -67,6 +67,8 @@ EffectSpec make_tilt_effect() {
       {"angle_rad", "rad", 0.0, -0.5, 0.5, 0.15, 0.15, "angle of gravity from the vertical (signed)"},
       {"azimuth_rad", "rad", 0.0, -2 * M_PI, 2 * M_PI, M_PI, 0.7, "direction of the tilt, from +x (weft) towards +y"},
   };
+  // At zero angle the azimuth has no gradient: the diagnosis also scores the angle turned by 90 degrees.
+  s.second_direction = {{"azimuth_rad", M_PI / 2}};
   s.make_terms = [](const EffectContext& c) {
     std::vector<std::unique_ptr<Term>> terms;
     terms.push_back(std::make_unique<TiltTerm>(c));

@@ -83,6 +83,11 @@ struct EffectSpec {
   // Optional: the transform of positions the effect applies before the silhouette render (see
   // PositionTransform); empty for effects that change only the physics.
   std::function<std::unique_ptr<PositionTransform>(const EffectContext&)> make_observation;
+  // Optional: values of other (direction) parameters under which the diagnosis scores the primary parameter a
+  // second time, for an effect whose direction has no gradient at the off values (a tilt's azimuth at zero
+  // angle: scored at azimuth 0 and again at pi/2, so that every direction is seen). Still the base model, the
+  // primary being off. Each value lies inside its parameter's bounds (tests/native/physics/test_effects.cpp).
+  std::map<std::string, double> second_direction;
 };
 
 // Effect name -> parameter name -> value; an effect present here is active (missing parameters take their

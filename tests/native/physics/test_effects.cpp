@@ -339,6 +339,10 @@ TEST(EffectRegistry, SpecsAreComplete) {
       EXPECT_TRUE(q.lower <= q.moderate && q.moderate <= q.upper && q.moderate != q.off) << q.name;
       EXPECT_GT(q.prior_scale, 0) << q.name;
     }
+    for (const auto& [name, value] : e.second_direction) {  // a non-primary parameter, inside its bounds
+      EXPECT_NE(name, e.parameters.front().name);
+      EXPECT_NO_THROW(check_effect_value(e, name, value)) << name;
+    }
   }
 }
 
