@@ -11,7 +11,9 @@
 #include <random>
 
 #include "garment/revolved_body.hpp"
+#include "physics/model.hpp"
 #include "physics/sparse_pattern.hpp"
+#include "solver/implicit_euler.hpp"
 
 namespace drapelab {
 namespace {
@@ -276,6 +278,79 @@ TEST(RevolvedBodyEdges, SwingingLegIsStoppedByALongEdgeBetweenFarVertices) {
   EXPECT_LT(edge_at(std::min(1.0, 1.2 * tau)), 0.2 * edge_at(0.0)) << "and is not vacuous";
   std::printf("leg swinging into a 30 cm edge: advance %.3f, edge clearance %.2f mm -> %.3f mm\n", tau,
               edge_at(0.0) * 1e3, edge_at(tau) * 1e3);
+}
+
+// A coarse strip (3 x 2 vertices, its cross edges 20 cm long) dropped 1 cm above a horizontal bar (a leg turned to
+// lie along x, radius 6 cm): every vertex is 10 cm to either side of the bar's axis, beside it, so with vertices
+// alone the strip falls straight through the bar; with the edges it comes to rest on it, every edge clear of it
+// at every step.
+double drop_strip_on_bar(bool edges_too, double* worst_edge, double* lowest) {
+  TriangleMesh mesh;
+  mesh.positions.resize(6, 3);
+  mesh.uv.resize(6, 2);
+  for (int i = 0; i < 3; ++i)
+    for (int j = 0; j < 2; ++j) {
+      const int v = 2 * i + j;
+      mesh.positions.row(v) << -0.1 + 0.1 * i, -0.1 + 0.2 * j, 0.57;
+      mesh.uv.row(v) << -0.1 + 0.1 * i, -0.1 + 0.2 * j;
+    }
+  mesh.faces.resize(4, 3);
+  mesh.faces << 0, 2, 1, 1, 2, 3, 2, 4, 3, 3, 4, 5;
+  ModelOptions o;
+  o.held_vertices = {0};      // the model needs a handle: a negligible one
+  o.handle_stiffness = 1e-6;  // N/m (the vertex weighs 0.02 N)
+  Model model(mesh, o);
+  const Eigen::VectorXd p = model.default_parameters();
+  const Eigen::VectorXd kappa = model.masses(p) * o.gravity * kReach;
+  std::vector<std::array<int, 2>> edges;
+  if (edges_too) edges = {{0, 1}, {0, 2}, {1, 2}, {1, 3}, {2, 3}, {2, 4}, {3, 4}, {3, 5}, {4, 5}};
+  RigidPose bar;  // the leg's axis (down its rest -z) along +x, its middle (s = 0.28) at (0, 0, 0.5)
+  bar.R = Eigen::AngleAxisd(-M_PI / 2, Eigen::Vector3d::UnitY()).toRotationMatrix();
+  bar.c = Eigen::Vector3d(0, 0, 0.5) - bar.R * Eigen::Vector3d(0, 0, 1.0 - 0.28);  // (leg(0) hangs from (0, 0, 1))
+  auto* body = model.add_term(std::make_unique<RevolvedBodyContact>(std::vector<RevolvedPart>{leg(0.0)}, kappa,
+                                                                    kReach, edges));
+  body->set_poses({bar}, {bar});
+  ImplicitEuler sim(model);
+  RolloutOptions ro;
+  ro.time_step = 1.0 / 48;
+  ro.steps = 1;
+  ro.record = false;
+  ro.contact_step = RolloutOptions::ContactStep::kNewton;
+  ro.contact_force_tolerance = 1e-2;
+  Eigen::VectorXd x = Eigen::Map<const Eigen::VectorXd>(mesh.positions.data(), 18);
+  Eigen::VectorXd v = Eigen::VectorXd::Zero(18);
+  // (positions are row-major: x is the flat 3V vector)
+  RevolvedBodyContact probe{{leg(0.0)}, kappa, kReach, {{0, 1}, {0, 2}, {1, 2}, {1, 3}, {2, 3}, {2, 4}, {3, 4}, {3, 5}, {4, 5}}};
+  probe.set_poses({bar}, {bar});
+  *worst_edge = INFINITY;
+  for (int step = 0; step < 24; ++step) {
+    const Eigen::VectorXd next = sim.forward(p, ro, nullptr, &x, &v);
+    v = (next - x) / ro.time_step;
+    x = next;
+    for (const auto& e : probe.edges()) {
+      for (int q = 0; q <= 400; ++q) {
+        const RigidPose& P = bar;
+        const Eigen::Vector3d pt = x.segment<3>(3 * e[0]) + (x.segment<3>(3 * e[1]) - x.segment<3>(3 * e[0])) * (q / 400.0);
+        *worst_edge = std::min(*worst_edge, probe.part_clearance_at(0, P, pt));
+      }
+    }
+  }
+  *lowest = INFINITY;
+  for (int i = 0; i < 6; ++i) *lowest = std::min(*lowest, x[3 * i + 2]);
+  return x.segment<3>(6).z();
+}
+
+TEST(RevolvedBodyEdges, CoarseStripDroppedOnABarHangsOnItsEdges) {
+  double worst_vertices_only, lowest_vertices_only, worst, lowest;
+  drop_strip_on_bar(false, &worst_vertices_only, &lowest_vertices_only);
+  drop_strip_on_bar(true, &worst, &lowest);
+  EXPECT_LT(worst_vertices_only, -0.05) << "vertices alone: the edges pass through the bar";
+  EXPECT_LT(lowest_vertices_only, 0.44) << "vertices alone: the strip falls past the bar";
+  EXPECT_GT(worst, 0.0) << "with the edges: no edge point inside the bar at any step";
+  EXPECT_GT(lowest, 0.5) << "with the edges: the strip rests on the bar";
+  std::printf("strip dropped on a bar, 0.5 s: vertices only: lowest vertex z %.3f m, deepest edge point %.1f mm inside; "
+              "with edges: lowest vertex z %.3f m, least edge clearance %.3f mm\n",
+              lowest_vertices_only, -worst_vertices_only * 1e3, lowest, worst * 1e3);
 }
 
 }  // namespace
