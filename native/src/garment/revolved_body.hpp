@@ -25,6 +25,8 @@
 // with dip_a = g_k(x_a) - d_ek (contact/disk_edge.hpp dip_weight: a C2 smooth step from 0 to 1 over 0.1 mm), only
 // where the minimum is inside the segment: as it moves to an end (dip -> 0) the edge hands over to that vertex's
 // barrier continuously, nothing counted twice; cut between two vertices (d_ek -> 0, both dips > 0) E -> infinity.
+// The edges' step matrix is their projected exact Hessian (b' times the minimum's curvature is what resists
+// sliding a chord across a convex part; Gauss-Newton alone let Newton push hip chords to 1 nm).
 // max_step and obstacle_max_advance bound every edge as every vertex (conservative advancement on d_ek; an
 // edge's points move by convex combinations of its ends' moves, so its ends' speed bounds bound it). Edges out
 // of reach are skipped on a bounding box test before any segment search.
@@ -110,7 +112,7 @@ class RevolvedBodyContact : public Term {
   // Per part: every vertex in the part's rest frame at its current pose (3V).
   std::vector<Eigen::VectorXd> local_positions(const Eigen::VectorXd& x) const;
   // Edge e against part k (local: local_positions): energy, and gradient / 6x6 Hessian (row-major) of kind 0
-  // exact, 1 Gauss-Newton (PSD), 2 projected onto the PSD cone; false when out of reach (nothing written).
+  // exact, 2 projected onto the PSD cone (also the step matrix); false when out of reach (nothing written).
   bool edge_part_terms(int e, int k, const std::vector<Eigen::VectorXd>& local, double* E, double* g, double* H,
                        int kind) const;
   // sum over edges and parts; out: gradient (3V) / Hessian values (pattern) / Hessian product, as requested.
