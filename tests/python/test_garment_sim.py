@@ -47,10 +47,9 @@ def test_stiff_wool_flares_wider_than_soft_viscose(small_skirt):
     for name, preset in (("wool", WOOL), ("viscose", VISCOSE)):
         m = material.sample_garment_material(preset, small_skirt, seed=0)[0]
         hems[name] = simulate.drape(small_skirt, m, motion="static", frames=12, keep_frames=False)["hem_radius_m"]
-    # measured 0.171 m against 0.144 m after 0.5 s (the flared skirt's rest hem: 0.386 m). Before the body kept
-    # cloth EDGES off it, viscose reached 0.108 m with this 600-vertex skirt's 4-6 cm edges cutting 5.5 mm into the
-    # legs between their vertices; its hem now rests on the legs (their outer sides 0.135 m from the axis).
-    assert hems["wool"] > hems["viscose"] + 0.02, hems
+    # measured 0.171 m against 0.109 m after 0.5 s (the flared skirt's rest hem: 0.386 m), edges kept off the body
+    # (before: 0.171 / 0.108 m with this 600-vertex skirt's edges cutting up to 5.5 mm into the legs)
+    assert hems["wool"] > hems["viscose"] + 0.03, hems
 
 
 def _edge_clearance_sampled(x, faces, body, transforms, samples=31):
