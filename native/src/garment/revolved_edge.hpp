@@ -211,7 +211,8 @@ T segment_part_clearance(const ProfileView& P, const T* ya, const T* yb, const S
 // sqrt(1 + the largest |r'| of the pieces its heights reach).
 inline double box_clearance_bound(const ProfileView& P, const double* lo, const double* hi, double* lipschitz) {
   const double cx = std::clamp(P.origin[0], lo[0], hi[0]), cy = std::clamp(P.origin[1], lo[1], hi[1]);
-  const double dxy = std::hypot(P.origin[0] - cx, P.origin[1] - cy);
+  const double ux = P.origin[0] - cx, uy = P.origin[1] - cy;
+  const double dxy = std::sqrt(ux * ux + uy * uy);  // (not std::hypot: this runs per edge and part, hypot is slow)
   const double smin = P.origin[2] - hi[2], smax = P.origin[2] - lo[2];
   double rmax = 0, slope = 0;
   if (smax >= P.s[0] && smin <= P.s[P.n - 1]) {
