@@ -174,6 +174,10 @@ def test_bad_input_is_named(small_skirt):
     inside.positions = inside.positions * np.array([0.3, 0.3, 1.0])  # shrunk into the hips
     with pytest.raises(sim.InputError, match="inside the body"):
         simulate.drape(inside, m, frames=2)
+    cut = skirt.make_skirt("flared", vertices=600)
+    cut.positions = cut.positions * np.array([0.96, 0.96, 1.0])  # every vertex >= 0.8 mm off, waist chords 1.3 mm in
+    with pytest.raises(sim.InputError, match="edges start through the body"):
+        simulate.drape(cut, m, frames=2)
     with pytest.raises(sim.InputError, match="frames"):
         simulate.drape(small_skirt, m, frames=1)
     with pytest.raises(sim.InputError, match="GarmentMaterial"):
