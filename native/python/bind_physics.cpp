@@ -13,6 +13,7 @@
 #include <pybind11/pybind11.h>
 #include <pybind11/stl.h>
 
+#include <algorithm>
 #include <memory>
 #include <mutex>
 #include <optional>
@@ -147,7 +148,11 @@ void bind_physics(py::module_& m) {
                            const std::vector<Eigen::Matrix4d>& end) { b.set_poses(poses_from(start), poses_from(end)); },
            py::arg("start"), py::arg("end"), "Rigid 4x4 poses per part at the start and end of the next step.")
       .def("clearance", [](const RevolvedBodyContact& b, const Vector& x) { return Vector(b.clearance(x)); },
-           py::arg("positions"), "Clearance (m, < 0 inside) of each vertex (flat 3V) at the end pose.");
+           py::arg("positions"), "Clearance (m, < 0 inside) of each vertex (flat 3V) at the end pose.")
+      .def("edge_clearance", [](const RevolvedBodyContact& b, const Vector& x) { return Vector(b.edge_clearance(x)); },
+           py::arg("positions"),
+           "Clearance (m, < 0 inside) of each cloth edge (min over its points and the parts; order: `edges`).")
+      .def_property_readonly("edges", &RevolvedBodyContact::edges, "The cloth edges (vertex pairs) kept off the body.");
   m.def(
       "contact_report",
       [](const MatrixX3i& faces, const Vector& positions, std::optional<MatrixX3d> obstacle_positions,
@@ -231,19 +236,31 @@ void bind_physics(py::module_& m) {
            py::arg("px_per_m") = 720.0)
       .def("add_body_contact",
            [](Model& s, const std::vector<std::tuple<Eigen::Vector3d, std::vector<double>, std::vector<double>>>& parts,
-              const Vector& kappa, double activation) {
+              const Vector& kappa, double activation, bool edges_too) {
              if (kappa.size() != s.num_vertices())
                throw InputError("body contact: expected one stiffness per vertex (" + std::to_string(s.num_vertices()) +
                                 "), got " + std::to_string(kappa.size()));
              std::vector<RevolvedPart> ps;
              for (const auto& [origin, sv, rv] : parts) ps.push_back({origin, sv, rv});
-             auto term = std::make_unique<RevolvedBodyContact>(std::move(ps), kappa, activation);
+             // Every mesh edge once (the body keeps edges off it as well as vertices).
+             std::vector<std::array<int, 2>> edges;
+             const auto& F = s.mesh().faces;
+             for (int f = 0; f < (edges_too ? F.rows() : 0); ++f)
+               for (int c = 0; c < 3; ++c) {
+                 const int a = F(f, c), b = F(f, (c + 1) % 3);
+                 edges.push_back({std::min(a, b), std::max(a, b)});
+               }
+             std::sort(edges.begin(), edges.end());
+             edges.erase(std::unique(edges.begin(), edges.end()), edges.end());
+             auto term = std::make_unique<RevolvedBodyContact>(std::move(ps), kappa, activation, std::move(edges));
              return s.add_term(std::move(term));
            },
-           py::arg("parts"), py::arg("kappa"), py::arg("activation"), py::return_value_policy::reference_internal,
-           "Adds contact with a kinematic body of rigid surfaces of revolution (garment/revolved_body.hpp): parts "
-           "[(origin (3,), s (n,), r (n,))], kappa (V,) barrier stiffness per vertex [J], activation (m). Returns "
-           "the term (set_poses, clearance); the model owns it.")
+           py::arg("parts"), py::arg("kappa"), py::arg("activation"), py::arg("edges") = true,
+           py::return_value_policy::reference_internal,
+           "Adds contact with a kinematic body of rigid surfaces of revolution (garment/revolved_body.hpp) for every "
+           "cloth vertex and every mesh edge: parts [(origin (3,), s (n,), r (n,))], kappa (V,) barrier stiffness "
+           "per vertex [J], activation (m); edges=False: vertices only. Returns the term (set_poses, clearance, "
+           "edge_clearance); the model owns it.")
       .def("set_handle_anchors", &Model::set_handle_anchors, py::arg("anchors"),
            "Moves the handle's anchors (H x 3, metres, in handle_vertices order): a kinematic attachment.")
       .def_property_readonly("active_effects", &Model::active_effects)

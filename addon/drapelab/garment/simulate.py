@@ -15,12 +15,12 @@ anchors carried by the pelvis; contact with the body's parts (rigid surfaces of 
 ``BODY_REACH_M``, native garment/revolved_body.hpp) and self contact (the ``self_contact`` effect: IPC barriers
 between non-adjacent point-triangle and edge-edge pairs closer than the fabric's thickness, with friction
 ``SELF_FRICTION``; contact/pair_contact.hpp), so every step is an IPC step (Newton on the incremental potential,
-bounded by continuous collision detection: no cloth vertex ever enters the body, the cloth never passes through
-itself). The body moves inside each step (native ImplicitEuler contact_step: it advances from its start pose as
+bounded by continuous collision detection: no cloth vertex or edge ever enters the body, the cloth never passes
+through itself). The body moves inside each step (native ImplicitEuler contact_step: it advances from its start pose as
 far as collision detection on the relative motion allows, carrying the cloth near it along a smooth displacement
 field bounded by the self contact's CCD, and the rest between Newton iterations). The start placement must be free
-of self-intersections (an InputError names the first pair). Not yet: friction with the body, cloth edges against
-the body (vertices only).
+of self-intersections (an InputError names the first pair) and of the body (vertices and edges). Not yet:
+friction with the body.
 
 Time: ``fps`` frames per second with ``substeps`` implicit steps each; the body and the waist anchors move
 continuously (poses at each substep's start and end). Deterministic: the same inputs give the same frames.
@@ -176,10 +176,11 @@ def _check(garment, material, body, frames, fps, substeps):
                          "(sample it for this garment)")
 
 
-def build_model(garment, material, body, thickness_m=None, friction=SELF_FRICTION, welded=None):
+def build_model(garment, material, body, thickness_m=None, friction=SELF_FRICTION, welded=None, body_edges=True):
     """The native model of the garment (welded at its seams) with its body contact and self contact:
     (ClothModel, parameters, body contact term, WeldedMesh). thickness_m: self contact's reach (None: the
-    material's fabric thickness, else DEFAULT_THICKNESS_M; 0: no self contact)."""
+    material's fabric thickness, else DEFAULT_THICKNESS_M; 0: no self contact). body_edges=False keeps only the
+    cloth's vertices off the body (its edges may cut it between them: for states saved before the edge term)."""
     welded = WeldedMesh(garment) if welded is None else welded
     thickness = self_contact_thickness(material, thickness_m)
     effects = {"self_contact": {"thickness_m": thickness, "friction": friction}} if thickness > 0 else None
@@ -191,7 +192,7 @@ def build_model(garment, material, body, thickness_m=None, friction=SELF_FRICTIO
     weights = np.asarray(model.native.masses(params)) * GRAVITY
     kappa = BARRIER_WEIGHT_SCALE * weights * BODY_REACH_M
     parts = [(np.asarray(o, float), np.asarray(s, float), np.asarray(r, float)) for o, s, r in body.profiles]
-    contact = model.native.add_body_contact(parts, kappa, BODY_REACH_M)
+    contact = model.native.add_body_contact(parts, kappa, BODY_REACH_M, edges=bool(body_edges))
     return model, params, contact, welded
 
 
@@ -213,8 +214,8 @@ def drape(garment, material, body=None, motion="static", frames=48, fps=DEFAULT_
     """Simulates the garment on the body for ``frames`` frames (module doc). Returns a dict: ``positions``
     (frames done, V, 3) float32 when keep_frames, ``first`` and ``last`` (V, 3), and the stats ``vertices``
     (the garment's), ``simulated_vertices`` (seams welded), ``frames`` (done), ``seconds_per_frame``,
-    ``max_body_penetration_m`` (deepest cloth vertex inside the body over all frames, 0 when none),
-    ``min_body_clearance_m``, ``self_intersections_final`` (intersecting face pairs of the last frame),
+    ``max_body_penetration_m`` (deepest cloth point inside the body over all frames: every vertex and every point
+    of every edge, 0 when none), ``min_body_clearance_m`` (the same points' least clearance), ``self_intersections_final`` (intersecting face pairs of the last frame),
     ``hem_radius_m`` (last frame, from the pelvis axis), ``self_contact_thickness_m``, ``cancelled``,
     ``newton_iterations``. All positions are in the garment's vertex order.
     ``thickness_m``: self contact's reach (None: the material's fabric thickness, else DEFAULT_THICKNESS_M; 0: no
@@ -246,6 +247,13 @@ def drape(garment, material, body=None, motion="static", frames=48, fps=DEFAULT_
         worst = int(np.argmax(welded.point == int(np.argmin(clearance0))))
         raise InputError(f"garment: {int((clearance0 <= 0).sum())} vertices start inside the body (deepest: vertex "
                          f"{worst}, {-clearance0.min() * 1000:.1f} mm); move or scale the garment")
+    edge_clearance0 = np.asarray(contact.edge_clearance(x.ravel()))
+    if len(edge_clearance0) and edge_clearance0.min() <= 0:
+        a, b = (int(np.argmax(welded.point == int(i))) for i in contact.edges[int(np.argmin(edge_clearance0))])
+        raise InputError(f"garment: {int((edge_clearance0 <= 0).sum())} edges start through the body (deepest: the "
+                         f"edge between vertices {a} and {b}, {-edge_clearance0.min() * 1000:.1f} mm inside); move or "
+                         "scale the garment, or refine it")
+    clearance0 = np.concatenate([clearance0, edge_clearance0])
     kept = [welded.to_garment(x).astype(np.float32)] if keep_frames else []
     writer = PC2Writer(pc2_path, garment.num_vertices, start_frame=1, sample_rate=1.0) if pc2_path else None
     penetration, clearance_min = 0.0, float(clearance0.min())
@@ -302,7 +310,7 @@ def drape(garment, material, body=None, motion="static", frames=48, fps=DEFAULT_
             if error is not None:
                 raise sim.SolverError(f"garment: frame {frame} failed with up to {n // 2} substeps: {error}")
             x, v = x_next, v_next
-            c = np.asarray(contact.clearance(x.ravel()))
+            c = np.concatenate([np.asarray(contact.clearance(x.ravel())), np.asarray(contact.edge_clearance(x.ravel()))])
             clearance_min = min(clearance_min, float(c.min()))
             penetration = max(penetration, float(max(0.0, -c.min())))
             if writer:

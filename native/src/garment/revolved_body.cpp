@@ -8,6 +8,7 @@
 #include <limits>
 
 #include "contact/barrier.hpp"
+#include "contact/disk_edge.hpp"
 #include "physics/sparse_pattern.hpp"
 #include "util/error.hpp"
 #include "util/psd_projection.hpp"
@@ -24,10 +25,30 @@ constexpr double kBlendContactFactor = 0.02; // ... times min(1, clearance / kCa
 constexpr double kSpreadReach = 0.05;       // m: parts this much farther than the nearest count in the spread
 constexpr double kCarryWidthFactor = 4.0;   // the falloff is at least this times the motion wide
 constexpr double kMaxCarry = 0.1;           // m: no part moves more than this in a step (where the carry looks)
+constexpr double kEdgeDip = 1e-4;           // m: an edge's barrier fades in as its minimum dips below its ends'
+
+// E_ek of an edge (x: both ends, world frame) against a part at pose `pose`, for a minimum m found at the same
+// (double) positions; pa, pb the ends' pieces.
+template <class T>
+T edge_energy_at(const ProfileView& P, const RigidPose& pose, const T* x, const SegmentPartMinimum& m, int pa, int pb,
+                 double kappa, double dhat) {
+  T y[6];
+  for (int end = 0; end < 2; ++end)
+    for (int i = 0; i < 3; ++i) {
+      T v = T(0.0);
+      for (int j = 0; j < 3; ++j) v += pose.R(j, i) * (x[3 * end + j] - pose.c[j]);
+      y[3 * end + i] = v;
+    }
+  const T d = segment_part_clearance(P, y, y + 3, m);
+  const T ga = piece_clearance(P, pa, y), gb = piece_clearance(P, pb, y + 3);
+  const T w = dip_weight(ga - d, kEdgeDip) * dip_weight(gb - d, kEdgeDip);
+  return kappa * w * barrier(d, dhat);
+}
 }
 
-RevolvedBodyContact::RevolvedBodyContact(std::vector<RevolvedPart> parts, Eigen::VectorXd kappa, double activation)
-    : parts_(std::move(parts)), kappa_(std::move(kappa)), dhat_(activation) {
+RevolvedBodyContact::RevolvedBodyContact(std::vector<RevolvedPart> parts, Eigen::VectorXd kappa, double activation,
+                                         std::vector<std::array<int, 2>> edges)
+    : parts_(std::move(parts)), kappa_(std::move(kappa)), dhat_(activation), edges_(std::move(edges)) {
   if (parts_.empty()) throw InputError("body: no parts");
   if (!(dhat_ > 0)) throw InputError("body: contact reach must be > 0 m");
   for (size_t k = 0; k < parts_.size(); ++k) {
@@ -46,6 +67,16 @@ RevolvedBodyContact::RevolvedBodyContact(std::vector<RevolvedPart> parts, Eigen:
       }
     }
     lipschitz_.push_back(std::sqrt(1.0 + slope * slope));
+    views_.push_back(ProfileView{parts_[k].origin.data(), parts_[k].s.data(), parts_[k].r.data(),
+                                 static_cast<int>(parts_[k].s.size())});
+  }
+  for (size_t e = 0; e < edges_.size(); ++e) {
+    const auto [a, b] = edges_[e];
+    if (a < 0 || b < 0 || a >= kappa_.size() || b >= kappa_.size() || a == b)
+      throw InputError("body: edge " + std::to_string(e) + " (" + std::to_string(a) + ", " + std::to_string(b) +
+                       ") is not a pair of distinct vertices of the " + std::to_string(kappa_.size()));
+    // a vertex has about six edges, each shared by two vertices: the edges around a vertex carry about its weight
+    edge_kappa_.push_back((kappa_[a] + kappa_[b]) / 6.0);
   }
   start_.assign(parts_.size(), RigidPose{});
   end_ = start_;
@@ -166,6 +197,7 @@ double RevolvedBodyContact::vertex_terms(int i, const Eigen::Vector3d& q, Eigen:
 std::vector<std::vector<int>> RevolvedBodyContact::stencils() const {
   std::vector<std::vector<int>> s;
   for (int i = 0; i < kappa_.size(); ++i) s.push_back({i});
+  for (const auto& e : edges_) s.push_back({e[0], e[1]});
   return s;
 }
 
@@ -174,12 +206,20 @@ void RevolvedBodyContact::bind_pattern(const SparsePattern& pattern) {
   for (int i = 0; i < kappa_.size(); ++i)
     for (int a = 0; a < 3; ++a)
       for (int b = a; b < 3; ++b) diag_.push_back(pattern.index(3 * i + a, 3 * i + b));
+  edge_scatter_.assign(edges_.size() * 36, -1);
+  for (size_t e = 0; e < edges_.size(); ++e)
+    for (int i = 0; i < 6; ++i)
+      for (int j = 0; j < 6; ++j) {
+        const int r = 3 * edges_[e][i / 3] + i % 3, c = 3 * edges_[e][j / 3] + j % 3;
+        if (r <= c) edge_scatter_[e * 36 + i * 6 + j] = pattern.index(r, c);
+      }
 }
 
 double RevolvedBodyContact::energy(const Eigen::VectorXd& x, const Eigen::VectorXd&) const {
   double E = 0;
   for (int i = 0; i < kappa_.size(); ++i) E += vertex_terms(i, x.segment<3>(3 * i), nullptr, nullptr, 0);
-  return E;
+  if (!std::isfinite(E)) return E;
+  return E + edge_terms(x, nullptr, 0, 0.0, nullptr, nullptr, nullptr);
 }
 
 void RevolvedBodyContact::add_gradient(const Eigen::VectorXd& x, const Eigen::VectorXd&, Eigen::VectorXd& g) const {
@@ -188,6 +228,7 @@ void RevolvedBodyContact::add_gradient(const Eigen::VectorXd& x, const Eigen::Ve
     vertex_terms(i, x.segment<3>(3 * i), &gi, nullptr, 0);
     g.segment<3>(3 * i) += gi;
   }
+  edge_terms(x, &g, 0, 0.0, nullptr, nullptr, nullptr);
 }
 
 static void scatter(const std::vector<int>& diag, int i, const Eigen::Matrix3d& h, double scale, Eigen::VectorXd& v) {
@@ -203,6 +244,11 @@ void RevolvedBodyContact::add_step_matrix(const Eigen::VectorXd& x, const Eigen:
     vertex_terms(i, x.segment<3>(3 * i), nullptr, &h, 1);
     scatter(diag_, i, h, scale, values);
   }
+  // The edges' step matrix is their exact Hessian projected onto the PSD cone, not Gauss-Newton: an edge's
+  // clearance is a minimum over the segment, and b' times its curvature (-g_xt g_tt^-1 g_tx from the moving
+  // minimiser) is what resists sliding a chord across a convex part (measured: with Gauss-Newton alone, 2k wool
+  // walking, a 3 cm chord of the hip was pushed 1 nm from it over 50 Newton iterations, the residual growing).
+  edge_terms(x, nullptr, 2, scale, &values, nullptr, nullptr);
 }
 
 void RevolvedBodyContact::add_hessian(const Eigen::VectorXd& x, const Eigen::VectorXd&, double scale,
@@ -212,6 +258,7 @@ void RevolvedBodyContact::add_hessian(const Eigen::VectorXd& x, const Eigen::Vec
     vertex_terms(i, x.segment<3>(3 * i), nullptr, &h, 0);
     scatter(diag_, i, h, scale, values);
   }
+  edge_terms(x, nullptr, 0, scale, &values, nullptr, nullptr);
 }
 
 void RevolvedBodyContact::add_projected_hessian(const Eigen::VectorXd& x, const Eigen::VectorXd&, double scale,
@@ -221,6 +268,7 @@ void RevolvedBodyContact::add_projected_hessian(const Eigen::VectorXd& x, const 
     vertex_terms(i, x.segment<3>(3 * i), nullptr, &h, 2);
     scatter(diag_, i, h, scale, values);
   }
+  edge_terms(x, nullptr, 2, scale, &values, nullptr, nullptr);
 }
 
 void RevolvedBodyContact::add_hessian_product(const Eigen::VectorXd& x, const Eigen::VectorXd&,
@@ -230,6 +278,7 @@ void RevolvedBodyContact::add_hessian_product(const Eigen::VectorXd& x, const Ei
     vertex_terms(i, x.segment<3>(3 * i), nullptr, &h, 0);
     out.segment<3>(3 * i) += h * dir.segment<3>(3 * i);
   }
+  edge_terms(x, nullptr, 0, 0.0, nullptr, &dir, &out);
 }
 
 void RevolvedBodyContact::add_step_matrix_derivatives(const Eigen::VectorXd&, const Eigen::VectorXd&,
@@ -258,7 +307,7 @@ double RevolvedBodyContact::max_step(const Eigen::VectorXd& x, const Eigen::Vect
       alpha = std::min(alpha, t);
     }
   }
-  return alpha;
+  return edges_max_step(x, dx, alpha);
 }
 
 void RevolvedBodyContact::obstacle_carry(const Eigen::VectorXd& x, Eigen::VectorXd& u) const {
@@ -346,6 +395,215 @@ double RevolvedBodyContact::obstacle_max_advance(const Eigen::VectorXd& x, const
                      "others", t, i, q.x(), q.y(), q.z(), k, c0);
         for (size_t j = 0; j < parts_.size(); ++j) std::fprintf(stderr, " %.3g", part_clearance(static_cast<int>(j), q));
         std::fprintf(stderr, ", move %.3g, bound speed %.3g\n", d.norm(), V);
+      }
+      alpha = std::min(alpha, t);
+    }
+  }
+  return edges_max_advance(x, u, alpha);
+}
+
+// ---- cloth edges against the parts (garment/revolved_edge.hpp) ----
+
+std::vector<Eigen::VectorXd> RevolvedBodyContact::local_positions(const Eigen::VectorXd& x) const {
+  const int n = static_cast<int>(x.size() / 3);
+  std::vector<Eigen::VectorXd> out(parts_.size());
+  for (size_t k = 0; k < parts_.size(); ++k) {
+    const RigidPose& P = current_[k];
+    out[k].resize(x.size());
+    for (int i = 0; i < n; ++i) out[k].segment<3>(3 * i) = P.R.transpose() * (x.segment<3>(3 * i) - P.c);
+  }
+  return out;
+}
+
+Eigen::VectorXd RevolvedBodyContact::edge_clearance(const Eigen::VectorXd& x) const {
+  if (x.size() != 3 * kappa_.size())
+    throw InputError("body: expected " + std::to_string(3 * kappa_.size()) + " coordinates, got " +
+                     std::to_string(x.size()));
+  const auto local = local_positions(x);
+  Eigen::VectorXd out(edges_.size());
+  for (size_t e = 0; e < edges_.size(); ++e) {
+    double best = std::numeric_limits<double>::infinity();
+    for (size_t k = 0; k < parts_.size(); ++k)
+      best = std::min(best, segment_part_minimum(views_[k], local[k].data() + 3 * edges_[e][0],
+                                                 local[k].data() + 3 * edges_[e][1]).clearance);
+    out[e] = best;
+  }
+  return out;
+}
+
+double RevolvedBodyContact::edge_energy(const Eigen::VectorXd& x) const {
+  return edge_terms(x, nullptr, 0, 0.0, nullptr, nullptr, nullptr);
+}
+
+bool RevolvedBodyContact::edge_part_terms(int e, int k, const std::vector<Eigen::VectorXd>& local, double* E,
+                                          double* g, double* H, int kind) const {
+  const ProfileView& P = views_[k];
+  const double* ya = local[k].data() + 3 * edges_[e][0];
+  const double* yb = local[k].data() + 3 * edges_[e][1];
+  double lo[3], hi[3];
+  for (int i = 0; i < 3; ++i) lo[i] = std::min(ya[i], yb[i]), hi[i] = std::max(ya[i], yb[i]);
+  if (box_clearance_bound(P, lo, hi, nullptr) >= dhat_) return false;  // out of reach: no segment search
+  const SegmentPartMinimum m = segment_part_minimum(P, ya, yb);
+  if (m.kind == SegmentPartMinimum::kEnd || m.clearance >= dhat_) return false;
+  if (!(m.clearance > 0)) {
+    *E = std::numeric_limits<double>::infinity();
+    return true;
+  }
+  const int pa = profile_piece(P, P.origin[2] - ya[2]), pb = profile_piece(P, P.origin[2] - yb[2]);
+  const double kappa = edge_kappa_[e];
+  const RigidPose& pose = current_[k];
+  double xd[6];
+  for (int i = 0; i < 3; ++i) {
+    xd[i] = pose.R.row(i).dot(Eigen::Map<const Eigen::Vector3d>(ya)) + pose.c[i];
+    xd[3 + i] = pose.R.row(i).dot(Eigen::Map<const Eigen::Vector3d>(yb)) + pose.c[i];
+  }
+  // (xd: the ends in the world frame, recomputed from the local ones so that jets and the search see one state)
+  if (!g && !H) {
+    *E = edge_energy_at<double>(P, pose, xd, m, pa, pb, kappa, dhat_);
+    return *E != 0;
+  }
+  if (!H) {
+    using J = Jet<double, 6>;
+    J xj[6];
+    for (int i = 0; i < 6; ++i) xj[i] = J(xd[i], i);
+    const J Ej = edge_energy_at<J>(P, pose, xj, m, pa, pb, kappa, dhat_);
+    *E = Ej.a;
+    for (int i = 0; i < 6; ++i) g[i] = Ej.v[i];
+    return true;
+  }
+  using J1 = Jet<double, 6>;
+  using J2 = Jet<J1, 6>;
+  J2 xj[6];
+  for (int i = 0; i < 6; ++i) xj[i] = J2(J1(xd[i], i), i);
+  const J2 Ej = edge_energy_at<J2>(P, pose, xj, m, pa, pb, kappa, dhat_);
+  *E = Ej.a.a;
+  if (g)
+    for (int i = 0; i < 6; ++i) g[i] = Ej.a.v[i];
+  for (int i = 0; i < 6; ++i)
+    for (int j = 0; j < 6; ++j) H[6 * i + j] = 0.5 * (Ej.v[i].v[j] + Ej.v[j].v[i]);
+  if (kind == 2) project_psd<6>(H);
+  return true;
+}
+
+double RevolvedBodyContact::edge_terms(const Eigen::VectorXd& x, Eigen::VectorXd* grad, int kind, double scale,
+                                       Eigen::VectorXd* values, const Eigen::VectorXd* dir,
+                                       Eigen::VectorXd* product) const {
+  if (edges_.empty()) return 0.0;
+  const auto local = local_positions(x);
+  const bool want_h = values || product;
+  double total = 0, E, g[6], H[36];
+  for (size_t e = 0; e < edges_.size(); ++e)
+    for (size_t k = 0; k < parts_.size(); ++k) {
+      if (!edge_part_terms(static_cast<int>(e), static_cast<int>(k), local, &E, grad ? g : nullptr,
+                           want_h ? H : nullptr, kind))
+        continue;
+      total += E;
+      if (!std::isfinite(E)) {
+        if (!grad && !want_h) return E;
+        continue;
+      }
+      const int a = edges_[e][0], b = edges_[e][1];
+      if (grad) {
+        grad->segment<3>(3 * a) += Eigen::Map<const Eigen::Vector3d>(g);
+        grad->segment<3>(3 * b) += Eigen::Map<const Eigen::Vector3d>(g + 3);
+      }
+      if (values)
+        for (int i = 0; i < 36; ++i)
+          if (edge_scatter_[e * 36 + i] >= 0) (*values)[edge_scatter_[e * 36 + i]] += scale * H[i];
+      if (product) {
+        double d[6], out[6] = {0, 0, 0, 0, 0, 0};
+        for (int i = 0; i < 3; ++i) d[i] = (*dir)[3 * a + i], d[3 + i] = (*dir)[3 * b + i];
+        for (int i = 0; i < 6; ++i)
+          for (int j = 0; j < 6; ++j) out[i] += H[6 * i + j] * d[j];
+        for (int i = 0; i < 3; ++i) (*product)[3 * a + i] += out[i], (*product)[3 * b + i] += out[3 + i];
+      }
+    }
+  return total;
+}
+
+// Conservative advancement on each edge's clearance along the cloth's move x + t dx (the body still): every
+// point of the edge moves by a convex combination of its ends' moves, so at most len = max(|dx_a|, |dx_b|) per
+// unit t, and its clearance g changes at most L len per unit t (L: g's Lipschitz constant over the box the move
+// stays in). Skipped when the box's bound stays above the gap fraction of the ends' clearance (>= the edge's).
+double RevolvedBodyContact::edges_max_step(const Eigen::VectorXd& x, const Eigen::VectorXd& dx, double alpha) const {
+  if (edges_.empty() || alpha <= 0) return alpha;
+  const auto local = local_positions(x);
+  for (size_t k = 0; k < parts_.size(); ++k) {
+    const ProfileView& P = views_[k];
+    const Eigen::Matrix3d Rt = current_[k].R.transpose();
+    for (size_t e = 0; e < edges_.size(); ++e) {
+      const int a = edges_[e][0], b = edges_[e][1];
+      const Eigen::Vector3d da = Rt * dx.segment<3>(3 * a), db = Rt * dx.segment<3>(3 * b);
+      const double len = std::max(da.norm(), db.norm());
+      if (len == 0) continue;
+      const Eigen::Vector3d ya = local[k].segment<3>(3 * a), yb = local[k].segment<3>(3 * b);
+      const Eigen::Vector3d ea = ya + alpha * da, eb = yb + alpha * db;
+      const Eigen::Vector3d lo = ya.cwiseMin(yb).cwiseMin(ea).cwiseMin(eb), hi = ya.cwiseMax(yb).cwiseMax(ea).cwiseMax(eb);
+      double L;
+      const double bound = box_clearance_bound(P, lo.data(), hi.data(), &L);
+      const double ends = std::min(piece_clearance(P, profile_piece(P, P.origin[2] - ya[2]), ya.data()),
+                                   piece_clearance(P, profile_piece(P, P.origin[2] - yb[2]), yb.data()));
+      if (bound > kCcdGapFraction * ends) continue;  // the whole move stays clear of the part
+      const double d0 = segment_part_minimum(P, ya.data(), yb.data()).clearance;
+      double t = 0;
+      for (int it = 0; it < 64 && t < alpha; ++it) {
+        const Eigen::Vector3d pa = ya + t * da, pb = yb + t * db;
+        const double c = segment_part_minimum(P, pa.data(), pb.data()).clearance;
+        if (!(c > kCcdGapFraction * d0)) break;
+        t += (c - kCcdGapFraction * d0) / (L * len);
+      }
+      if (t < alpha && std::getenv("DRAPELAB_DEBUG_EDGES"))
+        std::fprintf(stderr, "  edge step limited to %.3g by edge %zu part %zu: clearance %.3g, ends %.3g, L %.3g, move %.3g\n",
+                     t, e, k, d0, ends, L, len);
+      alpha = std::min(alpha, t);
+    }
+  }
+  return alpha;
+}
+
+// The same on the relative motion of the body advancing along its rest (the cloth carried by u): in part k's
+// frame each end moves at most at V_end (obstacle_max_advance), every point of the edge at most max(V_a, V_b)
+// (|y'| is bounded by a convex function of the point's place on the edge).
+double RevolvedBodyContact::edges_max_advance(const Eigen::VectorXd& x, const Eigen::VectorXd& u, double alpha) const {
+  if (edges_.empty() || alpha <= 0) return alpha;
+  const int nparts = static_cast<int>(parts_.size());
+  const auto local = local_positions(x);
+  const int nv = static_cast<int>(kappa_.size());
+  for (int k = 0; k < nparts; ++k) {
+    const ProfileView& P = views_[k];
+    const RigidPose &a0 = current_[k], &b0 = end_[k];
+    const Eigen::AngleAxisd rel(a0.R.transpose() * b0.R);
+    const double angle = std::abs(rel.angle());
+    const Eigen::Vector3d axis = a0.R * rel.axis() * (rel.angle() < 0 ? -1.0 : 1.0), shift = b0.c - a0.c;
+    Eigen::VectorXd speed(nv);
+    for (int i = 0; i < nv; ++i) {
+      const Eigen::Vector3d rel_move = u.segment<3>(3 * i) - shift;
+      const Eigen::Vector3d w0 = rel_move - angle * axis.cross(x.segment<3>(3 * i) - a0.c);
+      speed[i] = w0.norm() + angle * rel_move.norm();
+    }
+    for (size_t e = 0; e < edges_.size(); ++e) {
+      const int a = edges_[e][0], b = edges_[e][1];
+      const double V = std::max(speed[a], speed[b]);
+      if (V == 0) continue;
+      const Eigen::Vector3d ya = local[k].segment<3>(3 * a), yb = local[k].segment<3>(3 * b);
+      const Eigen::Vector3d pad = Eigen::Vector3d::Constant(alpha * V);
+      const Eigen::Vector3d lo = ya.cwiseMin(yb) - pad, hi = ya.cwiseMax(yb) + pad;
+      double L;
+      const double bound = box_clearance_bound(P, lo.data(), hi.data(), &L);
+      const double ends = std::min(piece_clearance(P, profile_piece(P, P.origin[2] - ya[2]), ya.data()),
+                                   piece_clearance(P, profile_piece(P, P.origin[2] - yb[2]), yb.data()));
+      if (bound > kCcdGapFraction * ends) continue;
+      const double d0 = segment_part_minimum(P, ya.data(), yb.data()).clearance;
+      const Eigen::Vector3d qa = x.segment<3>(3 * a), qb = x.segment<3>(3 * b);
+      const Eigen::Vector3d ua = u.segment<3>(3 * a), ub = u.segment<3>(3 * b);
+      double t = 0;
+      for (int it = 0; it < 64 && t < alpha; ++it) {
+        const RigidPose pose = interpolate(a0, b0, t);
+        const Eigen::Vector3d pa = pose.R.transpose() * (qa + t * ua - pose.c);
+        const Eigen::Vector3d pb = pose.R.transpose() * (qb + t * ub - pose.c);
+        const double c = segment_part_minimum(P, pa.data(), pb.data()).clearance;
+        if (!(c > kCcdGapFraction * d0)) break;
+        t += (c - kCcdGapFraction * d0) / (L * V);
       }
       alpha = std::min(alpha, t);
     }

@@ -19,11 +19,24 @@
 // layers move together) and is bounded by conservative advancement on each vertex's motion relative to each moving
 // part (obstacle_max_advance); the stepper bounds the same move by the self contact's CCD. No cloth is moved
 // outside collision detection's bound.
+// Cloth EDGES (the mesh's edges, given at construction): per edge e = (a, b) and part k, the segment's minimum
+// clearance d_ek (garment/revolved_edge.hpp: exact gradient and Hessian through the implicit minimiser) carries
+//   E_ek = kappa_e m_ek b(d_ek),  kappa_e = (kappa_a + kappa_b) / 6,  m_ek = q(dip_a / kEdgeDip) q(dip_b / kEdgeDip)
+// with dip_a = g_k(x_a) - d_ek (contact/disk_edge.hpp dip_weight: a C2 smooth step from 0 to 1 over 0.1 mm), only
+// where the minimum is inside the segment: as it moves to an end (dip -> 0) the edge hands over to that vertex's
+// barrier continuously, nothing counted twice; cut between two vertices (d_ek -> 0, both dips > 0) E -> infinity.
+// The edges' step matrix is their projected exact Hessian (b' times the minimum's curvature is what resists
+// sliding a chord across a convex part; Gauss-Newton alone let Newton push hip chords to 1 nm).
+// max_step and obstacle_max_advance bound every edge as every vertex (conservative advancement on d_ek; an
+// edge's points move by convex combinations of its ends' moves, so its ends' speed bounds bound it). Edges out
+// of reach are skipped on a bounding box test before any segment search.
 #pragma once
 #include <Eigen/Core>
+#include <array>
 #include <memory>
 #include <vector>
 
+#include "garment/revolved_edge.hpp"
 #include "physics/term.hpp"
 
 namespace drapelab {
@@ -40,8 +53,10 @@ struct RigidPose {
 
 class RevolvedBodyContact : public Term {
  public:
-  // vertex_weights: each cloth vertex's barrier stiffness kappa_i [J] (e.g. weight * dhat).
-  RevolvedBodyContact(std::vector<RevolvedPart> parts, Eigen::VectorXd kappa, double activation);
+  // kappa: each cloth vertex's barrier stiffness kappa_i [J] (e.g. weight * dhat); edges: the cloth's edges
+  // (vertex pairs) kept off the body too (none: vertices only).
+  RevolvedBodyContact(std::vector<RevolvedPart> parts, Eigen::VectorXd kappa, double activation,
+                      std::vector<std::array<int, 2>> edges = {});
   std::string name() const override { return "body_contact"; }
   bool is_contact() const override { return true; }
   bool provides_step_matrix_derivatives() const override { return false; }
@@ -49,6 +64,11 @@ class RevolvedBodyContact : public Term {
   void set_poses(const std::vector<RigidPose>& start, const std::vector<RigidPose>& end);
   // Clearance of each point (N x 3 flat) against the body at its current pose (min over parts), metres.
   Eigen::VectorXd clearance(const Eigen::VectorXd& x) const;
+  // Clearance of each edge (min over its points, ends included, and the parts) at the current pose, metres.
+  Eigen::VectorXd edge_clearance(const Eigen::VectorXd& x) const;
+  const std::vector<std::array<int, 2>>& edges() const { return edges_; }
+  // The energy of the edges alone (the vertex barriers excluded), for tests.
+  double edge_energy(const Eigen::VectorXd& x) const;
 
   std::vector<std::vector<int>> stencils() const override;
   void bind_pattern(const SparsePattern& pattern) override;
@@ -89,13 +109,28 @@ class RevolvedBodyContact : public Term {
  private:
   // Per vertex: E_i = sum_k kappa_i b(g_ik); value, gradient and (exact or Gauss-Newton) Hessian.
   double vertex_terms(int i, const Eigen::Vector3d& q, Eigen::Vector3d* g, Eigen::Matrix3d* H, int kind) const;
+  // Per part: every vertex in the part's rest frame at its current pose (3V).
+  std::vector<Eigen::VectorXd> local_positions(const Eigen::VectorXd& x) const;
+  // Edge e against part k (local: local_positions): energy, and gradient / 6x6 Hessian (row-major) of kind 0
+  // exact, 2 projected onto the PSD cone (also the step matrix); false when out of reach (nothing written).
+  bool edge_part_terms(int e, int k, const std::vector<Eigen::VectorXd>& local, double* E, double* g, double* H,
+                       int kind) const;
+  // sum over edges and parts; out: gradient (3V) / Hessian values (pattern) / Hessian product, as requested.
+  double edge_terms(const Eigen::VectorXd& x, Eigen::VectorXd* grad, int kind, double scale, Eigen::VectorXd* values,
+                    const Eigen::VectorXd* dir, Eigen::VectorXd* product) const;
+  double edges_max_step(const Eigen::VectorXd& x, const Eigen::VectorXd& dx, double alpha) const;
+  double edges_max_advance(const Eigen::VectorXd& x, const Eigen::VectorXd& u, double alpha) const;
   std::vector<RevolvedPart> parts_;
+  std::vector<ProfileView> views_;  // parts_' profiles for the edge code
   std::vector<double> lipschitz_;
   std::vector<RigidPose> start_, end_, current_;
   double progress_ = 1.0;
   Eigen::VectorXd kappa_;
   double dhat_;
   std::vector<int> diag_;  // pattern index of each vertex's 3x3 diagonal block, upper triangle (6 per vertex)
+  std::vector<std::array<int, 2>> edges_;
+  std::vector<double> edge_kappa_;
+  std::vector<int> edge_scatter_;  // per edge 6 x 6 pattern indices (-1 below the diagonal)
 };
 
 }  // namespace drapelab
