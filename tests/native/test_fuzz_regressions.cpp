@@ -11,6 +11,7 @@
 #include <vector>
 
 #include "../fuzz/loader_inputs.hpp"
+#include "source_dir.hpp"
 
 namespace {
 
@@ -18,7 +19,7 @@ namespace fs = std::filesystem;
 
 // Files of tests/fuzz/<kind>/<target>, sorted; none when the folder does not exist.
 std::vector<fs::path> inputs(const std::string& kind, const std::string& target) {
-  const fs::path folder = fs::path(DRAPELAB_SOURCE_DIR) / "tests" / "fuzz" / kind / target;
+  const fs::path folder = fs::path(drapelab::testing::source_dir()) / "tests" / "fuzz" / kind / target;
   std::vector<fs::path> files;
   if (fs::is_directory(folder))
     for (const auto& entry : fs::directory_iterator(folder))

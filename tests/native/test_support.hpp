@@ -12,6 +12,7 @@
 #include "geometry/cusick.hpp"
 #include "physics/effect.hpp"
 #include "physics/model.hpp"
+#include "source_dir.hpp"
 
 namespace drapelab::testing {
 
@@ -21,14 +22,14 @@ namespace drapelab::testing {
 // kNoDatasetReason.
 inline std::string cusick_dataset_dir() {
   const char* env = std::getenv("DRAPELAB_CUSICK_DIR");
-  const std::string dir = env ? std::string(env) : std::string(DRAPELAB_SOURCE_DIR) + "/../shared/data/cusick";
+  const std::string dir = env ? std::string(env) : source_dir() + "/../shared/data/cusick";
   return !dir.empty() && std::ifstream(dir + "/manifest.csv").good() ? dir : std::string();
 }
 inline constexpr const char* kNoDatasetReason =
     "needs the full Cusick dataset: not found at $DRAPELAB_CUSICK_DIR or ../shared/data/cusick";
 
 // The Cusick template meshes circle1..5 shipped in the repository (tests fail, not skip, when missing).
-inline std::string template_dir() { return std::string(DRAPELAB_SOURCE_DIR) + "/assets/cusick/template_meshes"; }
+inline std::string template_dir() { return source_dir() + "/assets/cusick/template_meshes"; }
 
 // A state near the draped regime: rest positions plus smooth out-of-plane sag and random noise (m).
 inline Eigen::VectorXd perturbed_positions(const Model& model, double noise, unsigned seed) {

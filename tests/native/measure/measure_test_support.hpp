@@ -54,7 +54,7 @@ class TempDir {
   std::filesystem::path path_;
 };
 
-inline std::string asset(const std::string& rel) { return std::string(DRAPELAB_SOURCE_DIR) + "/assets/" + rel; }
+inline std::string asset(const std::string& rel) { return drapelab::testing::source_dir() + "/assets/" + rel; }
 
 using drapelab::testing::kNoDatasetReason;
 // The shared dataset (test_support.hpp's one locator). "" if absent.

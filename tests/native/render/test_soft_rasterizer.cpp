@@ -12,6 +12,7 @@
 #include "render/rasterizer.hpp"
 #include "render/soft_rasterizer.hpp"
 #include "util/error.hpp"
+#include "../source_dir.hpp"
 
 using namespace drapelab;
 
@@ -234,7 +235,7 @@ TEST(SoftRasterTest, ForwardMatchesAllPairsReferenceWithinCutoffError) {
 
 TEST(SoftRasterTest, BackwardMatchesFiniteDifferencesOnRealFoldedDrape) {
   // A real 5226-face reconstruction at 256 x 256: folds make faces overlap in the projection.
-  const std::string path = std::string(DRAPELAB_SOURCE_DIR) + "/assets/cusick/fabric_02/meshes/sample_02_capture_1.obj";
+  const std::string path = drapelab::testing::source_dir() + "/assets/cusick/fabric_02/meshes/sample_02_capture_1.obj";
   if (!std::filesystem::exists(path)) GTEST_SKIP() << "bundled mesh missing: " << path;
   const TriangleMesh mesh = read_obj(path);
   const OrthographicCamera camera;
