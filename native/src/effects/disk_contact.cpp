@@ -244,6 +244,10 @@ class DiskEdgeBarrierTerm : public ElementTerm<DiskEdgeBarrierTerm, 2, 1, 1> {
       b[k] = value_of(x[3 + k]);
     }
     const SupportDisk disk = setup_->disk_with_rim(value_of(rim));
+    // Both ends inside the cylinder r <= R - rho: so is the whole segment, over which f has no interior
+    // minimum over the rim (segment_support_disk_minimum's `interior` is false).
+    const double inner = disk.radius - disk.rim_radius;
+    if (a[0] * a[0] + a[1] * a[1] <= inner * inner && b[0] * b[0] + b[1] * b[1] <= inner * inner) return false;
     const double half = 0.5 * std::sqrt((b[0] - a[0]) * (b[0] - a[0]) + (b[1] - a[1]) * (b[1] - a[1]) +
                                         (b[2] - a[2]) * (b[2] - a[2]));
     if (std::min(support_disk_distance(disk, a), support_disk_distance(disk, b)) - half >= kActivation) return false;
@@ -291,17 +295,49 @@ class DiskEdgeBarrierTerm : public ElementTerm<DiskEdgeBarrierTerm, 2, 1, 1> {
     add_rim_step_matrix_derivative<DiskEdgeBarrierTerm, D>(*this, setup_->edges, x, p, rim_, lambda, w, scale, gp);
   }
 
+  // The adjoint and the forward's gradient and K v visit only the edges active at x (NearDiskEdges below: the
+  // same element functions, so the same values bit for bit; the others contribute exact zeros); the step
+  // matrix still visits every edge (its scatter map belongs to this term).
+  bool add_step_adjoint(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& lambda,
+                        const Eigen::VectorXd& w, double h, Eigen::VectorXd& gx, Eigen::VectorXd& gv,
+                        Eigen::VectorXd& gp) const override;
+  bool add_step_system(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& v, double scale,
+                       Eigen::VectorXd& values, Eigen::VectorXd& Kv, Eigen::VectorXd& g) const override;
+  // Indices of the edges whose energy is not identically zero near x (active() on the values).
+  std::vector<int> active_edges(const Eigen::VectorXd& x, const Eigen::VectorXd& p) const {
+    std::vector<int> ids;
+    const double rim = p[rim_];
+    SegmentDiskMinimum m;
+    double xe[6];
+    for (size_t e = 0; e < setup_->edges.size(); ++e) {
+      const auto& v = setup_->edges[e];
+      for (int k = 0; k < 3; ++k) {
+        xe[k] = x[3 * v[0] + k];
+        xe[3 + k] = x[3 * v[1] + k];
+      }
+      if (active(xe, rim, m)) ids.push_back(static_cast<int>(e));
+    }
+    return ids;
+  }
+  const std::shared_ptr<const DiskSetup>& setup() const { return setup_; }
+
   double max_step(const Eigen::VectorXd& x, const Eigen::VectorXd& dx, const Eigen::VectorXd& p) const override {
     // Conservative advancement on the segment's clearance (ends included): every point of the segment moves by
     // a convex combination of its ends' moves, so the clearance changes at most at L = max(|dx_a|, |dx_b|) per
     // unit of t, and stays above kCcdGapFraction of its start while t L <= (1 - kCcdGapFraction) d_e(x).
     const SupportDisk disk = setup_->disk_with_rim(p[rim_]);
+    const double inner = disk.radius - disk.rim_radius, zc = disk.top - disk.rim_radius;
+    // Over the flat face (inside the cylinder r <= R - rho, above the plate's mid-plane) f is linear along a
+    // segment, so its clearance is its ends' (the vertex barrier's, whose collision detection bounds them to
+    // the same fraction of their start): an edge whose ends stay there for the whole move needs no check.
+    auto over_face = [&](const Eigen::Vector3d& y) { return y[0] * y[0] + y[1] * y[1] <= inner * inner && y[2] >= zc; };
     double alpha = 1.0;
     for (const auto& v : setup_->edges) {
       const Eigen::Vector3d a = x.segment<3>(3 * v[0]), b = x.segment<3>(3 * v[1]);
       const Eigen::Vector3d da = dx.segment<3>(3 * v[0]), db = dx.segment<3>(3 * v[1]);
       const double len = std::max(da.norm(), db.norm());
       if (len == 0) continue;
+      if (over_face(a) && over_face(b) && over_face(a + alpha * da) && over_face(b + alpha * db)) continue;
       // cheap: the lower bound min(d(a), d(b)) - |b - a| / 2 already allows the whole step
       const double lower =
           std::min(support_disk_distance(disk, a.data()), support_disk_distance(disk, b.data())) - 0.5 * (b - a).norm();
@@ -327,6 +363,58 @@ class DiskEdgeBarrierTerm : public ElementTerm<DiskEdgeBarrierTerm, 2, 1, 1> {
   std::shared_ptr<const DiskSetup> setup_;
   int rim_;
 };
+
+// A subset of the edge barrier's elements (those active at some x), for the element loops that only scatter
+// vectors: each element is the parent's, evaluated by the parent's element functions.
+class NearDiskEdges : public ElementTerm<NearDiskEdges, 2, 1, 1> {
+ public:
+  NearDiskEdges(const DiskEdgeBarrierTerm& parent, std::vector<int> ids, int rim) : parent_(parent), ids_(std::move(ids)), rim_(rim) {
+    edges_.reserve(ids_.size());
+    for (int e : ids_) edges_.push_back(parent_.setup()->edges[e]);
+  }
+  std::string name() const override { return parent_.name(); }
+  bool is_contact() const override { return true; }
+  int num_elements() const { return static_cast<int>(ids_.size()); }
+  const std::array<int, 2>& element_vertices(int e) const { return edges_[e]; }
+  int parameter_offset(int) const { return rim_; }
+  template <class T>
+  T element_energy(int e, const T* x, const T* p) const {
+    return parent_.element_energy<T>(ids_[e], x, p);
+  }
+  template <class T>
+  void element_gauss_newton(int e, const T* x, const T* p, T* r, T* S) const {
+    parent_.element_gauss_newton<T>(ids_[e], x, p, r, S);
+  }
+  void add_step_matrix_derivatives(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& lambda,
+                                   const Eigen::VectorXd& w, double scale, Eigen::VectorXd& gx,
+                                   Eigen::VectorXd& gp) const override {  // as DiskEdgeBarrierTerm's
+    Eigen::VectorXd partial = Eigen::VectorXd::Zero(p.size());
+    ElementTerm::add_step_matrix_derivatives(x, p, lambda, w, scale, gx, partial);
+    add_rim_step_matrix_derivative<NearDiskEdges, D>(*this, edges_, x, p, rim_, lambda, w, scale, gp);
+  }
+
+ private:
+  const DiskEdgeBarrierTerm& parent_;
+  std::vector<int> ids_;
+  std::vector<std::array<int, 2>> edges_;
+  int rim_;
+};
+
+bool DiskEdgeBarrierTerm::add_step_adjoint(const Eigen::VectorXd& x, const Eigen::VectorXd& p,
+                                           const Eigen::VectorXd& lambda, const Eigen::VectorXd& w, double h,
+                                           Eigen::VectorXd& gx, Eigen::VectorXd& gv, Eigen::VectorXd& gp) const {
+  const NearDiskEdges near(*this, active_edges(x, p), rim_);
+  return near.Term::add_step_adjoint(x, p, lambda, w, h, gx, gv, gp);
+}
+
+bool DiskEdgeBarrierTerm::add_step_system(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& v,
+                                          double scale, Eigen::VectorXd& values, Eigen::VectorXd& Kv,
+                                          Eigen::VectorXd& g) const {
+  add_step_matrix(x, p, scale, values);
+  const NearDiskEdges near(*this, active_edges(x, p), rim_);
+  near.add_gradient(x, p, g);
+  return near.add_step_matrix_product(x, p, v, scale, Kv);
+}
 
 class DiskFrictionTerm : public ElementTerm<DiskFrictionTerm, 1, 1, 3> {
  public:
