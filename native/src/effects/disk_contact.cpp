@@ -429,6 +429,16 @@ class DiskFrictionTerm : public ElementTerm<DiskFrictionTerm, 1, 1, 3> {
     start_geometry_.assign(n, {});
   }
   std::string name() const override { return "disk_friction"; }
+  // The adjoint, the start adjoint and the forward's gradient and K v visit only the vertices with a lagged
+  // normal force (FrictionVertices below; the others' energy is identically zero within the step): the same
+  // values bit for bit.
+  bool add_step_adjoint(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& lambda,
+                        const Eigen::VectorXd& w, double h, Eigen::VectorXd& gx, Eigen::VectorXd& gv,
+                        Eigen::VectorXd& gp) const override;
+  bool add_step_system(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& v, double scale,
+                       Eigen::VectorXd& values, Eigen::VectorXd& Kv, Eigen::VectorXd& g) const override;
+  const std::vector<int>& active() const { return active_; }
+  int friction_offset() const { return friction_; }
   bool is_contact() const override { return true; }
   int num_elements() const { return static_cast<int>(setup_->vertices.size()); }
   const std::array<int, 1>& element_vertices(int e) const { return setup_->vertices[e]; }
@@ -436,6 +446,7 @@ class DiskFrictionTerm : public ElementTerm<DiskFrictionTerm, 1, 1, 3> {
 
   void begin_step(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double h) override {
     eps_u_ = kSlipSpeed * h;
+    active_.clear();
     const double rim = p[rim_];
     for (size_t e = 0; e < setup_->vertices.size(); ++e) {
       const int i = setup_->vertices[e][0];
@@ -453,6 +464,7 @@ class DiskFrictionTerm : public ElementTerm<DiskFrictionTerm, 1, 1, 3> {
       double b, db, d2b;
       barrier_derivatives(d, kActivation, b, db, d2b);
       normal_force_[e] = setup_->kappa[e] * std::abs(db);
+      active_.push_back(static_cast<int>(e));
       const Eigen::Vector3d n = Eigen::Vector3d(g[0], g[1], g[2]).normalized();
       projector_[e] = Eigen::Matrix3d::Identity() - n * n.transpose();
     }
@@ -467,8 +479,7 @@ class DiskFrictionTerm : public ElementTerm<DiskFrictionTerm, 1, 1, 3> {
     const double mu = p[friction_];
     if (mu == 0) return;
     Eigen::VectorXd d = Eigen::VectorXd::Zero(gxt.size()), unused = Eigen::VectorXd::Zero(p.size());
-    add_hessian_product(x, p, lambda, d);
-    if (c != 0) add_step_matrix_derivatives(x, p, lambda, w, c, d, unused);
+    add_active_products(x, p, lambda, w, c, d, unused);
     gxt -= d;
     using J = Jet<double, 3>;
     for (size_t e = 0; e < setup_->vertices.size(); ++e) {
@@ -587,7 +598,62 @@ class DiskFrictionTerm : public ElementTerm<DiskFrictionTerm, 1, 1, 3> {
   std::vector<Eigen::Matrix3d> projector_;
   std::vector<double> normal_force_;
   std::vector<std::array<double, 13>> start_geometry_;  // d, grad d, Hess d at the step's start (normal force > 0)
+  std::vector<int> active_;                             // elements with normal force > 0 this step
+  // lambda^T Hess E (x) + c d(lambda^T K w)/dx over the active elements, into d
+  void add_active_products(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& lambda,
+                           const Eigen::VectorXd& w, double c, Eigen::VectorXd& d, Eigen::VectorXd& unused) const;
 };
+
+class FrictionVertices : public ElementTerm<FrictionVertices, 1, 1, 3> {
+ public:
+  FrictionVertices(const DiskFrictionTerm& parent, const std::vector<std::array<int, 1>>& vertices)
+      : parent_(parent), ids_(parent.active()) {
+    verts_.reserve(ids_.size());
+    for (int e : ids_) verts_.push_back(vertices[e]);
+  }
+  std::string name() const override { return parent_.name(); }
+  bool is_contact() const override { return true; }
+  int num_elements() const { return static_cast<int>(ids_.size()); }
+  const std::array<int, 1>& element_vertices(int e) const { return verts_[e]; }
+  int parameter_offset(int) const { return parent_.friction_offset(); }
+  template <class T>
+  T element_energy(int e, const T* x, const T* p) const {
+    return parent_.element_energy<T>(ids_[e], x, p);
+  }
+  template <class T>
+  void element_gauss_newton(int e, const T* x, const T* p, T* r, T* S) const {
+    parent_.element_gauss_newton<T>(ids_[e], x, p, r, S);
+  }
+
+ private:
+  const DiskFrictionTerm& parent_;
+  const std::vector<int>& ids_;
+  std::vector<std::array<int, 1>> verts_;
+};
+
+void DiskFrictionTerm::add_active_products(const Eigen::VectorXd& x, const Eigen::VectorXd& p,
+                                           const Eigen::VectorXd& lambda, const Eigen::VectorXd& w, double c,
+                                           Eigen::VectorXd& d, Eigen::VectorXd& unused) const {
+  const FrictionVertices active(*this, setup_->vertices);
+  active.add_hessian_product(x, p, lambda, d);
+  if (c != 0) active.add_step_matrix_derivatives(x, p, lambda, w, c, d, unused);
+}
+
+bool DiskFrictionTerm::add_step_adjoint(const Eigen::VectorXd& x, const Eigen::VectorXd& p,
+                                        const Eigen::VectorXd& lambda, const Eigen::VectorXd& w, double h,
+                                        Eigen::VectorXd& gx, Eigen::VectorXd& gv, Eigen::VectorXd& gp) const {
+  const FrictionVertices active(*this, setup_->vertices);
+  return active.Term::add_step_adjoint(x, p, lambda, w, h, gx, gv, gp);
+}
+
+bool DiskFrictionTerm::add_step_system(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& v,
+                                       double scale, Eigen::VectorXd& values, Eigen::VectorXd& Kv,
+                                       Eigen::VectorXd& g) const {
+  add_step_matrix(x, p, scale, values);
+  const FrictionVertices active(*this, setup_->vertices);
+  active.add_gradient(x, p, g);
+  return active.add_step_matrix_product(x, p, v, scale, Kv);
+}
 
 }  // namespace
 
