@@ -244,6 +244,10 @@ class DiskEdgeBarrierTerm : public ElementTerm<DiskEdgeBarrierTerm, 2, 1, 1> {
       b[k] = value_of(x[3 + k]);
     }
     const SupportDisk disk = setup_->disk_with_rim(value_of(rim));
+    // Both ends inside the cylinder r <= R - rho: so is the whole segment, over which f has no interior
+    // minimum over the rim (segment_support_disk_minimum's `interior` is false).
+    const double inner = disk.radius - disk.rim_radius;
+    if (a[0] * a[0] + a[1] * a[1] <= inner * inner && b[0] * b[0] + b[1] * b[1] <= inner * inner) return false;
     const double half = 0.5 * std::sqrt((b[0] - a[0]) * (b[0] - a[0]) + (b[1] - a[1]) * (b[1] - a[1]) +
                                         (b[2] - a[2]) * (b[2] - a[2]));
     if (std::min(support_disk_distance(disk, a), support_disk_distance(disk, b)) - half >= kActivation) return false;
@@ -291,17 +295,49 @@ class DiskEdgeBarrierTerm : public ElementTerm<DiskEdgeBarrierTerm, 2, 1, 1> {
     add_rim_step_matrix_derivative<DiskEdgeBarrierTerm, D>(*this, setup_->edges, x, p, rim_, lambda, w, scale, gp);
   }
 
+  // The adjoint and the forward's gradient and K v visit only the edges active at x (NearDiskEdges below: the
+  // same element functions, so the same values bit for bit; the others contribute exact zeros); the step
+  // matrix still visits every edge (its scatter map belongs to this term).
+  bool add_step_adjoint(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& lambda,
+                        const Eigen::VectorXd& w, double h, Eigen::VectorXd& gx, Eigen::VectorXd& gv,
+                        Eigen::VectorXd& gp) const override;
+  bool add_step_system(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& v, double scale,
+                       Eigen::VectorXd& values, Eigen::VectorXd& Kv, Eigen::VectorXd& g) const override;
+  // Indices of the edges whose energy is not identically zero near x (active() on the values).
+  std::vector<int> active_edges(const Eigen::VectorXd& x, const Eigen::VectorXd& p) const {
+    std::vector<int> ids;
+    const double rim = p[rim_];
+    SegmentDiskMinimum m;
+    double xe[6];
+    for (size_t e = 0; e < setup_->edges.size(); ++e) {
+      const auto& v = setup_->edges[e];
+      for (int k = 0; k < 3; ++k) {
+        xe[k] = x[3 * v[0] + k];
+        xe[3 + k] = x[3 * v[1] + k];
+      }
+      if (active(xe, rim, m)) ids.push_back(static_cast<int>(e));
+    }
+    return ids;
+  }
+  const std::shared_ptr<const DiskSetup>& setup() const { return setup_; }
+
   double max_step(const Eigen::VectorXd& x, const Eigen::VectorXd& dx, const Eigen::VectorXd& p) const override {
     // Conservative advancement on the segment's clearance (ends included): every point of the segment moves by
     // a convex combination of its ends' moves, so the clearance changes at most at L = max(|dx_a|, |dx_b|) per
     // unit of t, and stays above kCcdGapFraction of its start while t L <= (1 - kCcdGapFraction) d_e(x).
     const SupportDisk disk = setup_->disk_with_rim(p[rim_]);
+    const double inner = disk.radius - disk.rim_radius, zc = disk.top - disk.rim_radius;
+    // Over the flat face (inside the cylinder r <= R - rho, above the plate's mid-plane) f is linear along a
+    // segment, so its clearance is its ends' (the vertex barrier's, whose collision detection bounds them to
+    // the same fraction of their start): an edge whose ends stay there for the whole move needs no check.
+    auto over_face = [&](const Eigen::Vector3d& y) { return y[0] * y[0] + y[1] * y[1] <= inner * inner && y[2] >= zc; };
     double alpha = 1.0;
     for (const auto& v : setup_->edges) {
       const Eigen::Vector3d a = x.segment<3>(3 * v[0]), b = x.segment<3>(3 * v[1]);
       const Eigen::Vector3d da = dx.segment<3>(3 * v[0]), db = dx.segment<3>(3 * v[1]);
       const double len = std::max(da.norm(), db.norm());
       if (len == 0) continue;
+      if (over_face(a) && over_face(b) && over_face(a + alpha * da) && over_face(b + alpha * db)) continue;
       // cheap: the lower bound min(d(a), d(b)) - |b - a| / 2 already allows the whole step
       const double lower =
           std::min(support_disk_distance(disk, a.data()), support_disk_distance(disk, b.data())) - 0.5 * (b - a).norm();
@@ -328,6 +364,58 @@ class DiskEdgeBarrierTerm : public ElementTerm<DiskEdgeBarrierTerm, 2, 1, 1> {
   int rim_;
 };
 
+// A subset of the edge barrier's elements (those active at some x), for the element loops that only scatter
+// vectors: each element is the parent's, evaluated by the parent's element functions.
+class NearDiskEdges : public ElementTerm<NearDiskEdges, 2, 1, 1> {
+ public:
+  NearDiskEdges(const DiskEdgeBarrierTerm& parent, std::vector<int> ids, int rim) : parent_(parent), ids_(std::move(ids)), rim_(rim) {
+    edges_.reserve(ids_.size());
+    for (int e : ids_) edges_.push_back(parent_.setup()->edges[e]);
+  }
+  std::string name() const override { return parent_.name(); }
+  bool is_contact() const override { return true; }
+  int num_elements() const { return static_cast<int>(ids_.size()); }
+  const std::array<int, 2>& element_vertices(int e) const { return edges_[e]; }
+  int parameter_offset(int) const { return rim_; }
+  template <class T>
+  T element_energy(int e, const T* x, const T* p) const {
+    return parent_.element_energy<T>(ids_[e], x, p);
+  }
+  template <class T>
+  void element_gauss_newton(int e, const T* x, const T* p, T* r, T* S) const {
+    parent_.element_gauss_newton<T>(ids_[e], x, p, r, S);
+  }
+  void add_step_matrix_derivatives(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& lambda,
+                                   const Eigen::VectorXd& w, double scale, Eigen::VectorXd& gx,
+                                   Eigen::VectorXd& gp) const override {  // as DiskEdgeBarrierTerm's
+    Eigen::VectorXd partial = Eigen::VectorXd::Zero(p.size());
+    ElementTerm::add_step_matrix_derivatives(x, p, lambda, w, scale, gx, partial);
+    add_rim_step_matrix_derivative<NearDiskEdges, D>(*this, edges_, x, p, rim_, lambda, w, scale, gp);
+  }
+
+ private:
+  const DiskEdgeBarrierTerm& parent_;
+  std::vector<int> ids_;
+  std::vector<std::array<int, 2>> edges_;
+  int rim_;
+};
+
+bool DiskEdgeBarrierTerm::add_step_adjoint(const Eigen::VectorXd& x, const Eigen::VectorXd& p,
+                                           const Eigen::VectorXd& lambda, const Eigen::VectorXd& w, double h,
+                                           Eigen::VectorXd& gx, Eigen::VectorXd& gv, Eigen::VectorXd& gp) const {
+  const NearDiskEdges near(*this, active_edges(x, p), rim_);
+  return near.Term::add_step_adjoint(x, p, lambda, w, h, gx, gv, gp);
+}
+
+bool DiskEdgeBarrierTerm::add_step_system(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& v,
+                                          double scale, Eigen::VectorXd& values, Eigen::VectorXd& Kv,
+                                          Eigen::VectorXd& g) const {
+  add_step_matrix(x, p, scale, values);
+  const NearDiskEdges near(*this, active_edges(x, p), rim_);
+  near.add_gradient(x, p, g);
+  return near.add_step_matrix_product(x, p, v, scale, Kv);
+}
+
 class DiskFrictionTerm : public ElementTerm<DiskFrictionTerm, 1, 1, 3> {
  public:
   DiskFrictionTerm(const EffectContext& c, std::shared_ptr<const DiskSetup> setup)
@@ -341,6 +429,16 @@ class DiskFrictionTerm : public ElementTerm<DiskFrictionTerm, 1, 1, 3> {
     start_geometry_.assign(n, {});
   }
   std::string name() const override { return "disk_friction"; }
+  // The adjoint, the start adjoint and the forward's gradient and K v visit only the vertices with a lagged
+  // normal force (FrictionVertices below; the others' energy is identically zero within the step): the same
+  // values bit for bit.
+  bool add_step_adjoint(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& lambda,
+                        const Eigen::VectorXd& w, double h, Eigen::VectorXd& gx, Eigen::VectorXd& gv,
+                        Eigen::VectorXd& gp) const override;
+  bool add_step_system(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& v, double scale,
+                       Eigen::VectorXd& values, Eigen::VectorXd& Kv, Eigen::VectorXd& g) const override;
+  const std::vector<int>& active() const { return active_; }
+  int friction_offset() const { return friction_; }
   bool is_contact() const override { return true; }
   int num_elements() const { return static_cast<int>(setup_->vertices.size()); }
   const std::array<int, 1>& element_vertices(int e) const { return setup_->vertices[e]; }
@@ -348,6 +446,7 @@ class DiskFrictionTerm : public ElementTerm<DiskFrictionTerm, 1, 1, 3> {
 
   void begin_step(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double h) override {
     eps_u_ = kSlipSpeed * h;
+    active_.clear();
     const double rim = p[rim_];
     for (size_t e = 0; e < setup_->vertices.size(); ++e) {
       const int i = setup_->vertices[e][0];
@@ -365,6 +464,7 @@ class DiskFrictionTerm : public ElementTerm<DiskFrictionTerm, 1, 1, 3> {
       double b, db, d2b;
       barrier_derivatives(d, kActivation, b, db, d2b);
       normal_force_[e] = setup_->kappa[e] * std::abs(db);
+      active_.push_back(static_cast<int>(e));
       const Eigen::Vector3d n = Eigen::Vector3d(g[0], g[1], g[2]).normalized();
       projector_[e] = Eigen::Matrix3d::Identity() - n * n.transpose();
     }
@@ -379,8 +479,7 @@ class DiskFrictionTerm : public ElementTerm<DiskFrictionTerm, 1, 1, 3> {
     const double mu = p[friction_];
     if (mu == 0) return;
     Eigen::VectorXd d = Eigen::VectorXd::Zero(gxt.size()), unused = Eigen::VectorXd::Zero(p.size());
-    add_hessian_product(x, p, lambda, d);
-    if (c != 0) add_step_matrix_derivatives(x, p, lambda, w, c, d, unused);
+    add_active_products(x, p, lambda, w, c, d, unused);
     gxt -= d;
     using J = Jet<double, 3>;
     for (size_t e = 0; e < setup_->vertices.size(); ++e) {
@@ -499,7 +598,62 @@ class DiskFrictionTerm : public ElementTerm<DiskFrictionTerm, 1, 1, 3> {
   std::vector<Eigen::Matrix3d> projector_;
   std::vector<double> normal_force_;
   std::vector<std::array<double, 13>> start_geometry_;  // d, grad d, Hess d at the step's start (normal force > 0)
+  std::vector<int> active_;                             // elements with normal force > 0 this step
+  // lambda^T Hess E (x) + c d(lambda^T K w)/dx over the active elements, into d
+  void add_active_products(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& lambda,
+                           const Eigen::VectorXd& w, double c, Eigen::VectorXd& d, Eigen::VectorXd& unused) const;
 };
+
+class FrictionVertices : public ElementTerm<FrictionVertices, 1, 1, 3> {
+ public:
+  FrictionVertices(const DiskFrictionTerm& parent, const std::vector<std::array<int, 1>>& vertices)
+      : parent_(parent), ids_(parent.active()) {
+    verts_.reserve(ids_.size());
+    for (int e : ids_) verts_.push_back(vertices[e]);
+  }
+  std::string name() const override { return parent_.name(); }
+  bool is_contact() const override { return true; }
+  int num_elements() const { return static_cast<int>(ids_.size()); }
+  const std::array<int, 1>& element_vertices(int e) const { return verts_[e]; }
+  int parameter_offset(int) const { return parent_.friction_offset(); }
+  template <class T>
+  T element_energy(int e, const T* x, const T* p) const {
+    return parent_.element_energy<T>(ids_[e], x, p);
+  }
+  template <class T>
+  void element_gauss_newton(int e, const T* x, const T* p, T* r, T* S) const {
+    parent_.element_gauss_newton<T>(ids_[e], x, p, r, S);
+  }
+
+ private:
+  const DiskFrictionTerm& parent_;
+  const std::vector<int>& ids_;
+  std::vector<std::array<int, 1>> verts_;
+};
+
+void DiskFrictionTerm::add_active_products(const Eigen::VectorXd& x, const Eigen::VectorXd& p,
+                                           const Eigen::VectorXd& lambda, const Eigen::VectorXd& w, double c,
+                                           Eigen::VectorXd& d, Eigen::VectorXd& unused) const {
+  const FrictionVertices active(*this, setup_->vertices);
+  active.add_hessian_product(x, p, lambda, d);
+  if (c != 0) active.add_step_matrix_derivatives(x, p, lambda, w, c, d, unused);
+}
+
+bool DiskFrictionTerm::add_step_adjoint(const Eigen::VectorXd& x, const Eigen::VectorXd& p,
+                                        const Eigen::VectorXd& lambda, const Eigen::VectorXd& w, double h,
+                                        Eigen::VectorXd& gx, Eigen::VectorXd& gv, Eigen::VectorXd& gp) const {
+  const FrictionVertices active(*this, setup_->vertices);
+  return active.Term::add_step_adjoint(x, p, lambda, w, h, gx, gv, gp);
+}
+
+bool DiskFrictionTerm::add_step_system(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& v,
+                                       double scale, Eigen::VectorXd& values, Eigen::VectorXd& Kv,
+                                       Eigen::VectorXd& g) const {
+  add_step_matrix(x, p, scale, values);
+  const FrictionVertices active(*this, setup_->vertices);
+  active.add_gradient(x, p, g);
+  return active.add_step_matrix_product(x, p, v, scale, Kv);
+}
 
 }  // namespace
 

@@ -356,5 +356,120 @@ TEST(DiskEdge, EdgeTermDerivativesMatchCentralDifferencesOverTheRim) {
   EXPECT_GT(suite_term->energy(y, specimen.default_parameters()), 0.0);
 }
 
+// The edge term's adjoint and step system visit only the edges active at x (disk_contact.cpp NearDiskEdges):
+// on circle1 wrapped over the rim with some chords within reach (and most edges out of it), they equal Term's
+// generic composition of the term's full-loop passes bit for bit.
+TEST(DiskEdge, ActiveEdgePassesEqualTheFullLoops) {
+  ModelOptions o;
+  o.effects["disk_contact"] = {{"clamp_radius_m", 0.02}};
+  const Model model(load_cusick_template(1, testing::template_dir()), o);
+  const Eigen::VectorXd p = model.default_parameters();
+  const int rim_index = model.layout().block("disk_contact.rim_radius_m").offset;
+  const double rim = p[rim_index];
+  const double top = model.rest_positions()[2] - 5e-4;
+  const Term* edge_term = find_term(model, "disk_edge_contact");
+  ASSERT_NE(edge_term, nullptr);
+  SupportDisk disk;
+  disk.radius = model.options().support_radius;
+  disk.rim_radius = rim;
+  disk.top = top;
+  Eigen::VectorXd x;
+  double gap = 0;
+  for (gap = 2e-4; gap < 3e-2; gap += 5e-5) {
+    x = wrapped_over_rim(model, rim, gap, top);
+    const double w = worst_chord(model, x, disk);
+    if (w > 1e-4 && w < 4e-4) break;
+  }
+  ASSERT_LT(gap, 3e-2);
+  std::mt19937 g(7);
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  for (int i = 0; i < x.size(); ++i) x[i] += 2e-5 * u(g);
+  ASSERT_GT(edge_term->energy(x, p), 0.0) << "no edge within the barrier's reach";
+  const int n = static_cast<int>(x.size());
+  const Eigen::VectorXd lambda = testing::random_vector(n, 11), w = testing::random_vector(n, 12),
+                        v = testing::random_vector(n, 13), gx0 = testing::random_vector(n, 14),
+                        gv0 = testing::random_vector(n, 15);
+  const double h = 0.05;
+  // the term's own (active edges only)
+  Eigen::VectorXd gx = gx0, gv = gv0, gp = Eigen::VectorXd::Zero(p.size());
+  ASSERT_TRUE(edge_term->add_step_adjoint(x, p, lambda, w, h, gx, gv, gp));
+  // Term::add_step_adjoint's composition, with the term's full loops
+  Eigen::VectorXd gx_ref = gx0, gv_ref = gv0, gp_ref = Eigen::VectorXd::Zero(p.size()), Hl = Eigen::VectorXd::Zero(n);
+  edge_term->add_hessian_product(x, p, lambda, Hl);
+  gx_ref -= h * Hl;
+  edge_term->add_step_matrix_derivatives(x, p, lambda, w, -h * h, gx_ref, gp_ref);
+  edge_term->add_gradient_parameter_product(x, p, lambda, -h, gp_ref);
+  ASSERT_TRUE(edge_term->add_step_matrix_product(x, p, lambda, -h * h, gv_ref));
+  EXPECT_GT((gx - gx0).norm(), 0.0) << "the active edges contributed nothing";
+  EXPECT_NE(gp[rim_index], 0.0);
+  EXPECT_EQ((gx - gx_ref).lpNorm<Eigen::Infinity>(), 0.0);
+  EXPECT_EQ((gv - gv_ref).lpNorm<Eigen::Infinity>(), 0.0);
+  EXPECT_EQ((gp - gp_ref).lpNorm<Eigen::Infinity>(), 0.0);
+  // the step system: matrix, K v and gradient
+  const int nnz = model.pattern().nnz();
+  Eigen::VectorXd A = Eigen::VectorXd::Zero(nnz), Kv = Eigen::VectorXd::Zero(n), grad = Eigen::VectorXd::Zero(n);
+  ASSERT_TRUE(edge_term->add_step_system(x, p, v, h * h, A, Kv, grad));
+  Eigen::VectorXd A_ref = Eigen::VectorXd::Zero(nnz), Kv_ref = Eigen::VectorXd::Zero(n),
+                  grad_ref = Eigen::VectorXd::Zero(n);
+  edge_term->add_step_matrix(x, p, h * h, A_ref);
+  edge_term->add_gradient(x, p, grad_ref);
+  ASSERT_TRUE(edge_term->add_step_matrix_product(x, p, v, h * h, Kv_ref));
+  EXPECT_GT(grad.norm(), 0.0);
+  EXPECT_EQ((A - A_ref).lpNorm<Eigen::Infinity>(), 0.0);
+  EXPECT_EQ((Kv - Kv_ref).lpNorm<Eigen::Infinity>(), 0.0);
+  EXPECT_EQ((grad - grad_ref).lpNorm<Eigen::Infinity>(), 0.0);
+}
+
+// The disk friction's adjoint, start adjoint and step system visit only the vertices with a lagged normal force
+// (disk_contact.cpp FrictionVertices): on a state with some vertices within the barrier's reach (and many not),
+// they equal the full loops bit for bit.
+TEST(DiskEdge, ActiveFrictionPassesEqualTheFullLoops) {
+  ModelOptions o;
+  o.effects["disk_contact"] = {{"clamp_radius_m", 0.02}};
+  const Model model(make_cusick_specimen(60), o);
+  const Eigen::VectorXd p = model.default_parameters();
+  Term* friction = nullptr;
+  for (const auto& t : model.terms())
+    if (t->name() == "disk_friction") friction = t.get();
+  ASSERT_NE(friction, nullptr);
+  const int n = model.num_dofs();
+  Eigen::VectorXd x = model.rest_positions();
+  std::mt19937 rng(9);
+  std::uniform_real_distribution<double> u01(0.0, 1.0);
+  for (int i = 0; i < model.num_vertices(); ++i)
+    if (u01(rng) < 0.5) x[3 * i + 2] -= 1e-4 + 2e-4 * u01(rng);  // half of them within reach
+  const double h = 0.05;
+  friction->begin_step(x, p, h);
+  const Eigen::VectorXd y = x + 1e-4 * testing::random_vector(n, 21);  // slipped within the step
+  const Eigen::VectorXd lambda = testing::random_vector(n, 22), w = testing::random_vector(n, 23),
+                        v = testing::random_vector(n, 24), gx0 = testing::random_vector(n, 25);
+  Eigen::VectorXd gx = gx0, gv = Eigen::VectorXd::Zero(n), gp = Eigen::VectorXd::Zero(p.size());
+  ASSERT_TRUE(friction->add_step_adjoint(y, p, lambda, w, h, gx, gv, gp));
+  Eigen::VectorXd gx_ref = gx0, gv_ref = Eigen::VectorXd::Zero(n), gp_ref = Eigen::VectorXd::Zero(p.size()),
+                  Hl = Eigen::VectorXd::Zero(n);
+  friction->add_hessian_product(y, p, lambda, Hl);
+  gx_ref -= h * Hl;
+  friction->add_step_matrix_derivatives(y, p, lambda, w, -h * h, gx_ref, gp_ref);
+  friction->add_gradient_parameter_product(y, p, lambda, -h, gp_ref);
+  ASSERT_TRUE(friction->add_step_matrix_product(y, p, lambda, -h * h, gv_ref));
+  EXPECT_GT((gx - gx0).norm(), 0.0) << "no vertex with a normal force";
+  EXPECT_NE(gp.norm(), 0.0);
+  EXPECT_EQ((gx - gx_ref).lpNorm<Eigen::Infinity>(), 0.0);
+  EXPECT_EQ((gv - gv_ref).lpNorm<Eigen::Infinity>(), 0.0);
+  EXPECT_EQ((gp - gp_ref).lpNorm<Eigen::Infinity>(), 0.0);
+  const int nnz = model.pattern().nnz();
+  Eigen::VectorXd A = Eigen::VectorXd::Zero(nnz), Kv = Eigen::VectorXd::Zero(n), grad = Eigen::VectorXd::Zero(n);
+  ASSERT_TRUE(friction->add_step_system(y, p, v, h * h, A, Kv, grad));
+  Eigen::VectorXd A_ref = Eigen::VectorXd::Zero(nnz), Kv_ref = Eigen::VectorXd::Zero(n),
+                  grad_ref = Eigen::VectorXd::Zero(n);
+  friction->add_step_matrix(y, p, h * h, A_ref);
+  friction->add_gradient(y, p, grad_ref);
+  ASSERT_TRUE(friction->add_step_matrix_product(y, p, v, h * h, Kv_ref));
+  EXPECT_GT(grad.norm(), 0.0);
+  EXPECT_EQ((A - A_ref).lpNorm<Eigen::Infinity>(), 0.0);
+  EXPECT_EQ((Kv - Kv_ref).lpNorm<Eigen::Infinity>(), 0.0);
+  EXPECT_EQ((grad - grad_ref).lpNorm<Eigen::Infinity>(), 0.0);
+}
+
 }  // namespace
 }  // namespace drapelab
