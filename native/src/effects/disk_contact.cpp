@@ -364,39 +364,50 @@ class DiskEdgeBarrierTerm : public ElementTerm<DiskEdgeBarrierTerm, 2, 1, 1> {
   int rim_;
 };
 
-// A subset of the edge barrier's elements (those active at some x), for the element loops that only scatter
-// vectors: each element is the parent's, evaluated by the parent's element functions.
-class NearDiskEdges : public ElementTerm<NearDiskEdges, 2, 1, 1> {
+// A subset of a parent element term's elements (those active at some x), for the element loops that only scatter
+// vectors: element e is the parent's element ids[e], evaluated by the parent's element functions. Derived is the
+// concrete view (CRTP), which may add overrides.
+template <class Derived, class Parent, int NV, int NP, int NQ>
+class ElementSubset : public ElementTerm<Derived, NV, NP, NQ> {
  public:
-  NearDiskEdges(const DiskEdgeBarrierTerm& parent, std::vector<int> ids, int rim) : parent_(parent), ids_(std::move(ids)), rim_(rim) {
-    edges_.reserve(ids_.size());
-    for (int e : ids_) edges_.push_back(parent_.setup()->edges[e]);
+  ElementSubset(const Parent& parent, std::vector<int> ids) : parent_(parent), ids_(std::move(ids)) {
+    verts_.reserve(ids_.size());
+    for (int e : ids_) verts_.push_back(parent_.element_vertices(e));
   }
   std::string name() const override { return parent_.name(); }
   bool is_contact() const override { return true; }
   int num_elements() const { return static_cast<int>(ids_.size()); }
-  const std::array<int, 2>& element_vertices(int e) const { return edges_[e]; }
-  int parameter_offset(int) const { return rim_; }
+  const std::array<int, NV>& element_vertices(int e) const { return verts_[e]; }
+  int parameter_offset(int e) const { return parent_.parameter_offset(ids_[e]); }
   template <class T>
   T element_energy(int e, const T* x, const T* p) const {
-    return parent_.element_energy<T>(ids_[e], x, p);
+    return parent_.template element_energy<T>(ids_[e], x, p);
   }
   template <class T>
   void element_gauss_newton(int e, const T* x, const T* p, T* r, T* S) const {
-    parent_.element_gauss_newton<T>(ids_[e], x, p, r, S);
+    parent_.template element_gauss_newton<T>(ids_[e], x, p, r, S);
   }
+
+ protected:
+  const Parent& parent_;
+  std::vector<int> ids_;
+  std::vector<std::array<int, NV>> verts_;
+};
+
+// The edge barrier's edges active at some x.
+class NearDiskEdges : public ElementSubset<NearDiskEdges, DiskEdgeBarrierTerm, 2, 1, 1> {
+ public:
+  NearDiskEdges(const DiskEdgeBarrierTerm& parent, std::vector<int> ids, int rim)
+      : ElementSubset(parent, std::move(ids)), rim_(rim) {}
   void add_step_matrix_derivatives(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& lambda,
                                    const Eigen::VectorXd& w, double scale, Eigen::VectorXd& gx,
                                    Eigen::VectorXd& gp) const override {  // as DiskEdgeBarrierTerm's
     Eigen::VectorXd partial = Eigen::VectorXd::Zero(p.size());
     ElementTerm::add_step_matrix_derivatives(x, p, lambda, w, scale, gx, partial);
-    add_rim_step_matrix_derivative<NearDiskEdges, D>(*this, edges_, x, p, rim_, lambda, w, scale, gp);
+    add_rim_step_matrix_derivative<NearDiskEdges, D>(*this, verts_, x, p, rim_, lambda, w, scale, gp);
   }
 
  private:
-  const DiskEdgeBarrierTerm& parent_;
-  std::vector<int> ids_;
-  std::vector<std::array<int, 2>> edges_;
   int rim_;
 };
 
@@ -438,7 +449,6 @@ class DiskFrictionTerm : public ElementTerm<DiskFrictionTerm, 1, 1, 3> {
   bool add_step_system(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& v, double scale,
                        Eigen::VectorXd& values, Eigen::VectorXd& Kv, Eigen::VectorXd& g) const override;
   const std::vector<int>& active() const { return active_; }
-  int friction_offset() const { return friction_; }
   bool is_contact() const override { return true; }
   int num_elements() const { return static_cast<int>(setup_->vertices.size()); }
   const std::array<int, 1>& element_vertices(int e) const { return setup_->vertices[e]; }
@@ -604,37 +614,16 @@ class DiskFrictionTerm : public ElementTerm<DiskFrictionTerm, 1, 1, 3> {
                            const Eigen::VectorXd& w, double c, Eigen::VectorXd& d, Eigen::VectorXd& unused) const;
 };
 
-class FrictionVertices : public ElementTerm<FrictionVertices, 1, 1, 3> {
+// The friction's vertices with a normal force this step.
+class FrictionVertices : public ElementSubset<FrictionVertices, DiskFrictionTerm, 1, 1, 3> {
  public:
-  FrictionVertices(const DiskFrictionTerm& parent, const std::vector<std::array<int, 1>>& vertices)
-      : parent_(parent), ids_(parent.active()) {
-    verts_.reserve(ids_.size());
-    for (int e : ids_) verts_.push_back(vertices[e]);
-  }
-  std::string name() const override { return parent_.name(); }
-  bool is_contact() const override { return true; }
-  int num_elements() const { return static_cast<int>(ids_.size()); }
-  const std::array<int, 1>& element_vertices(int e) const { return verts_[e]; }
-  int parameter_offset(int) const { return parent_.friction_offset(); }
-  template <class T>
-  T element_energy(int e, const T* x, const T* p) const {
-    return parent_.element_energy<T>(ids_[e], x, p);
-  }
-  template <class T>
-  void element_gauss_newton(int e, const T* x, const T* p, T* r, T* S) const {
-    parent_.element_gauss_newton<T>(ids_[e], x, p, r, S);
-  }
-
- private:
-  const DiskFrictionTerm& parent_;
-  const std::vector<int>& ids_;
-  std::vector<std::array<int, 1>> verts_;
+  explicit FrictionVertices(const DiskFrictionTerm& parent) : ElementSubset(parent, parent.active()) {}
 };
 
 void DiskFrictionTerm::add_active_products(const Eigen::VectorXd& x, const Eigen::VectorXd& p,
                                            const Eigen::VectorXd& lambda, const Eigen::VectorXd& w, double c,
                                            Eigen::VectorXd& d, Eigen::VectorXd& unused) const {
-  const FrictionVertices active(*this, setup_->vertices);
+  const FrictionVertices active(*this);
   active.add_hessian_product(x, p, lambda, d);
   if (c != 0) active.add_step_matrix_derivatives(x, p, lambda, w, c, d, unused);
 }
@@ -642,7 +631,7 @@ void DiskFrictionTerm::add_active_products(const Eigen::VectorXd& x, const Eigen
 bool DiskFrictionTerm::add_step_adjoint(const Eigen::VectorXd& x, const Eigen::VectorXd& p,
                                         const Eigen::VectorXd& lambda, const Eigen::VectorXd& w, double h,
                                         Eigen::VectorXd& gx, Eigen::VectorXd& gv, Eigen::VectorXd& gp) const {
-  const FrictionVertices active(*this, setup_->vertices);
+  const FrictionVertices active(*this);
   return active.Term::add_step_adjoint(x, p, lambda, w, h, gx, gv, gp);
 }
 
@@ -650,7 +639,7 @@ bool DiskFrictionTerm::add_step_system(const Eigen::VectorXd& x, const Eigen::Ve
                                        double scale, Eigen::VectorXd& values, Eigen::VectorXd& Kv,
                                        Eigen::VectorXd& g) const {
   add_step_matrix(x, p, scale, values);
-  const FrictionVertices active(*this, setup_->vertices);
+  const FrictionVertices active(*this);
   active.add_gradient(x, p, g);
   return active.add_step_matrix_product(x, p, v, scale, Kv);
 }
