@@ -113,18 +113,18 @@ struct DiskSetup {
   }
 };
 
-// d(lambda^T K w)/d(rim) of a one-residual barrier term K_e = J_r S J_r^T whose residual r = d(x, rim) depends on
-// the rim radius (the torus normal turns with it): ElementTerm's generic version differentiates S only
-// (element_term.hpp assumes residuals independent of p), so these terms add S' (J.l)(J.w) + S (J'.l)(J.w) +
-// S (J.l)(J'.w) themselves, with jets over (l, w) inside a jet over the rim.
-template <class Term, int D>
+// d(lambda^T K w)/d(rim) of a barrier term K_e = J_r^T S J_r whose residuals r (M of them) depend on the rim
+// radius (the torus normal turns with it): ElementTerm's generic version differentiates S only (element_term.hpp
+// assumes residuals independent of p), so these terms add, over a, b, S_ab' (J_a.l)(J_b.w) +
+// S_ab (J_a'.l)(J_b.w) + S_ab (J_a.l)(J_b'.w) themselves, with jets over (l, w) inside a jet over the rim.
+template <class Term, int D, int M>
 void add_rim_step_matrix_derivative(const Term& term, const std::vector<std::array<int, D / 3>>& elements,
                                     const Eigen::VectorXd& x, const Eigen::VectorXd& p, int rim,
                                     const Eigen::VectorXd& lambda, const Eigen::VectorXd& w, double scale,
                                     Eigen::VectorXd& gp) {
   using In = Jet<double, 2>;
   using U = Jet<In, 1>;
-  U xe[D], pe[1], r[1], S[1];
+  U xe[D], pe[1], r[M], S[M * M];
   for (size_t e = 0; e < elements.size(); ++e) {
     for (int i = 0; i < D; ++i) {
       const int dof = 3 * elements[e][i / 3] + i % 3;
@@ -138,8 +138,13 @@ void add_rim_step_matrix_derivative(const Term& term, const std::vector<std::arr
     pe[0].a = In(p[rim]);
     pe[0].v[0] = In(1.0);
     term.template element_gauss_newton<U>(static_cast<int>(e), xe, pe, r, S);
-    const double Jl = r[0].a.v[0], Jw = r[0].a.v[1], S0 = S[0].a.a;
-    gp[rim] += scale * (S[0].v[0].a * Jl * Jw + S0 * (r[0].v[0].v[0] * Jw + Jl * r[0].v[0].v[1]));
+    double sum = 0;
+    for (int a = 0; a < M; ++a)
+      for (int b = 0; b < M; ++b) {
+        const double Jl = r[a].a.v[0], Jw = r[b].a.v[1], Sab = S[a * M + b].a.a;
+        sum += S[a * M + b].v[0].a * Jl * Jw + Sab * (r[a].v[0].v[0] * Jw + Jl * r[b].v[0].v[1]);
+      }
+    gp[rim] += scale * sum;
   }
 }
 
@@ -180,34 +185,23 @@ class DiskBarrierTerm : public ElementTerm<DiskBarrierTerm, 1, 1, 1> {
                                    Eigen::VectorXd& gp) const override {
     Eigen::VectorXd partial = Eigen::VectorXd::Zero(p.size());  // the generic p part (S only): replaced below
     ElementTerm::add_step_matrix_derivatives(x, p, lambda, w, scale, gx, partial);
-    add_rim_step_matrix_derivative<DiskBarrierTerm, D>(*this, setup_->vertices, x, p, rim_, lambda, w, scale, gp);
+    add_rim_step_matrix_derivative<DiskBarrierTerm, D, 1>(*this, setup_->vertices, x, p, rim_, lambda, w, scale, gp);
   }
 
   double max_step(const Eigen::VectorXd& x, const Eigen::VectorXd& dx, const Eigen::VectorXd& p) const override {
-    // Conservative advancement: the distance is 1-Lipschitz in the vertex position, so along x + t dx it stays
-    // above kCcdGapFraction of its start while t |dx_i| <= (1 - kCcdGapFraction) d_i(x) (and beyond that, the
-    // advancement repeats from the new point, as additive CCD does; Li et al. 2021).
-    const double rim = p[rim_];
+    // Conservative advancement (contact/disk_edge.hpp support_disk_point_advance): the distance to the disk is
+    // convex, so along x + t dx it falls no faster than the move's component against the normal; the move may
+    // close at most (1 - kCcdGapFraction) of the start's distance, and each round certifies a further stretch
+    // from where the last ended (as additive CCD does; Li et al. 2021).
+    const SupportDisk disk = setup_->disk_with_rim(p[rim_]);
     double alpha = 1.0;
     for (const auto& v : setup_->vertices) {
       const int i = v[0];
-      const Eigen::Vector3d d = dx.segment<3>(3 * i);
-      const double len = d.norm();
-      if (len == 0) continue;
-      Eigen::Vector3d xi = x.segment<3>(3 * i);
-      const double d0 = setup_->distance(xi.data(), rim);
-      double t = 0;
-      for (int it = 0; it < 64 && t < alpha; ++it) {
-        const Eigen::Vector3d y = xi + t * d;
-        const double dist = setup_->distance(y.data(), rim);
-        if (dist <= kCcdGapFraction * d0) break;
-        t += (dist - kCcdGapFraction * d0) / len;
-        if (t >= alpha) {
-          t = alpha;
-          break;
-        }
-      }
-      alpha = std::min(alpha, t);
+      const double* d = dx.data() + 3 * i;
+      if (d[0] == 0 && d[1] == 0 && d[2] == 0) continue;
+      const double* xi = x.data() + 3 * i;
+      const double d0 = support_disk_distance(disk, xi);
+      alpha = std::min(alpha, support_disk_point_advance(disk, xi, d, alpha, kCcdGapFraction * d0));
     }
     return alpha;
   }
@@ -224,7 +218,7 @@ class DiskBarrierTerm : public ElementTerm<DiskBarrierTerm, 1, 1, 1> {
 // minimum a plateau that reaches an end), hands over to the vertex term continuously (C1; C2 where the vertex
 // distances are) without double counting. At contact (d_e -> 0 inside, the ends still apart) both dips are
 // positive, so E_e -> infinity: the barrier guarantee holds for the whole segment.
-class DiskEdgeBarrierTerm : public ElementTerm<DiskEdgeBarrierTerm, 2, 1, 1> {
+class DiskEdgeBarrierTerm : public ElementTerm<DiskEdgeBarrierTerm, 2, 1, 2> {
  public:
   DiskEdgeBarrierTerm(const EffectContext& c, std::shared_ptr<const DiskSetup> setup)
       : setup_(std::move(setup)), rim_(c.layout.block(effect_block_name("disk_contact", "rim_radius_m")).offset) {}
@@ -267,24 +261,35 @@ class DiskEdgeBarrierTerm : public ElementTerm<DiskEdgeBarrierTerm, 2, 1, 1> {
   }
   template <class T>
   T weight(const T* x, const T& rim, const T& d) const {
-    return dip_weight(setup_->distance(x, rim) - d, kEdgeDip) * dip_weight(setup_->distance(x + 3, rim) - d, kEdgeDip);
+    return edge_dip_weight(setup_->distance(x, rim) - d, d, kEdgeDip) *
+           edge_dip_weight(setup_->distance(x + 3, rim) - d, d, kEdgeDip);
   }
-  // Gauss-Newton: r = d_e, S = kappa_e m b''(d_e) >= 0 (dropped: b' Hess d_e, negative semidefinite as d_e is
-  // convex in the edge's ends, and the weight's derivative terms).
+  // Step matrix: the energy's Hessian is kappa_e m [b''(d) grad d grad d^T + b'(d) Hess d_e] + the weight's
+  // terms, with Hess d_e = f_xx - f_xt f_tt^-1 f_tx = f_xx - f_tt grad t* grad t*^T (contact/disk_edge.hpp; the
+  // minimiser's gradient is grad t* = -f_tx / f_tt). As b' < 0 inside the reach, b' f_xx is negative
+  // semidefinite (f_xx is the Hessian of a convex distance at fixed t) and -b' f_tt grad t* grad t*^T is positive
+  // semidefinite. The step matrix keeps both PSD parts: residuals r = (d_e, t*),
+  //   S = diag(kappa_e m b''(d_e), kappa_e m |b'(d_e)| f_tt) >= 0;
+  // dropped: b' f_xx and the weight's derivative terms. The second part is the clearance's loss when the edge
+  // tilts about its contact point (its minimiser slides along it: the chord cuts into the rounded rim at second
+  // order, rho theta^2 / 2), which the first alone does not see: without it a linearised move tilts edges that
+  // wrap the rim into it, and collision detection cuts the move.
   template <class T>
   void element_gauss_newton(int e, const T* x, const T* p, T* r, T* S) const {
     SegmentDiskMinimum m;
-    r[0] = T(0.0);
-    S[0] = T(0.0);
+    for (int k = 0; k < 2; ++k) r[k] = T(0.0);
+    for (int k = 0; k < 4; ++k) S[k] = T(0.0);
     if (!active(x, p[0], m) || !(m.distance > 0)) return;
-    T t;
-    const T d = segment_support_disk_distance(setup_->disk, x, x + 3, p[0], m.t, t);
+    T t, ftt;
+    const T d = segment_support_disk_distance(setup_->disk, x, x + 3, p[0], m.t, t, &ftt);
     r[0] = d;
+    r[1] = t;
     if (!(value_of(d) > 0) || value_of(d) >= kActivation) return;
     const T e1 = d - kActivation;
     const T l = log_of(d / kActivation);
-    S[0] = setup_->edge_kappa[e] * weight(x, p[0], d) *
-           (-2.0 * l - 4.0 * e1 / d + e1 * e1 / (d * d)) / (kActivation * kActivation);
+    const T scale = setup_->edge_kappa[e] * weight(x, p[0], d) / (kActivation * kActivation);
+    S[0] = scale * (-2.0 * l - 4.0 * e1 / d + e1 * e1 / (d * d));  // kappa_e m b''(d)
+    S[3] = scale * (2.0 * e1 * l + e1 * e1 / d) * ftt;             // kappa_e m |b'(d)| f_tt
   }
 
   void add_step_matrix_derivatives(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& lambda,
@@ -292,7 +297,7 @@ class DiskEdgeBarrierTerm : public ElementTerm<DiskEdgeBarrierTerm, 2, 1, 1> {
                                    Eigen::VectorXd& gp) const override {
     Eigen::VectorXd partial = Eigen::VectorXd::Zero(p.size());  // the generic p part (S only): replaced below
     ElementTerm::add_step_matrix_derivatives(x, p, lambda, w, scale, gx, partial);
-    add_rim_step_matrix_derivative<DiskEdgeBarrierTerm, D>(*this, setup_->edges, x, p, rim_, lambda, w, scale, gp);
+    add_rim_step_matrix_derivative<DiskEdgeBarrierTerm, D, 2>(*this, setup_->edges, x, p, rim_, lambda, w, scale, gp);
   }
 
   // The adjoint and the forward's gradient and K v visit only the edges active at x (NearDiskEdges below: the
@@ -322,9 +327,11 @@ class DiskEdgeBarrierTerm : public ElementTerm<DiskEdgeBarrierTerm, 2, 1, 1> {
   const std::shared_ptr<const DiskSetup>& setup() const { return setup_; }
 
   double max_step(const Eigen::VectorXd& x, const Eigen::VectorXd& dx, const Eigen::VectorXd& p) const override {
-    // Conservative advancement on the segment's clearance (ends included): every point of the segment moves by
-    // a convex combination of its ends' moves, so the clearance changes at most at L = max(|dx_a|, |dx_b|) per
-    // unit of t, and stays above kCcdGapFraction of its start while t L <= (1 - kCcdGapFraction) d_e(x).
+    // Conservative advancement on the segment's clearance (ends included; contact/disk_edge.hpp
+    // support_disk_segment_advance): every point of the segment moves on a line, along which the distance to the
+    // disk is convex, so each point's clearance falls no faster than its move against its normal; bounded over
+    // the segment by intervals of its parameter, this lets an edge sliding or rolling over the rim take the whole
+    // move, while the clearance stays above kCcdGapFraction of its start.
     const SupportDisk disk = setup_->disk_with_rim(p[rim_]);
     const double inner = disk.radius - disk.rim_radius, zc = disk.top - disk.rim_radius;
     // Over the flat face (inside the cylinder r <= R - rho, above the plate's mid-plane) f is linear along a
@@ -343,18 +350,8 @@ class DiskEdgeBarrierTerm : public ElementTerm<DiskEdgeBarrierTerm, 2, 1, 1> {
           std::min(support_disk_distance(disk, a.data()), support_disk_distance(disk, b.data())) - 0.5 * (b - a).norm();
       if (lower > 0 && alpha * len <= (1.0 - kCcdGapFraction) * lower) continue;
       const double d0 = segment_support_disk_minimum(disk, a.data(), b.data()).distance;
-      double t = 0;
-      for (int it = 0; it < 64 && t < alpha; ++it) {
-        const Eigen::Vector3d ya = a + t * da, yb = b + t * db;
-        const double dist = segment_support_disk_minimum(disk, ya.data(), yb.data()).distance;
-        if (dist <= kCcdGapFraction * d0) break;
-        t += (dist - kCcdGapFraction * d0) / len;
-        if (t >= alpha) {
-          t = alpha;
-          break;
-        }
-      }
-      alpha = std::min(alpha, t);
+      alpha = std::min(alpha, support_disk_segment_advance(disk, a.data(), b.data(), da.data(), db.data(), alpha,
+                                                           kCcdGapFraction * d0));
     }
     return alpha;
   }
@@ -395,7 +392,7 @@ class ElementSubset : public ElementTerm<Derived, NV, NP, NQ> {
 };
 
 // The edge barrier's edges active at some x.
-class NearDiskEdges : public ElementSubset<NearDiskEdges, DiskEdgeBarrierTerm, 2, 1, 1> {
+class NearDiskEdges : public ElementSubset<NearDiskEdges, DiskEdgeBarrierTerm, 2, 1, 2> {
  public:
   NearDiskEdges(const DiskEdgeBarrierTerm& parent, std::vector<int> ids, int rim)
       : ElementSubset(parent, std::move(ids)), rim_(rim) {}
@@ -404,7 +401,7 @@ class NearDiskEdges : public ElementSubset<NearDiskEdges, DiskEdgeBarrierTerm, 2
                                    Eigen::VectorXd& gp) const override {  // as DiskEdgeBarrierTerm's
     Eigen::VectorXd partial = Eigen::VectorXd::Zero(p.size());
     ElementTerm::add_step_matrix_derivatives(x, p, lambda, w, scale, gx, partial);
-    add_rim_step_matrix_derivative<NearDiskEdges, D>(*this, verts_, x, p, rim_, lambda, w, scale, gp);
+    add_rim_step_matrix_derivative<NearDiskEdges, D, 2>(*this, verts_, x, p, rim_, lambda, w, scale, gp);
   }
 
  private:

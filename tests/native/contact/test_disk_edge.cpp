@@ -4,7 +4,10 @@
 // accepts, the edge term rejects and the step bound stops short of.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <random>
+#include <utility>
+#include <vector>
 
 #include "../test_support.hpp"
 #include "contact/barrier.hpp"
@@ -180,6 +183,167 @@ TEST(DiskEdge, DipWeightIsASmoothStep) {
   }
   EXPECT_EQ(dip_weight(0.0, 1e-4), 0.0);
   EXPECT_EQ(dip_weight(1e-4, 1e-4), 1.0);
+}
+
+TEST(DiskEdge, RelativeDipWeightIsASmoothStepOverAScaleThatShrinksWithTheClearance) {
+  // q(dip / scale), 1 / scale = 1 / cap + 1 / d: derivatives in dip and d against central differences.
+  const double cap = 1e-4;
+  using J = Jet<double, 2>;
+  for (double d : {1e-8, 1e-6, 5e-5, 4e-4})
+    for (double s : {-0.1, 0.0, 0.2, 0.5, 0.9, 1.3}) {
+      const double scale = cap * d / (cap + d), dip = s * scale;
+      const J w = edge_dip_weight(J(dip, 0), J(d, 1), cap);
+      const double hd = 1e-6 * scale, hs = 1e-6 * d;
+      const double fd_dip = (edge_dip_weight(dip + hd, d, cap) - edge_dip_weight(dip - hd, d, cap)) / (2 * hd);
+      const double fd_d = (edge_dip_weight(dip, d + hs, cap) - edge_dip_weight(dip, d - hs, cap)) / (2 * hs);
+      EXPECT_NEAR(w.v[0], fd_dip, 1e-5 * std::abs(fd_dip) + 1e-6 / scale) << d << " " << s;
+      EXPECT_NEAR(w.v[1], fd_d, 1e-5 * std::abs(fd_d) + 1e-6 / d) << d << " " << s;
+      EXPECT_GE(w.a, 0.0);
+      EXPECT_LE(w.a, 1.0);
+    }
+  EXPECT_EQ(edge_dip_weight(0.0, 1e-6, cap), 0.0);  // the minimum at an end: the vertex term's case
+  EXPECT_EQ(edge_dip_weight(1e-6, 1e-6, cap), 1.0);   // near contact it counts fully once it dips by d
+  EXPECT_NEAR(edge_dip_weight(0.5e-4, 1.0, cap), dip_weight(0.5e-4, cap), 1e-3);  // far: about the fixed scale
+}
+
+// The clearance of the segment (a + tau da, b + tau db) by its exact minimum (segment_support_disk_minimum, itself
+// checked against dense sampling above).
+double moved_clearance(const SupportDisk& disk, const double* a, const double* b, const double* da, const double* db,
+                       double tau) {
+  double ya[3], yb[3];
+  for (int k = 0; k < 3; ++k) {
+    ya[k] = a[k] + tau * da[k];
+    yb[k] = b[k] + tau * db[k];
+  }
+  return segment_support_disk_minimum(disk, ya, yb).distance;
+}
+
+// The old edge advancement (before helper R): Lipschitz constant max(|da|, |db|), 64 rounds.
+double lipschitz_advance(const SupportDisk& disk, const double* a, const double* b, const double* da,
+                         const double* db, double floor) {
+  const double len = std::max(std::sqrt(da[0] * da[0] + da[1] * da[1] + da[2] * da[2]),
+                              std::sqrt(db[0] * db[0] + db[1] * db[1] + db[2] * db[2]));
+  double t = 0;
+  for (int it = 0; it < 64 && t < 1; ++it) {
+    const double dist = moved_clearance(disk, a, b, da, db, t);
+    if (dist <= floor) break;
+    t = std::min(1.0, t + (dist - floor) / len);
+  }
+  return t;
+}
+
+// Collision detection's bounds (support_disk_point_advance, support_disk_segment_advance) never promise more
+// than the true clearance: along every certified move the clearance, sampled densely in tau (segments: their
+// exact minimum at each tau), stays above the floor. And they are tight: the certified fraction against the
+// true first crossing of the floor.
+TEST(DiskEdge, AdvanceBoundsAreConservative) {
+  SupportDisk disk;
+  int cut_points = 0, cut_segments = 0, whole = 0, trials = 0;
+  std::vector<double> tightness;
+  for (int trial = 0; trial < 600; ++trial) {
+    double a[3], b[3], da[3], db[3];
+    random_edge(disk, a, b);
+    const double d0 = segment_support_disk_minimum(disk, a, b).distance;
+    if (!(d0 > 1e-7)) continue;  // a move starts clear of the disk (random_edge may cut the rim between its ends)
+    // moves of 0.3-30 times the clearance (at most 2 mm): a common translation plus a differential part
+    // (rotations, tilts), in random directions, many towards the disk
+    const double size = std::min(2e-3, d0 * std::exp(uniform(std::log(0.3), std::log(30.0))));
+    for (int k = 0; k < 3; ++k) {
+      const double common = uniform(-1, 1), diff = uniform(-1, 1) * uniform(0, 1);
+      da[k] = size * (common - diff);
+      db[k] = size * (common + diff);
+    }
+    ++trials;
+    const double d0p = support_disk_distance(disk, a);
+    const double tp = support_disk_point_advance(disk, a, da, 1.0, 0.1 * d0p);
+    EXPECT_GE(tp, 0.0);
+    EXPECT_LE(tp, 1.0);
+    for (int i = 0; i <= 2000; ++i) {
+      const double tau = tp * i / 2000.0;
+      const double y[3] = {a[0] + tau * da[0], a[1] + tau * da[1], a[2] + tau * da[2]};
+      ASSERT_GE(support_disk_distance(disk, y), 0.1 * d0p * (1 - 1e-9)) << "point trial " << trial << " tau " << tau;
+    }
+    if (tp < 1) ++cut_points;
+    const double floor = 0.1 * d0;
+    const double t = support_disk_segment_advance(disk, a, b, da, db, 1.0, floor);
+    EXPECT_GE(t, 0.0);
+    EXPECT_LE(t, 1.0);
+    for (int i = 0; i <= 400; ++i) {
+      const double tau = t * i / 400.0;
+      ASSERT_GE(moved_clearance(disk, a, b, da, db, tau), floor * (1 - 1e-9)) << "segment trial " << trial << " tau "
+                                                                             << tau;
+    }
+    // dense sampling along the segment too at the certified end
+    double ya[3], yb[3];
+    for (int k = 0; k < 3; ++k) {
+      ya[k] = a[k] + t * da[k];
+      yb[k] = b[k] + t * db[k];
+    }
+    ASSERT_GE(sampled_minimum(disk, ya, yb), floor * (1 - 1e-9)) << "segment trial " << trial;
+    if (t < 1) {
+      ++cut_segments;
+      double crossing = 1;  // the true first crossing of the floor (scan, then bisection)
+      for (int i = 1; i <= 1000; ++i)
+        if (moved_clearance(disk, a, b, da, db, i / 1000.0) < floor) {
+          double lo = (i - 1) / 1000.0, hi = i / 1000.0;
+          for (int k = 0; k < 50; ++k) {
+            const double mid = 0.5 * (lo + hi);
+            (moved_clearance(disk, a, b, da, db, mid) < floor ? hi : lo) = mid;
+          }
+          crossing = lo;
+          break;
+        }
+      EXPECT_LE(t, crossing * (1 + 1e-9) + 1e-12) << "segment trial " << trial;
+      tightness.push_back(t / crossing);
+    } else {
+      ++whole;
+    }
+  }
+  std::sort(tightness.begin(), tightness.end());
+  ASSERT_FALSE(tightness.empty());
+  const double median = tightness[tightness.size() / 2], low = tightness[tightness.size() / 10];
+  std::printf("advance bounds: %d / %d point moves and %d / %d segment moves cut; segments: certified / true "
+              "crossing median %.3f, 10th percentile %.3f\n",
+              cut_points, trials, cut_segments, trials, median, low);
+  EXPECT_GE(cut_segments, 20);  // the random moves do reach the floor often
+  EXPECT_GE(whole, 20);
+  EXPECT_GT(median, 0.5);
+}
+
+// An edge pressed onto the rounded rim and rolling over it (its ends moving on the tangents of their circles about
+// the tube's centre: every point keeps its distance to first order and gains at second) takes the whole move,
+// which the Lipschitz advancement (64 rounds of 0.9 d0 / max |d end|) cuts to a fraction.
+TEST(DiskEdge, EdgeRollingOverTheRimTakesTheWholeMove) {
+  SupportDisk disk;
+  const double rho = disk.rim_radius, inner = disk.radius - rho, zc = disk.top - rho;
+  for (double psi : {0.3, 0.8, 1.2})  // the contact's angle on the tube from the horizontal
+    for (double d0 : {3e-7, 1e-6}) {
+      const double n[3] = {std::cos(psi), 0, std::sin(psi)}, e[3] = {-std::sin(psi), 0, std::cos(psi)};
+      const double half = 2.5e-3, omega = 0.05;  // a 5 mm edge, turned by 0.05 rad about the tube's centre line
+      double a[3], b[3], da[3], db[3];
+      const double centre[3] = {inner, 0, zc};
+      for (int k = 0; k < 3; ++k) {
+        a[k] = centre[k] + (rho + d0) * n[k] - half * e[k];
+        b[k] = centre[k] + (rho + d0) * n[k] + half * e[k];
+      }
+      // rotation about the y axis through the centre: d = omega y x (q - centre)
+      for (const auto& [q, dq] : {std::pair<double*, double*>{a, da}, std::pair<double*, double*>{b, db}}) {
+        const double rx = q[0] - centre[0], rz = q[2] - centre[2];
+        dq[0] = omega * rz;
+        dq[1] = 0;
+        dq[2] = -omega * rx;
+      }
+      const double start = segment_support_disk_minimum(disk, a, b).distance;
+      ASSERT_NEAR(start, d0, 1e-12);
+      const double floor = 0.1 * start;
+      EXPECT_EQ(support_disk_segment_advance(disk, a, b, da, db, 1.0, floor), 1.0) << psi << " " << d0;
+      EXPECT_GT(moved_clearance(disk, a, b, da, db, 1.0), start);  // it really gains clearance
+      EXPECT_LT(lipschitz_advance(disk, a, b, da, db, floor), 0.5) << psi << " " << d0;
+      // a point on the rim sliding along its tangent: the whole move as well
+      const double p0[3] = {centre[0] + (rho + d0) * n[0], 0, centre[2] + (rho + d0) * n[2]};
+      const double dp[3] = {3e-4 * e[0], 0, 3e-4 * e[2]};
+      EXPECT_EQ(support_disk_point_advance(disk, p0, dp, 1.0, floor), 1.0);
+    }
 }
 
 const Term* find_term(const Model& model, const std::string& name) {
