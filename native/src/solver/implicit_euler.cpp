@@ -615,7 +615,14 @@ Eigen::VectorXd ImplicitEuler::linear_contact_step(const Eigen::VectorXd& p, con
     timing_.solve += seconds_since(t0);
     t0 = std::chrono::steady_clock::now();
     double bound = 1.0;
-    for (const auto& t : model_.terms()) bound = std::min(bound, t->max_step(x, dx, p));
+    const Term* binding = nullptr;  // the term whose collision detection allows least (for the debug line)
+    for (const auto& t : model_.terms()) {
+      const double b = t->max_step(x, dx, p);
+      if (b < bound) {
+        bound = b;
+        binding = t.get();
+      }
+    }
     // The largest power-of-two fraction within the bound: piecewise constant in the step's inputs (the bound
     // itself varies continuously), so that holding it constant is the exact adjoint almost everywhere.
     double alpha = 1.0;
@@ -628,11 +635,12 @@ Eigen::VectorXd ImplicitEuler::linear_contact_step(const Eigen::VectorXd& p, con
     timing_.collision += seconds_since(t0);
     ++timing_.newton_iterations;
     if (std::getenv("DRAPELAB_DEBUG_CONTACT"))
-      std::fprintf(stderr, "step %d linear it %d cap %.3g |dx| %.3g\n", step, it, alpha, dx.lpNorm<Eigen::Infinity>());
+      std::fprintf(stderr, "step %d linear it %d cap %.3g bound %.3g by %s |dx| %.3g\n", step, it, alpha, bound,
+                   binding ? binding->name().c_str() : "-", dx.lpNorm<Eigen::Infinity>());
     if (iterates) {
       ContactIterate r{x, dx, alpha, CholmodSolver::Factor(), Eigen::VectorXd()};
       const double bytes = static_cast<double>(solver_.kept_factor_bytes()) + (coupled ? 8.0 * A.size() : 0.0);
-      if (kept_bytes + bytes <= options.factor_memory_mb * 1048576.0) {
+      if (kept_bytes + bytes <= options.factor_memory_mb * options.contact_factor_memory_scale * 1048576.0) {
         r.factor = solver_.keep_factor();
         if (coupled) r.matrix = A;
         kept_bytes += bytes;

@@ -21,7 +21,8 @@
 //   at the minimiser (exact Hessian of the potential, lagged friction quantities held constant).
 // Without contact terms the rollout is the linearised step above, bit for bit.
 // The linearised adjoint keeps the forward factorisation for each step while the kept factors fit in
-// RolloutOptions::factor_memory_mb (memory grows by (x_t, v_t, y_t, factor_t) per step); later steps keep
+// RolloutOptions::factor_memory_mb (memory grows by (x_t, v_t, y_t, factor_t) per step; a linearised contact
+// step keeps a factor per iteration, within contact_factor_memory_scale times that budget); later steps keep
 // (x_t, v_t, y_t) only and the backward refactorises their matrix (same values, same result).
 #pragma once
 #include <Eigen/Core>
@@ -40,6 +41,11 @@ struct RolloutOptions {
   double max_speed = 50.0;  // m/s: a step producing a faster vertex is reported as diverged
   bool record = true;       // keep what the adjoint needs
   double factor_memory_mb = 1024.0;  // budget for the factors kept for the adjoint (beyond it: refactorised)
+  // A linearised contact rollout keeps one factor per iteration, not per step (landing steps take several while
+  // collision detection cuts the moves): its budget is this multiple of factor_memory_mb, so that as many of its
+  // iterates are kept as a contact-free rollout keeps steps (circle3, 100 steps: ~140 iterates of 10.2 MB against
+  // 100 within the default 1024 MB). 1 keeps the contact-free budget; factor_memory_mb = 0 keeps none either way.
+  double contact_factor_memory_scale = 1.6;
   // Contact steps: linearised (one Newton iteration of the incremental potential, more only while collision
   // detection cuts the move) or Newton to the potential's minimiser (IPC); see the header.
   enum class ContactStep { kLinearised, kNewton };
