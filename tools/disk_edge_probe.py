@@ -47,6 +47,7 @@ def main():
     ap.add_argument("--draws", type=int, default=20)
     ap.add_argument("--steps", type=int, default=100)
     ap.add_argument("--level", type=int, default=3)
+    ap.add_argument("--first-seed", type=int, default=0, help="draws use seeds first-seed .. first-seed + draws - 1")
     args = ap.parse_args()
     from drapelab import infer, sim, tables
 
@@ -68,8 +69,8 @@ def main():
     edges = edges[free[edges[:, 0]] & free[edges[:, 1]]]
     weights = np.random.default_rng(0).standard_normal((base.num_vertices, 3))
     times = {"base_f": 0.0, "base_b": 0.0, "f": 0.0, "b": 0.0}
-    vertex_min, edge_min = [], []
-    for seed in range(args.draws):
+    vertex_min, edge_min, iterations, cuts = [], [], [], []
+    for seed in range(args.first_seed, args.first_seed + args.draws):
         v0 = infer.placement_velocities(rest, np.random.default_rng([seed, 7]), float(placement.get("velocity_m_s", 0.0)),
                                         int(placement.get("angular_modes", 0)))
         for key, m, p in (("base_", base, pb), ("", model, pc)):
@@ -80,6 +81,9 @@ def main():
             t2 = time.perf_counter()
             times[key + "f"] += t1 - t0
             times[key + "b"] += t2 - t1
+        timing = model.last_result["timing"]
+        iterations.append(int(timing["newton_iterations"]))
+        cuts.append(int(timing["cut_iterations"]))
         x = np.asarray(x).reshape(-1, 3)
         vertex_min.append(float(disk_distance(x[free], rim).min()))
         edge_min.append(edge_clearance(x, edges, rim))
@@ -91,7 +95,8 @@ def main():
                       "base_forward_ms_per_step": 1000 * times["base_f"] / n,
                       "base_backward_ms_per_step": 1000 * times["base_b"] / n,
                       "min_vertex_clearance_m": min(vertex_min), "min_edge_clearance_m": min(edge_min),
-                      "edge_clearance_per_draw_m": edge_min}, indent=1))
+                      "edge_clearance_per_draw_m": edge_min,
+                      "newton_iterations_per_draw": iterations, "cut_iterations_per_draw": cuts}, indent=1))
 
 
 if __name__ == "__main__":
