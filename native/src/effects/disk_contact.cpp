@@ -18,7 +18,8 @@
 // at an interior minimiser over the rounded rim (contact/disk_edge.hpp: exact gradient and Hessian through the
 // implicit minimiser), kappa_e = kWeightScale (w_a + w_b) / 6 rho g dhat, and m a C2 smooth step of how far the
 // edge dips below its ends' distances (0 when the minimum is at an end or level with it: the vertex barrier's
-// case; 1 from a dip of kEdgeDip = 0.1 mm), so a cloth edge cannot cut the rim between two vertices however
+// case; 1 from a dip of kEdgeDip = 0.1 mm far from the disk, of the edge's own clearance near contact), so a cloth
+// edge cannot cut the rim between two vertices however
 // coarse the mesh. The edges have no friction (the vertices' friction acts on the same contact; an edge's
 // lagged friction is not modelled). Collision detection bounds every step for vertices and edges alike
 // (conservative advancement on each one's clearance, kCcdGapFraction).
@@ -41,6 +42,7 @@ constexpr double kWeightScale = 1.0;     // barrier stiffness in units of the ve
 constexpr double kSlipSpeed = 1e-3;      // eps_v [m/s]: below this slip speed friction is smoothed (static)
 constexpr double kCcdGapFraction = 0.1;  // a step may close at most 90 % of a vertex's (edge's) distance to the disk
 constexpr double kEdgeDip = 1e-4;        // [m] the edge term fades in as its minimum dips below its ends' distances
+                                         // (over min(0.1 mm, d_e) in effect: contact/disk_edge.hpp edge_dip_weight)
 
 double clamp_radius(const EffectContext& c) {
   const auto it = c.options.effects.find("disk_contact");
@@ -188,6 +190,24 @@ class DiskBarrierTerm : public ElementTerm<DiskBarrierTerm, 1, 1, 1> {
     add_rim_step_matrix_derivative<DiskBarrierTerm, D, 1>(*this, setup_->vertices, x, p, rim_, lambda, w, scale, gp);
   }
 
+  // The adjoint and the forward's gradient and K v visit only the vertices within the barrier's reach at x
+  // (NearDiskVertices below: the same element functions, so the same values bit for bit; the others contribute
+  // exact zeros); the step matrix still visits every vertex (its scatter map belongs to this term).
+  bool add_step_adjoint(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& lambda,
+                        const Eigen::VectorXd& w, double h, Eigen::VectorXd& gx, Eigen::VectorXd& gv,
+                        Eigen::VectorXd& gp) const override;
+  bool add_step_system(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& v, double scale,
+                       Eigen::VectorXd& values, Eigen::VectorXd& Kv, Eigen::VectorXd& g) const override;
+  // Indices of the vertices whose energy is not identically zero near x (distance below the reach).
+  std::vector<int> near_vertices(const Eigen::VectorXd& x, const Eigen::VectorXd& p) const {
+    std::vector<int> ids;
+    const double rim = p[rim_];
+    for (size_t e = 0; e < setup_->vertices.size(); ++e)
+      if (!(setup_->distance(x.data() + 3 * setup_->vertices[e][0], rim) >= kActivation))
+        ids.push_back(static_cast<int>(e));
+    return ids;
+  }
+
   double max_step(const Eigen::VectorXd& x, const Eigen::VectorXd& dx, const Eigen::VectorXd& p) const override {
     // Conservative advancement (contact/disk_edge.hpp support_disk_point_advance): the distance to the disk is
     // convex, so along x + t dx it falls no faster than the move's component against the normal; the move may
@@ -212,12 +232,15 @@ class DiskBarrierTerm : public ElementTerm<DiskBarrierTerm, 1, 1, 1> {
 };
 
 // The edge barrier: E_e = kappa_e m b(d_e), with d_e the clearance of the segment to the disk at an interior
-// minimiser t* (contact/disk_edge.hpp) and m = q(dip_a / kEdgeDip) q(dip_b / kEdgeDip) with dip_a = d(x_a) - d_e,
-// dip_b = d(x_b) - d_e (contact/disk_edge.hpp dip_weight): an edge counts only as far as it dips below what its
-// ends' vertex barriers already see, so a minimum moving to an end, or an edge lying level over the face (its
-// minimum a plateau that reaches an end), hands over to the vertex term continuously (C1; C2 where the vertex
-// distances are) without double counting. At contact (d_e -> 0 inside, the ends still apart) both dips are
-// positive, so E_e -> infinity: the barrier guarantee holds for the whole segment.
+// minimiser t* (contact/disk_edge.hpp) and m = q(dip_a / s) q(dip_b / s) with dip_a = d(x_a) - d_e,
+// dip_b = d(x_b) - d_e, 1 / s = 1 / kEdgeDip + 1 / d_e (contact/disk_edge.hpp edge_dip_weight): an edge counts
+// only as far as it dips below what its ends' vertex barriers already see, so a minimum moving to an end, or an
+// edge lying level over the face (its minimum a plateau that reaches an end), hands over to the vertex term
+// continuously (C1; C2 where the vertex distances are) without double counting. At contact (d_e -> 0 inside, the
+// ends still apart) both dips are positive and s -> 0, so m -> 1 and E_e -> infinity: the barrier guarantee holds
+// for the whole segment. (With a fixed scale s = kEdgeDip an edge pressed onto the rim near one end, dipping a few
+// um below it, had m ~ 1e-5: its barrier balanced the load only at nanometre clearances, which the linearised
+// steps marched it to, each move cut by collision detection.)
 class DiskEdgeBarrierTerm : public ElementTerm<DiskEdgeBarrierTerm, 2, 1, 2> {
  public:
   DiskEdgeBarrierTerm(const EffectContext& c, std::shared_ptr<const DiskSetup> setup)
@@ -407,6 +430,39 @@ class NearDiskEdges : public ElementSubset<NearDiskEdges, DiskEdgeBarrierTerm, 2
  private:
   int rim_;
 };
+
+// The disk barrier's vertices within reach at some x.
+class NearDiskVertices : public ElementSubset<NearDiskVertices, DiskBarrierTerm, 1, 1, 1> {
+ public:
+  NearDiskVertices(const DiskBarrierTerm& parent, std::vector<int> ids, int rim)
+      : ElementSubset(parent, std::move(ids)), rim_(rim) {}
+  void add_step_matrix_derivatives(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& lambda,
+                                   const Eigen::VectorXd& w, double scale, Eigen::VectorXd& gx,
+                                   Eigen::VectorXd& gp) const override {  // as DiskBarrierTerm's
+    Eigen::VectorXd partial = Eigen::VectorXd::Zero(p.size());
+    ElementTerm::add_step_matrix_derivatives(x, p, lambda, w, scale, gx, partial);
+    add_rim_step_matrix_derivative<NearDiskVertices, D, 1>(*this, verts_, x, p, rim_, lambda, w, scale, gp);
+  }
+
+ private:
+  int rim_;
+};
+
+bool DiskBarrierTerm::add_step_adjoint(const Eigen::VectorXd& x, const Eigen::VectorXd& p,
+                                       const Eigen::VectorXd& lambda, const Eigen::VectorXd& w, double h,
+                                       Eigen::VectorXd& gx, Eigen::VectorXd& gv, Eigen::VectorXd& gp) const {
+  const NearDiskVertices near(*this, near_vertices(x, p), rim_);
+  return near.Term::add_step_adjoint(x, p, lambda, w, h, gx, gv, gp);
+}
+
+bool DiskBarrierTerm::add_step_system(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& v,
+                                      double scale, Eigen::VectorXd& values, Eigen::VectorXd& Kv,
+                                      Eigen::VectorXd& g) const {
+  add_step_matrix(x, p, scale, values);
+  const NearDiskVertices near(*this, near_vertices(x, p), rim_);
+  near.add_gradient(x, p, g);
+  return near.add_step_matrix_product(x, p, v, scale, Kv);
+}
 
 bool DiskEdgeBarrierTerm::add_step_adjoint(const Eigen::VectorXd& x, const Eigen::VectorXd& p,
                                            const Eigen::VectorXd& lambda, const Eigen::VectorXd& w, double h,

@@ -527,38 +527,27 @@ TEST(DiskEdge, EdgeTermDerivativesMatchCentralDifferencesOverTheRim) {
 // The edge term's adjoint and step system visit only the edges active at x (disk_contact.cpp NearDiskEdges):
 // on circle1 wrapped over the rim with some chords within reach (and most edges out of it), they equal Term's
 // generic composition of the term's full-loop passes bit for bit.
-TEST(DiskEdge, ActiveEdgePassesEqualTheFullLoops) {
-  ModelOptions o;
-  o.effects["disk_contact"] = {{"clamp_radius_m", 0.02}};
-  const Model model(load_cusick_template(1, testing::template_dir()), o);
-  const Eigen::VectorXd p = model.default_parameters();
-  const int rim_index = model.layout().block("disk_contact.rim_radius_m").offset;
-  const double rim = p[rim_index];
-  const double top = model.rest_positions()[2] - 5e-4;
-  const Term* edge_term = find_term(model, "disk_edge_contact");
-  ASSERT_NE(edge_term, nullptr);
-  Eigen::VectorXd x = wrapped_within_reach(model, rim, top);
-  ASSERT_GT(x.size(), 0) << "no gap puts the chords within reach";
-  std::mt19937 g(7);
-  std::uniform_real_distribution<double> u(-1.0, 1.0);
-  for (int i = 0; i < x.size(); ++i) x[i] += 2e-5 * u(g);
-  ASSERT_GT(edge_term->energy(x, p), 0.0) << "no edge within the barrier's reach";
+// A disk barrier term's adjoint and step system, which visit only the elements within reach (NearDiskEdges,
+// NearDiskVertices), against Term::add_step_adjoint's composition of the term's full loops: equal bit for bit.
+void expect_active_passes_equal_full_loops(const Model& model, const Term& term, const Eigen::VectorXd& x,
+                                           const Eigen::VectorXd& p, int rim_index) {
+  ASSERT_GT(term.energy(x, p), 0.0) << "no element within the barrier's reach";
   const int n = static_cast<int>(x.size());
   const Eigen::VectorXd lambda = testing::random_vector(n, 11), w = testing::random_vector(n, 12),
                         v = testing::random_vector(n, 13), gx0 = testing::random_vector(n, 14),
                         gv0 = testing::random_vector(n, 15);
   const double h = 0.05;
-  // the term's own (active edges only)
+  // the term's own (active elements only)
   Eigen::VectorXd gx = gx0, gv = gv0, gp = Eigen::VectorXd::Zero(p.size());
-  ASSERT_TRUE(edge_term->add_step_adjoint(x, p, lambda, w, h, gx, gv, gp));
+  ASSERT_TRUE(term.add_step_adjoint(x, p, lambda, w, h, gx, gv, gp));
   // Term::add_step_adjoint's composition, with the term's full loops
   Eigen::VectorXd gx_ref = gx0, gv_ref = gv0, gp_ref = Eigen::VectorXd::Zero(p.size()), Hl = Eigen::VectorXd::Zero(n);
-  edge_term->add_hessian_product(x, p, lambda, Hl);
+  term.add_hessian_product(x, p, lambda, Hl);
   gx_ref -= h * Hl;
-  edge_term->add_step_matrix_derivatives(x, p, lambda, w, -h * h, gx_ref, gp_ref);
-  edge_term->add_gradient_parameter_product(x, p, lambda, -h, gp_ref);
-  ASSERT_TRUE(edge_term->add_step_matrix_product(x, p, lambda, -h * h, gv_ref));
-  EXPECT_GT((gx - gx0).norm(), 0.0) << "the active edges contributed nothing";
+  term.add_step_matrix_derivatives(x, p, lambda, w, -h * h, gx_ref, gp_ref);
+  term.add_gradient_parameter_product(x, p, lambda, -h, gp_ref);
+  ASSERT_TRUE(term.add_step_matrix_product(x, p, lambda, -h * h, gv_ref));
+  EXPECT_GT((gx - gx0).norm(), 0.0) << "the active elements contributed nothing";
   EXPECT_NE(gp[rim_index], 0.0);
   EXPECT_EQ((gx - gx_ref).lpNorm<Eigen::Infinity>(), 0.0);
   EXPECT_EQ((gv - gv_ref).lpNorm<Eigen::Infinity>(), 0.0);
@@ -566,16 +555,55 @@ TEST(DiskEdge, ActiveEdgePassesEqualTheFullLoops) {
   // the step system: matrix, K v and gradient
   const int nnz = model.pattern().nnz();
   Eigen::VectorXd A = Eigen::VectorXd::Zero(nnz), Kv = Eigen::VectorXd::Zero(n), grad = Eigen::VectorXd::Zero(n);
-  ASSERT_TRUE(edge_term->add_step_system(x, p, v, h * h, A, Kv, grad));
+  ASSERT_TRUE(term.add_step_system(x, p, v, h * h, A, Kv, grad));
   Eigen::VectorXd A_ref = Eigen::VectorXd::Zero(nnz), Kv_ref = Eigen::VectorXd::Zero(n),
                   grad_ref = Eigen::VectorXd::Zero(n);
-  edge_term->add_step_matrix(x, p, h * h, A_ref);
-  edge_term->add_gradient(x, p, grad_ref);
-  ASSERT_TRUE(edge_term->add_step_matrix_product(x, p, v, h * h, Kv_ref));
+  term.add_step_matrix(x, p, h * h, A_ref);
+  term.add_gradient(x, p, grad_ref);
+  ASSERT_TRUE(term.add_step_matrix_product(x, p, v, h * h, Kv_ref));
   EXPECT_GT(grad.norm(), 0.0);
   EXPECT_EQ((A - A_ref).lpNorm<Eigen::Infinity>(), 0.0);
   EXPECT_EQ((Kv - Kv_ref).lpNorm<Eigen::Infinity>(), 0.0);
   EXPECT_EQ((grad - grad_ref).lpNorm<Eigen::Infinity>(), 0.0);
+}
+
+TEST(DiskEdge, ActiveEdgeAndVertexPassesEqualTheFullLoops) {
+  ModelOptions o;
+  o.effects["disk_contact"] = {{"clamp_radius_m", 0.02}};
+  const Model model(load_cusick_template(1, testing::template_dir()), o);
+  const Eigen::VectorXd p = model.default_parameters();
+  const int rim_index = model.layout().block("disk_contact.rim_radius_m").offset;
+  const double rim = p[rim_index];
+  const double top = model.rest_positions()[2] - 5e-4;
+  Eigen::VectorXd x = wrapped_within_reach(model, rim, top);
+  ASSERT_GT(x.size(), 0) << "no gap puts the chords within reach";
+  std::mt19937 g(7);
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  for (int i = 0; i < x.size(); ++i) x[i] += 2e-5 * u(g);
+  const Term* edge_term = find_term(model, "disk_edge_contact");
+  ASSERT_NE(edge_term, nullptr);
+  expect_active_passes_equal_full_loops(model, *edge_term, x, p, rim_index);
+  // the vertex barrier (NearDiskVertices): the flat state lowered into the barrier's reach for half of the
+  // vertices, and a few of those beyond the rim's start moved just outside the rounded rim
+  const Term* vertex_term = find_term(model, "disk_contact");
+  ASSERT_NE(vertex_term, nullptr);
+  Eigen::VectorXd y = model.rest_positions();
+  const double inner = 0.09 - rim, zc = top - rim;
+  int over_rim = 0;
+  for (int i = 0; i < model.num_vertices(); ++i) {
+    const double r = std::hypot(y[3 * i], y[3 * i + 1]);
+    if (u(g) < 0) continue;
+    y[3 * i + 2] -= 2e-4 * (1.0 + 0.5 * u(g));
+    if (r > 0.07 && over_rim < 6) {
+      const double psi = 0.7 * (1.0 + u(g)), gap = 2e-4 * (1.5 + u(g));  // on the tube, 0.1-0.5 mm off it
+      y[3 * i] *= (inner + (rim + gap) * std::cos(psi)) / r;
+      y[3 * i + 1] *= (inner + (rim + gap) * std::cos(psi)) / r;
+      y[3 * i + 2] = zc + (rim + gap) * std::sin(psi);
+      ++over_rim;
+    }
+  }
+  ASSERT_EQ(over_rim, 6);
+  expect_active_passes_equal_full_loops(model, *vertex_term, y, p, rim_index);
 }
 
 // The disk friction's adjoint, start adjoint and step system visit only the vertices with a lagged normal force
