@@ -171,6 +171,7 @@ double support_disk_segment_advance(const SupportDisk& disk, const double* a, co
     }
     const double certified = heap.top().tau;  // the smallest interval bound: it holds for the whole segment
     if (certified >= need) return t_end;
+    if (!(certified > 0)) return t;  // at the floor (to round-off): further rounds cannot advance
     t += certified;
   }
   return t;
