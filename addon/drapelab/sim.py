@@ -599,7 +599,7 @@ class ClothModel:
     def simulate(self, params, mode="dynamic", steps=DEFAULT_STEPS, time_step=DEFAULT_TIME_STEP, progress=None,
                  cancel_event=None, force_tolerance=DEFAULT_FORCE_TOLERANCE, max_iterations=DEFAULT_MAX_ITERATIONS,
                  max_speed=DEFAULT_MAX_SPEED, record=True, positions0=None, velocities0=None, factor_memory_mb=None,
-                 contact_force_tolerance=None, contact_step=None):
+                 contact_force_tolerance=None, contact_step=None, contact_direction_tolerance=None):
         """Drapes the cloth from its flat rest state; returns the final positions (V, 3).
 
         mode "dynamic": ``steps`` implicit Euler steps of ``time_step`` seconds (record=False skips what
@@ -614,7 +614,9 @@ class ClothModel:
         linearised implicit step with the contact terms included, its moves cut by collision detection (another
         iteration while a move was cut); "newton": each step minimises IPC's incremental potential, its Newton
         iterations ending when each residual force is below contact_force_tolerance of the vertex's weight
-        (default 1e-6). See docs/contact.md.
+        (default 1e-6). contact_direction_tolerance: the relative residual to which a linearised move with
+        self-contact couplings is solved (default 1e-10; above it only with record=False, e.g. 1e-3 for an
+        animation that is not differentiated). See docs/contact.md.
         A dynamic rollout that diverges (a vertex faster than max_speed m/s, or a non-finite or indefinite step)
         raises SolverError naming the step, with the state before that step attached: ``e.step`` (0-based, the
         number of steps completed), ``e.positions`` and ``e.velocities`` (V, 3), all finite.
@@ -632,6 +634,9 @@ class ClothModel:
                 if contact_step not in CONTACT_STEPS:
                     raise InputError(f"contact_step: expected one of {CONTACT_STEPS}, got {contact_step!r}")
                 memory["contact_step"] = contact_step
+            if contact_direction_tolerance is not None:
+                memory["contact_direction_tolerance"] = _scalar(contact_direction_tolerance,
+                                                                "contact_direction_tolerance", 0.0, strictly=True)
             if contact_force_tolerance is not None:
                 memory["contact_force_tolerance"] = _scalar(contact_force_tolerance, "contact_force_tolerance", 0.0,
                                                             strictly=True)

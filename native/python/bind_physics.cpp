@@ -343,13 +343,15 @@ void bind_physics(py::module_& m) {
           "forward",
           [](PyImplicitEuler& s, const Vector& p, double time_step, int steps, double max_speed, bool record,
              std::shared_ptr<PyProgress> progress, std::optional<Vector> x0, std::optional<Vector> v0,
-             double factor_memory_mb, double contact_force_tolerance, const std::string& contact_step) {
+             double factor_memory_mb, double contact_force_tolerance, const std::string& contact_step,
+             double contact_direction_tolerance) {
             RolloutOptions o;
             if (contact_step == "newton") o.contact_step = RolloutOptions::ContactStep::kNewton;
             else if (contact_step == "linearised") o.contact_step = RolloutOptions::ContactStep::kLinearised;
             else
               throw InputError("contact_step: expected 'linearised' or 'newton', got '" + contact_step + "'");
             o.contact_force_tolerance = contact_force_tolerance;
+            o.contact_direction_tolerance = contact_direction_tolerance;
             o.time_step = time_step;
             o.steps = steps;
             o.max_speed = max_speed;
@@ -364,11 +366,14 @@ void bind_physics(py::module_& m) {
           py::arg("v0") = py::none(), py::arg("factor_memory_mb") = RolloutOptions{}.factor_memory_mb,
           py::arg("contact_force_tolerance") = RolloutOptions{}.contact_force_tolerance,
           py::arg("contact_step") = "linearised",
+          py::arg("contact_direction_tolerance") = RolloutOptions{}.contact_direction_tolerance,
           "Rolls out from (x0, v0) (default: rest, at rest); returns final positions (3V). Factors for the adjoint "
           "are kept up to factor_memory_mb (MB); later steps are refactorised in the backward. With contact terms, "
           "contact_step 'linearised' (default) takes the linearised step with the contact terms, its moves cut by "
           "collision detection (another iteration while a move was cut); 'newton' minimises the incremental "
-          "potential until every residual force is below contact_force_tolerance (of each vertex's weight).")
+          "potential until every residual force is below contact_force_tolerance (of each vertex's weight). "
+          "contact_direction_tolerance: linearised moves with self-contact couplings are solved by CG to this "
+          "relative residual; above 1e-10 only with record=False (an animation that is not differentiated).")
       .def(
           "backward",
           [](PyImplicitEuler& s, const Vector& dL_dx, std::optional<Vector> dL_dv, std::shared_ptr<PyProgress> progress) {

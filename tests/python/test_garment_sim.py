@@ -132,16 +132,18 @@ def test_a_failing_frame_is_redone_with_finer_substeps(small_skirt, monkeypatch)
             raise sim.SolverError("rollout: step 0 contact Newton matrix is not positive definite")
         return real(self, *args, **kwargs)
     monkeypatch.setattr(sim.ClothModel, "simulate", flaky)
-    r = simulate.drape(small_skirt, m, motion="static", frames=4, keep_frames=False)
-    h = 1 / (simulate.DEFAULT_FPS * simulate.DEFAULT_SUBSTEPS)
+    r = simulate.drape(small_skirt, m, motion="static", frames=4, keep_frames=False, substeps=2)
+    h = 1 / (simulate.DEFAULT_FPS * 2)
     # frame 1: 2 steps; frame 2: 1 failed step, then 4 of half the length; frame 3: 2 steps
     assert calls == pytest.approx([h, h, h, h / 2, h / 2, h / 2, h / 2, h, h])
     assert r["retried_frames"] == 1 and r["frames"] == 4 and r["self_intersections_final"] == 0
+    assert r["retries"] == [{"frame": 2, "substeps": 2,
+                             "error": "rollout: step 0 contact Newton matrix is not positive definite"}]
     calls.clear()
     monkeypatch.setattr(sim.ClothModel, "simulate", lambda self, *a, **k: (_ for _ in ()).throw(
         sim.SolverError("always")))
     with pytest.raises(sim.SolverError, match="frame 1 failed with up to 16 substeps: always"):
-        simulate.drape(small_skirt, m, motion="static", frames=2, keep_frames=False)
+        simulate.drape(small_skirt, m, motion="static", frames=2, keep_frames=False, substeps=2)
 
 
 def test_self_intersecting_start_is_named(small_skirt):
@@ -182,6 +184,16 @@ def test_bad_input_is_named(small_skirt):
         simulate.drape(small_skirt, m, frames=1)
     with pytest.raises(sim.InputError, match="GarmentMaterial"):
         simulate.drape(small_skirt, {"stretch": 1}, frames=2)
+    with pytest.raises(sim.InputError, match="contact_step"):
+        simulate.drape(small_skirt, m, frames=2, contact_step="implicit")
+    # an inexact move solve cannot be differentiated: only an unrecorded rollout may ask for one
+    model, params, _, welded = simulate.build_model(small_skirt, m, bodymod.make_body())
+    with pytest.raises(sim.InputError, match="contact_direction_tolerance above 1e-10 needs record = false"):
+        model.simulate(params, steps=1, time_step=0.01, record=True, positions0=welded.positions,
+                       contact_direction_tolerance=1e-3)
+    with pytest.raises(sim.InputError, match="contact_direction_tolerance"):
+        model.simulate(params, steps=1, time_step=0.01, record=False, positions0=welded.positions,
+                       contact_direction_tolerance=-1)
 
 
 def test_cli_writes_caches_objs_stats_and_a_render(tmp_path, capsys):
@@ -215,7 +227,7 @@ def test_a_soft_fabric_step_with_an_ill_conditioned_contact_operator_converges()
     state = np.load(os.path.join(os.path.dirname(__file__), "data", "garment_viscose_walk_2k_frame10.npz"))
     x, v = state["x"], state["v"].copy()
     assert sim.contact_report(welded.faces, x, max_listed=0)["intersecting_pairs"] == 0
-    fps, n, frame = simulate.DEFAULT_FPS, simulate.DEFAULT_SUBSTEPS, 10
+    fps, n, frame = simulate.DEFAULT_FPS, 2, 10  # (the state was saved from a run with 2 substeps)
     h = 1.0 / (fps * n)
     transforms = bodymod.part_transforms(body, "walk", (frame - 1 + np.arange(2) / n) / fps, fps)
     waist = np.asarray(model.handle_vertices)
@@ -232,7 +244,8 @@ def test_a_soft_fabric_step_with_an_ill_conditioned_contact_operator_converges()
     assert sim.contact_report(welded.faces, x1, max_listed=0)["intersecting_pairs"] == 0
 
 
-def test_the_moving_body_does_not_carry_one_layer_through_another():
+@pytest.mark.parametrize("contact_step", simulate.CONTACT_STEPS)
+def test_the_moving_body_does_not_carry_one_layer_through_another(contact_step):
     """2k viscose walking, frame 13 (its start state saved in data/, replayed from frame 10 on ea3dbf4): two layers
     lie on the left leg near the pelvis; the body's old per-vertex carry (each reached vertex teleported rigidly with
     its nearest part, outside the self-contact CCD) moved one layer through the other in substep 1 ("cloth triangle
@@ -246,7 +259,7 @@ def test_the_moving_body_does_not_carry_one_layer_through_another():
     state = np.load(os.path.join(os.path.dirname(__file__), "data", "garment_viscose_walk_2k_frame13.npz"))
     x, v = state["x"], state["v"].copy()
     assert sim.contact_report(welded.faces, x, max_listed=0)["intersecting_pairs"] == 0
-    fps, n, frame = simulate.DEFAULT_FPS, simulate.DEFAULT_SUBSTEPS, 13
+    fps, n, frame = simulate.DEFAULT_FPS, 2, 13  # (the state was saved from a run with 2 substeps)
     h = 1.0 / (fps * n)
     transforms = bodymod.part_transforms(body, "walk", (frame - 1 + np.arange(n + 1) / n) / fps, fps)
     waist = np.asarray(model.handle_vertices)
@@ -257,8 +270,10 @@ def test_the_moving_body_does_not_carry_one_layer_through_another():
         model.set_handle_anchors(a1)
         v[waist] = (a1 - a0) / h
         contact.set_poses(list(transforms[j]), list(transforms[j + 1]))
+        options = ({"contact_force_tolerance": simulate.FORCE_TOLERANCE} if contact_step == "newton" else
+                   {"contact_direction_tolerance": simulate.DIRECTION_TOLERANCE})
         x1 = model.simulate(params, steps=1, time_step=h, record=False, positions0=x, velocities0=v,
-                            contact_force_tolerance=simulate.FORCE_TOLERANCE, contact_step="newton")
+                            contact_step=contact_step, **options)
         v = model.velocities.copy()
         assert np.isfinite(x1).all() and np.abs(x1 - x).max() > 1e-4  # the cloth moved with the body
         assert np.asarray(contact.clearance(x1.ravel())).min() > 0  # at the body's end pose

@@ -33,7 +33,10 @@ def register(subparsers):
     p.add_argument("--body", default="default", metavar="NAME", help="body (default: the bundled dress form)")
     p.add_argument("--motion", choices=MOTIONS, default="walk", help="body motion (default walk)")
     p.add_argument("--frames", type=int, default=48, metavar="N", help="frames at 24 fps (default 48)")
-    p.add_argument("--substeps", type=int, default=None, metavar="S", help="implicit steps per frame")
+    p.add_argument("--substeps", type=int, default=None, metavar="S", help="implicit steps per frame (default 4)")
+    p.add_argument("--contact-step", choices=("linearised", "newton"), default="linearised",
+                   help="each step: one linear solve, as the Cusick fits (default), or IPC's Newton iterations "
+                        "(several times slower)")
     p.add_argument("--thickness", type=float, default=None, metavar="MM",
                    help="self contact's reach in mm (default: the preset's fabric thickness; 0: no self contact)")
     p.add_argument("--samples", type=int, default=1, metavar="K", help="material draws (default 1)")
@@ -90,7 +93,9 @@ def run(args):
             def progress(done, total, k=k):
                 print(f"\rdrape: sample {k + 1}/{len(materials)} frame {done}/{total}", end="", file=sys.stderr,
                       flush=True)
-            options = {} if args.substeps is None else {"substeps": args.substeps}
+            options = {"contact_step": args.contact_step}
+            if args.substeps is not None:
+                options["substeps"] = args.substeps
             if args.thickness is not None:
                 options["thickness_m"] = args.thickness * 1e-3
             r = simulate.drape(garment, m, body=body, motion=args.motion, frames=args.frames, progress=progress,
@@ -101,7 +106,8 @@ def run(args):
                 write_garment_obj(os.path.join(args.out, f"sample_{k:02d}_{name}.obj"), _with_positions(garment, x))
             results.append({key: r[key] for key in ("vertices", "frames", "seconds_per_frame", "max_body_penetration_m",
                                                     "min_body_clearance_m", "self_intersections_final",
-                                                    "hem_radius_m", "cancelled", "newton_iterations",
+                                                    "hem_radius_m", "cancelled", "newton_iterations", "contact_step",
+                                                    "retried_frames",
                                                     "simulated_vertices", "self_contact_thickness_m")})
             if r["cancelled"]:
                 break

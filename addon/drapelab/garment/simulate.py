@@ -14,13 +14,17 @@ the garment's uv, i.e. its grain line), the preset's density, gravity; the waist
 anchors carried by the pelvis; contact with the body's parts (rigid surfaces of revolution, IPC barrier of reach
 ``BODY_REACH_M``, native garment/revolved_body.hpp) and self contact (the ``self_contact`` effect: IPC barriers
 between non-adjacent point-triangle and edge-edge pairs closer than the fabric's thickness, with friction
-``SELF_FRICTION``; contact/pair_contact.hpp), so every step is an IPC step (Newton on the incremental potential,
-bounded by continuous collision detection: no cloth vertex or edge ever enters the body, the cloth never passes
-through itself). The body moves inside each step (native ImplicitEuler contact_step: it advances from its start pose as
+``SELF_FRICTION``; contact/pair_contact.hpp), every move of the cloth bounded by continuous collision detection
+(no cloth vertex or edge ever enters the body, the cloth never passes through itself). The body moves inside each
+step (native ImplicitEuler's contact steps: it advances from its start pose as
 far as collision detection on the relative motion allows, carrying the cloth near it along a smooth displacement
-field bounded by the self contact's CCD, and the rest between Newton iterations). The start placement must be free
+field bounded by the self contact's CCD, and the rest between the step's linear solves). The start placement must be free
 of self-intersections (an InputError names the first pair) and of the body (vertices and edges). Not yet:
 friction with the body.
+
+Steps: ``contact_step`` "linearised" (default) takes the Cusick drape's step, the one the presets were fitted
+with (one linear solve with the step matrix, another only while collision detection cut the move or the body is
+still advancing); "newton" runs IPC's Newton iterations to the incremental potential's minimiser.
 
 Time: ``fps`` frames per second with ``substeps`` implicit steps each; the body and the waist anchors move
 continuously (poses at each substep's start and end). Deterministic: the same inputs give the same frames.
@@ -38,11 +42,20 @@ from .material import GarmentMaterial
 from .mesh import Garment
 from .pc2 import PC2Writer
 
-__all__ = ["drape", "DEFAULT_FPS", "DEFAULT_SUBSTEPS", "BODY_REACH_M", "DEFAULT_THICKNESS_M", "SELF_FRICTION",
+__all__ = ["drape", "DEFAULT_FPS", "DEFAULT_SUBSTEPS", "CONTACT_STEPS", "DEFAULT_CONTACT_STEP", "BODY_REACH_M", "DEFAULT_THICKNESS_M", "SELF_FRICTION",
            "hem_radius", "top_band_vertices", "welded_mesh", "WeldedMesh"]
 
 DEFAULT_FPS = 24
-DEFAULT_SUBSTEPS = 2          # implicit steps per frame (1/48 s at 24 fps)
+DEFAULT_SUBSTEPS = 4          # implicit steps per frame (1/96 s at 24 fps)
+# Each implicit step: "linearised" (default) is the Cusick drape's step (the one the presets were fitted with):
+# one linear solve with the step matrix, moves bounded by collision detection, another solve only while a move was
+# cut or the body is still advancing; "newton" minimises IPC's incremental potential to FORCE_TOLERANCE (about
+# 30 linear solves per step, several times slower; see docs/garments.md "Step kinds").
+CONTACT_STEPS = ("linearised", "newton")
+DEFAULT_CONTACT_STEP = "linearised"
+# Linearised moves with self-contact couplings are solved by CG to this relative residual (inexact Newton: an
+# animation that is not differentiated; the Cusick fits' recorded rollouts solve to 1e-10).
+DIRECTION_TOLERANCE = 1e-3
 BODY_REACH_M = 2e-3           # the body barrier acts within 2 mm of its surface
 BARRIER_WEIGHT_SCALE = 1.0    # barrier stiffness in units of each vertex's weight x reach (as disk_contact)
 GRAVITY = 9.8                 # m/s^2
@@ -210,22 +223,30 @@ def self_contact_thickness(material, thickness_m=None):
 
 def drape(garment, material, body=None, motion="static", frames=48, fps=DEFAULT_FPS, substeps=DEFAULT_SUBSTEPS,
           progress=None, cancel_event=None, pc2_path=None, keep_frames=True, thickness_m=None,
-          self_friction=SELF_FRICTION, force_tolerance=FORCE_TOLERANCE):
+          self_friction=SELF_FRICTION, force_tolerance=FORCE_TOLERANCE, contact_step=DEFAULT_CONTACT_STEP):
     """Simulates the garment on the body for ``frames`` frames (module doc). Returns a dict: ``positions``
     (frames done, V, 3) float32 when keep_frames, ``first`` and ``last`` (V, 3), and the stats ``vertices``
     (the garment's), ``simulated_vertices`` (seams welded), ``frames`` (done), ``seconds_per_frame``,
     ``max_body_penetration_m`` (deepest cloth point inside the body over all frames: every vertex and every point
     of every edge, 0 when none), ``min_body_clearance_m`` (the same points' least clearance), ``self_intersections_final`` (intersecting face pairs of the last frame),
     ``hem_radius_m`` (last frame, from the pelvis axis), ``self_contact_thickness_m``, ``cancelled``,
-    ``newton_iterations``. All positions are in the garment's vertex order.
+    ``newton_iterations`` (linear solves of all steps), ``contact_step``, ``solver`` (factorisations and seconds in
+    assembly + factorisation, solves and collision detection), ``retried_frames`` and ``retries`` (each frame
+    redone with finer substeps: frame, substeps, error). All positions are in the garment's vertex order.
     ``thickness_m``: self contact's reach (None: the material's fabric thickness, else DEFAULT_THICKNESS_M; 0: no
-    self contact); ``self_friction``: Coulomb coefficient between layers; ``force_tolerance``: each step's Newton
-    iterations end when every residual force is below this fraction of its vertex's weight.
+    self contact); ``self_friction``: Coulomb coefficient between layers; ``contact_step``: "linearised" (default:
+    one linear solve per step, more only while collision detection cuts a move or the body is still advancing) or
+    "newton" (IPC's Newton iterations, ending when every residual force is below ``force_tolerance`` of its
+    vertex's weight).
     ``pc2_path``: the frames are appended to a PC2 cache as they finish (playback can start during the bake; a
     reader never sees a partial frame). ``progress(frame_done, frames)``; ``cancel_event`` (threading.Event)
     stops between substeps keeping the frames done. A step that fails raises SolverError naming the frame."""
     body = make_body() if body is None else body
     _check(garment, material, body, frames, fps, substeps)
+    if contact_step not in CONTACT_STEPS:
+        raise InputError(f"contact_step: expected one of {CONTACT_STEPS}, got {contact_step!r}")
+    step_options = ({"contact_step": "newton", "contact_force_tolerance": force_tolerance} if contact_step == "newton"
+                    else {"contact_step": "linearised", "contact_direction_tolerance": DIRECTION_TOLERANCE})
     if not (isinstance(self_friction, (int, float, np.integer, np.floating)) and not isinstance(self_friction, bool)
             and 0 <= self_friction <= 2):
         raise InputError(f"self_friction: expected a coefficient in [0, 2], got {self_friction!r}")
@@ -259,6 +280,8 @@ def drape(garment, material, body=None, motion="static", frames=48, fps=DEFAULT_
     penetration, clearance_min = 0.0, float(clearance0.min())
     done, cancelled = 1, False
     counters = {"iterations": 0, "retried_frames": 0}
+    retries = []
+    solver = {"factorizations": 0, "assemble_and_factorize_s": 0.0, "solve_s": 0.0, "collision_s": 0.0}
 
     def run_frame(frame, x, v, n):
         """The frame's n substeps from (x, v); raises SolverError (or _Crossed) if a step fails."""
@@ -279,9 +302,14 @@ def drape(garment, material, body=None, motion="static", frames=48, fps=DEFAULT_
             v[waist] = (a1 - a0) / h
             contact.set_poses(list(transforms[j]), list(transforms[j + 1]))
             x = model.simulate(params, steps=1, time_step=h, record=False, positions0=x, velocities0=v,
-                               contact_force_tolerance=force_tolerance, contact_step="newton")
+                               **step_options)
             v = model.velocities.copy()
-            counters["iterations"] += int(model.last_result.get("timing", {}).get("newton_iterations", 0))
+            timing = model.last_result.get("timing", {})
+            counters["iterations"] += int(timing.get("newton_iterations", 0))
+            solver["factorizations"] += int(timing.get("factorizations", 0))
+            solver["assemble_and_factorize_s"] += float(timing.get("factorize", 0))
+            solver["solve_s"] += float(timing.get("solve", 0))
+            solver["collision_s"] += float(timing.get("collision", 0))
         if thickness > 0:
             crossing = sim.contact_report(welded.faces, x, max_listed=1)["first_pairs"]
             if crossing:
@@ -306,6 +334,7 @@ def drape(garment, material, body=None, motion="static", frames=48, fps=DEFAULT_
                 except (sim.SolverError, _Crossed) as e:
                     error = e
                     counters["retried_frames"] += int(attempt == 0)
+                    retries.append({"frame": frame, "substeps": n, "error": str(e)})
                     n *= 2
             if error is not None:
                 raise sim.SolverError(f"garment: frame {frame} failed with up to {n // 2} substeps: {error}")
@@ -336,5 +365,7 @@ def drape(garment, material, body=None, motion="static", frames=48, fps=DEFAULT_
             "min_body_clearance_m": clearance_min,
             "self_intersections_final": int(sim.contact_report(welded.faces, x, max_listed=0)["intersecting_pairs"]),
             "hem_radius_m": hem_radius(last, garment, pelvis_last[:2, 3]), "self_contact_thickness_m": thickness,
-            "cancelled": cancelled, "newton_iterations": iterations, "retried_frames": counters["retried_frames"],
+            "cancelled": cancelled, "newton_iterations": iterations, "contact_step": contact_step, "solver": solver,
+            "retried_frames": counters["retried_frames"],
+            "retries": retries,
             "motion": motion}

@@ -99,6 +99,11 @@ Eigen::VectorXd ImplicitEuler::forward(const Eigen::VectorXd& p, const RolloutOp
   if (!(options.time_step > 0) || !std::isfinite(options.time_step))
     throw InputError("rollout: time step must be > 0 s");
   if (options.steps < 1) throw InputError("rollout: need at least one step");
+  if (!(options.contact_direction_tolerance > 0) || !(options.contact_direction_tolerance < 1))
+    throw InputError("rollout: contact_direction_tolerance must be in (0, 1)");
+  if (options.record && options.contact_direction_tolerance > RolloutOptions{}.contact_direction_tolerance)
+    throw InputError("rollout: contact_direction_tolerance above 1e-10 needs record = false (the adjoint "
+                     "differentiates exact solves)");
   const int n = model_.num_dofs();
   x_ = x0 ? *x0 : model_.rest_positions();
   v_ = v0 ? *v0 : Eigen::VectorXd::Zero(n);
@@ -444,7 +449,7 @@ Eigen::VectorXd ImplicitEuler::contact_step(const Eigen::VectorXd& p, const Roll
       }
     }
     if (std::getenv("DRAPELAB_DEBUG_CONTACT"))
-      std::fprintf(stderr, "step %d it %d residual %.3g cap %.3g alpha %.3g |dx| %.3g\n", step, it, r,
+      std::fprintf(stderr, "step %d it %d kind %d residual %.3g cap %.3g alpha %.3g |dx| %.3g\n", step, it, last_kind, r,
                    [&] { double c = 1; for (const auto& t : model_.terms()) c = std::min(c, t->max_step(x, dx, p)); return c; }(),
                    accepted ? alpha : 0.0, dx.lpNorm<Eigen::Infinity>());
     if (!accepted) {
@@ -570,7 +575,11 @@ Eigen::VectorXd ImplicitEuler::linear_contact_step(const Eigen::VectorXd& p, con
   }
   const Eigen::VectorXd x_hat = x_ + h * v_;
   Eigen::VectorXd x = x_, A, g, dx;
-  if (!advance_obstacles(model_, x, p)) {  // the body moves within the step: only the Newton step finishes it
+  // A moving body (a garment's) advances as far as collision detection allows, and again after each iteration
+  // (which moves the cloth it presses out of its way) until it is at its end pose; the step ends with the body
+  // there and an uncut move. Recorded rollouts (the adjoint) need the body's motion done in the first advance.
+  bool obstacles_done = advance_obstacles(model_, x, p);
+  if (!obstacles_done && iterates) {
     std::ostringstream s;
     s << "rollout: step " << step << " the moving body cannot reach its end pose within collision detection's "
       << "bound in one move (use contact_step = newton, or shorter steps)";
@@ -588,6 +597,7 @@ Eigen::VectorXd ImplicitEuler::linear_contact_step(const Eigen::VectorXd& p, con
   }
   const bool offpattern = has_offpattern_terms(model_);
   for (int it = 0; it < std::max(1, options.contact_max_iterations); ++it) {
+    if (it > 0 && !obstacles_done) obstacles_done = advance_obstacles(model_, x, p);
     auto t0 = std::chrono::steady_clock::now();
     bool coupled = false;  // off-pattern couplings present (then the adjoint's CG needs the matrix values)
     linear_contact_system(x, x_hat, p, inv_h2, m, A, g);
@@ -600,8 +610,13 @@ Eigen::VectorXd ImplicitEuler::linear_contact_step(const Eigen::VectorXd& p, con
     if (offpattern) {
       Eigen::VectorXd y;
       OffpatternSolveStats stats;
-      if (!solve_with_offpattern(model_, solver_, A, x, p, OffpatternOperator::kStepMatrix, g, y,
-                                 kOffpatternTolerance, kOffpatternMaxIterations, &stats)) {
+      bool solved = solve_with_offpattern(model_, solver_, A, x, p, OffpatternOperator::kStepMatrix, g, y,
+                                          options.contact_direction_tolerance, kOffpatternMaxIterations, &stats);
+      // An inexact direction (not recorded): CG's last iterate, capped or stopped where the step matrix's pair
+      // couplings lost definiteness (truncated CG), serves if it descends.
+      if (!solved && !iterates && options.contact_direction_tolerance > kOffpatternTolerance)
+        solved = y.allFinite() && g.dot(y) > 0;
+      if (!solved) {
         std::ostringstream s;
         s << "rollout: step " << step << " contact solve did not converge";
         throw SolverError(s.str());
@@ -648,8 +663,14 @@ Eigen::VectorXd ImplicitEuler::linear_contact_step(const Eigen::VectorXd& p, con
       iterates->push_back(std::move(r));
     }
     x += alpha * dx;
-    if (alpha >= 1.0) break;
-    ++timing_.cut_iterations;
+    if (alpha >= 1.0 && obstacles_done) break;
+    if (alpha < 1.0) ++timing_.cut_iterations;
+  }
+  if (!obstacles_done) {
+    std::ostringstream s;
+    s << "rollout: step " << step << " the moving body did not reach its end pose in "
+      << options.contact_max_iterations << " iterations (cloth caught against it): use shorter steps";
+    throw SolverError(s.str());
   }
   Eigen::VectorXd v_next = (x - x_) / h;
   check_not_diverged(v_next, options, step);

@@ -52,9 +52,15 @@ struct RolloutOptions {
   ContactStep contact_step = ContactStep::kLinearised;
   // kNewton: iterations end when every residual force is below this fraction of the vertex's weight, or after
   // contact_max_iterations (then the last collision-free iterate is kept). kLinearised: at most
-  // contact_max_iterations cut iterations (then the last, collision-free, iterate is kept).
+  // contact_max_iterations iterations, another only while a move was cut or a moving obstacle (a garment's body,
+  // unrecorded rollouts only) is still advancing (then the last, collision-free, iterate is kept; an obstacle
+  // short of its end pose is a SolverError).
   double contact_force_tolerance = 1e-6;
   int contact_max_iterations = 50;
+  // kLinearised with off-pattern couplings (self contact): relative residual of the CG solve of each move.
+  // Recorded rollouts need the default (the adjoint differentiates exact solves); an animation that is not
+  // differentiated (a garment) may solve to 1e-3 (inexact Newton), a capped CG's iterate then serving if it descends.
+  double contact_direction_tolerance = 1e-10;
 };
 
 struct RolloutGradient {
