@@ -230,8 +230,8 @@ def drape(garment, material, body=None, motion="static", frames=48, fps=DEFAULT_
     ``max_body_penetration_m`` (deepest cloth point inside the body over all frames: every vertex and every point
     of every edge, 0 when none), ``min_body_clearance_m`` (the same points' least clearance), ``self_intersections_final`` (intersecting face pairs of the last frame),
     ``hem_radius_m`` (last frame, from the pelvis axis), ``self_contact_thickness_m``, ``cancelled``,
-    ``newton_iterations`` (linear solves of all steps), ``contact_step``, ``solver`` (factorisations and seconds in
-    assembly + factorisation, solves and collision detection), ``retried_frames`` and ``retries`` (each frame
+    ``newton_iterations`` (linear solves of all steps), ``contact_step``, ``solver`` (factorisations, CG iterations and
+    seconds in assembly + factorisation, solves and collision detection), ``retried_frames`` and ``retries`` (each frame
     redone with finer substeps: frame, substeps, error). All positions are in the garment's vertex order.
     ``thickness_m``: self contact's reach (None: the material's fabric thickness, else DEFAULT_THICKNESS_M; 0: no
     self contact); ``self_friction``: Coulomb coefficient between layers; ``contact_step``: "linearised" (default:
@@ -281,7 +281,8 @@ def drape(garment, material, body=None, motion="static", frames=48, fps=DEFAULT_
     done, cancelled = 1, False
     counters = {"iterations": 0, "retried_frames": 0}
     retries = []
-    solver = {"factorizations": 0, "assemble_and_factorize_s": 0.0, "solve_s": 0.0, "collision_s": 0.0}
+    solver = {"factorizations": 0, "cg_iterations": 0, "assemble_and_factorize_s": 0.0, "solve_s": 0.0,
+              "collision_s": 0.0}
 
     def run_frame(frame, x, v, n):
         """The frame's n substeps from (x, v); raises SolverError (or _Crossed) if a step fails."""
@@ -310,6 +311,7 @@ def drape(garment, material, body=None, motion="static", frames=48, fps=DEFAULT_
             solver["assemble_and_factorize_s"] += float(timing.get("factorize", 0))
             solver["solve_s"] += float(timing.get("solve", 0))
             solver["collision_s"] += float(timing.get("collision", 0))
+            solver["cg_iterations"] += int(timing.get("cg_iterations", 0))
         if thickness > 0:
             crossing = sim.contact_report(welded.faces, x, max_listed=1)["first_pairs"]
             if crossing:

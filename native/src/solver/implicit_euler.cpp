@@ -272,6 +272,9 @@ constexpr double kNegligibleMove = 1e-9;
 // adjoints): far below the Newton iterations' own accuracy.
 constexpr double kOffpatternTolerance = 1e-10;
 constexpr int kOffpatternMaxIterations = 200;
+// Inexact linearised moves (unrecorded rollouts, contact_direction_tolerance above 1e-10): CG's iteration cap
+// (6k viscose walking: 30 instead of 200 cut the time in CG by ~40 %, same outcome: no crossing, no penetration).
+constexpr int kInexactDirectionMaxIterations = 30;
 // The Newton directions of the contact step only need to descend (the line search and the residual test decide):
 // CG stops at this relative residual (inexact Newton: a forcing term this small keeps the local convergence),
 // and a capped CG's iterate is used if it descends.
@@ -603,6 +606,7 @@ Eigen::VectorXd ImplicitEuler::linear_contact_step(const Eigen::VectorXd& p, con
     linear_contact_system(x, x_hat, p, inv_h2, m, A, g);
     timing_.assemble += seconds_since(t0);
     t0 = std::chrono::steady_clock::now();
+    const bool inexact = !iterates && offpattern && options.contact_direction_tolerance > kOffpatternTolerance;
     factorize_step(solver_, A, step);
     ++timing_.factorizations;
     timing_.factorize += seconds_since(t0);
@@ -611,7 +615,8 @@ Eigen::VectorXd ImplicitEuler::linear_contact_step(const Eigen::VectorXd& p, con
       Eigen::VectorXd y;
       OffpatternSolveStats stats;
       bool solved = solve_with_offpattern(model_, solver_, A, x, p, OffpatternOperator::kStepMatrix, g, y,
-                                          options.contact_direction_tolerance, kOffpatternMaxIterations, &stats);
+                                          options.contact_direction_tolerance,
+                                          inexact ? kInexactDirectionMaxIterations : kOffpatternMaxIterations, &stats);
       // An inexact direction (not recorded): CG's last iterate, capped or stopped where the step matrix's pair
       // couplings lost definiteness (truncated CG), serves if it descends.
       if (!solved && !iterates && options.contact_direction_tolerance > kOffpatternTolerance)
