@@ -20,6 +20,7 @@
 
 #include "contact/diagnostics.hpp"
 #include "geometry/mesh.hpp"
+#include "garment/body_friction.hpp"
 #include "garment/revolved_body.hpp"
 #include "physics/model.hpp"
 #include "solver/implicit_euler.hpp"
@@ -236,7 +237,10 @@ void bind_physics(py::module_& m) {
            py::arg("px_per_m") = 720.0)
       .def("add_body_contact",
            [](Model& s, const std::vector<std::tuple<Eigen::Vector3d, std::vector<double>, std::vector<double>>>& parts,
-              const Vector& kappa, double activation, bool edges_too) {
+              const Vector& kappa, double activation, bool edges_too, double friction) {
+             if (!(friction >= 0 && friction <= 2))
+               throw InputError("body contact: friction must be a Coulomb coefficient in [0, 2], got " +
+                                std::to_string(friction));
              if (kappa.size() != s.num_vertices())
                throw InputError("body contact: expected one stiffness per vertex (" + std::to_string(s.num_vertices()) +
                                 "), got " + std::to_string(kappa.size()));
@@ -253,13 +257,17 @@ void bind_physics(py::module_& m) {
              std::sort(edges.begin(), edges.end());
              edges.erase(std::unique(edges.begin(), edges.end()), edges.end());
              auto term = std::make_unique<RevolvedBodyContact>(std::move(ps), kappa, activation, std::move(edges));
-             return s.add_term(std::move(term));
+             RevolvedBodyContact* body = s.add_term(std::move(term));
+             if (friction > 0) s.add_term(std::make_unique<BodyFriction>(*body, s.num_vertices(), friction));
+             return body;
            },
            py::arg("parts"), py::arg("kappa"), py::arg("activation"), py::arg("edges") = true,
+           py::arg("friction") = 0.0,
            py::return_value_policy::reference_internal,
            "Adds contact with a kinematic body of rigid surfaces of revolution (garment/revolved_body.hpp) for every "
            "cloth vertex and every mesh edge: parts [(origin (3,), s (n,), r (n,))], kappa (V,) barrier stiffness "
-           "per vertex [J], activation (m); edges=False: vertices only. Returns the term (set_poses, clearance, "
+           "per vertex [J], activation (m); edges=False: vertices only; friction: Coulomb coefficient with the body "
+           "(lagged, garment/body_friction.hpp; 0: none). Returns the term (set_poses, clearance, "
            "edge_clearance); the model owns it.")
       .def("set_handle_anchors", &Model::set_handle_anchors, py::arg("anchors"),
            "Moves the handle's anchors (H x 3, metres, in handle_vertices order): a kinematic attachment.")

@@ -39,6 +39,8 @@ def register(subparsers):
                         "(several times slower)")
     p.add_argument("--thickness", type=float, default=None, metavar="MM",
                    help="self contact's reach in mm (default: the preset's fabric thickness; 0: no self contact)")
+    p.add_argument("--body-friction", type=float, default=None, metavar="MU",
+                   help="Coulomb coefficient between cloth and body (default 0.3; 0: frictionless)")
     p.add_argument("--samples", type=int, default=1, metavar="K", help="material draws (default 1)")
     p.add_argument("--seed", type=int, default=0, metavar="S", help="material draws' seed (default 0)")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder (created)")
@@ -98,6 +100,8 @@ def run(args):
                 options["substeps"] = args.substeps
             if args.thickness is not None:
                 options["thickness_m"] = args.thickness * 1e-3
+            if args.body_friction is not None:
+                options["body_friction"] = args.body_friction
             r = simulate.drape(garment, m, body=body, motion=args.motion, frames=args.frames, progress=progress,
                                cancel_event=cancel, pc2_path=os.path.join(args.out, f"sample_{k:02d}.pc2"),
                                keep_frames=False, **options)
@@ -108,7 +112,7 @@ def run(args):
                                                     "min_body_clearance_m", "self_intersections_final",
                                                     "hem_radius_m", "cancelled", "newton_iterations", "contact_step",
                                                     "retried_frames",
-                                                    "simulated_vertices", "self_contact_thickness_m")})
+                                                    "simulated_vertices", "self_contact_thickness_m", "body_friction")})
             if r["cancelled"]:
                 break
     finally:

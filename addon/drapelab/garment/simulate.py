@@ -19,8 +19,10 @@ between non-adjacent point-triangle and edge-edge pairs closer than the fabric's
 step (native ImplicitEuler's contact steps: it advances from its start pose as
 far as collision detection on the relative motion allows, carrying the cloth near it along a smooth displacement
 field bounded by the self contact's CCD, and the rest between the step's linear solves). The start placement must be free
-of self-intersections (an InputError names the first pair) and of the body (vertices and edges). Not yet:
-friction with the body.
+of self-intersections (an InputError names the first pair) and of the body (vertices and edges). Friction with the
+body: IPC's lagged Coulomb potential per vertex and body part, coefficient ``BODY_FRICTION`` (native
+garment/body_friction.hpp): the vertex's slip is measured against the body's own motion over the step, so a moving
+leg drags the cloth resting on it.
 
 Steps: ``contact_step`` "linearised" (default) takes the Cusick drape's step, the one the presets were fitted
 with (one linear solve with the step matrix, another only while collision detection cut the move or the body is
@@ -43,6 +45,7 @@ from .mesh import Garment
 from .pc2 import PC2Writer
 
 __all__ = ["drape", "DEFAULT_FPS", "DEFAULT_SUBSTEPS", "CONTACT_STEPS", "DEFAULT_CONTACT_STEP", "BODY_REACH_M", "DEFAULT_THICKNESS_M", "SELF_FRICTION",
+           "BODY_FRICTION",
            "hem_radius", "top_band_vertices", "welded_mesh", "WeldedMesh"]
 
 DEFAULT_FPS = 24
@@ -67,6 +70,7 @@ FORCE_TOLERANCE = 1e-2
 WAIST_BAND_M = 0.03           # a garment without named waist vertices: those within this of its top
 DEFAULT_THICKNESS_M = 1e-3    # self contact's reach when the material does not know its fabric's thickness
 SELF_FRICTION = 0.3           # Coulomb coefficient between layers (the self_contact effect's moderate value)
+BODY_FRICTION = 0.3           # Coulomb coefficient between the cloth and the body (woven fabric on a covered form)
 MAX_SUBSTEP_SPLITS = 3        # a failing frame is redone with 2x, 4x, 8x the substeps before drape() gives up
 MAX_SEAM_GAP_M = 1e-3         # seam copies further apart than this at the start are an error (no silent welding)
 
@@ -189,11 +193,13 @@ def _check(garment, material, body, frames, fps, substeps):
                          "(sample it for this garment)")
 
 
-def build_model(garment, material, body, thickness_m=None, friction=SELF_FRICTION, welded=None, body_edges=True):
+def build_model(garment, material, body, thickness_m=None, friction=SELF_FRICTION, welded=None, body_edges=True,
+                body_friction=BODY_FRICTION):
     """The native model of the garment (welded at its seams) with its body contact and self contact:
     (ClothModel, parameters, body contact term, WeldedMesh). thickness_m: self contact's reach (None: the
     material's fabric thickness, else DEFAULT_THICKNESS_M; 0: no self contact). body_edges=False keeps only the
-    cloth's vertices off the body (its edges may cut it between them: for states saved before the edge term)."""
+    cloth's vertices off the body (its edges may cut it between them: for states saved before the edge term);
+    body_friction: Coulomb coefficient with the body (0: none)."""
     welded = WeldedMesh(garment) if welded is None else welded
     thickness = self_contact_thickness(material, thickness_m)
     effects = {"self_contact": {"thickness_m": thickness, "friction": friction}} if thickness > 0 else None
@@ -205,7 +211,8 @@ def build_model(garment, material, body, thickness_m=None, friction=SELF_FRICTIO
     weights = np.asarray(model.native.masses(params)) * GRAVITY
     kappa = BARRIER_WEIGHT_SCALE * weights * BODY_REACH_M
     parts = [(np.asarray(o, float), np.asarray(s, float), np.asarray(r, float)) for o, s, r in body.profiles]
-    contact = model.native.add_body_contact(parts, kappa, BODY_REACH_M, edges=bool(body_edges))
+    contact = model.native.add_body_contact(parts, kappa, BODY_REACH_M, edges=bool(body_edges),
+                                            friction=float(body_friction))
     return model, params, contact, welded
 
 
@@ -223,7 +230,8 @@ def self_contact_thickness(material, thickness_m=None):
 
 def drape(garment, material, body=None, motion="static", frames=48, fps=DEFAULT_FPS, substeps=DEFAULT_SUBSTEPS,
           progress=None, cancel_event=None, pc2_path=None, keep_frames=True, thickness_m=None,
-          self_friction=SELF_FRICTION, force_tolerance=FORCE_TOLERANCE, contact_step=DEFAULT_CONTACT_STEP):
+          self_friction=SELF_FRICTION, force_tolerance=FORCE_TOLERANCE, contact_step=DEFAULT_CONTACT_STEP,
+          body_friction=BODY_FRICTION):
     """Simulates the garment on the body for ``frames`` frames (module doc). Returns a dict: ``positions``
     (frames done, V, 3) float32 when keep_frames, ``first`` and ``last`` (V, 3), and the stats ``vertices``
     (the garment's), ``simulated_vertices`` (seams welded), ``frames`` (done), ``seconds_per_frame``,
@@ -234,7 +242,8 @@ def drape(garment, material, body=None, motion="static", frames=48, fps=DEFAULT_
     seconds in assembly + factorisation, solves and collision detection), ``retried_frames`` and ``retries`` (each frame
     redone with finer substeps: frame, substeps, error). All positions are in the garment's vertex order.
     ``thickness_m``: self contact's reach (None: the material's fabric thickness, else DEFAULT_THICKNESS_M; 0: no
-    self contact); ``self_friction``: Coulomb coefficient between layers; ``contact_step``: "linearised" (default:
+    self contact); ``self_friction``: Coulomb coefficient between layers; ``body_friction``: between the cloth and
+    the body (0: frictionless); ``contact_step``: "linearised" (default:
     one linear solve per step, more only while collision detection cuts a move or the body is still advancing) or
     "newton" (IPC's Newton iterations, ending when every residual force is below ``force_tolerance`` of its
     vertex's weight).
@@ -250,6 +259,9 @@ def drape(garment, material, body=None, motion="static", frames=48, fps=DEFAULT_
     if not (isinstance(self_friction, (int, float, np.integer, np.floating)) and not isinstance(self_friction, bool)
             and 0 <= self_friction <= 2):
         raise InputError(f"self_friction: expected a coefficient in [0, 2], got {self_friction!r}")
+    if not (isinstance(body_friction, (int, float, np.integer, np.floating)) and not isinstance(body_friction, bool)
+            and 0 <= body_friction <= 2):
+        raise InputError(f"body_friction: expected a coefficient in [0, 2], got {body_friction!r}")
     welded = WeldedMesh(garment)
     thickness = self_contact_thickness(material, thickness_m)
     crossing = sim.contact_report(welded.faces, welded.positions, max_listed=1)["first_pairs"]
@@ -258,7 +270,8 @@ def drape(garment, material, body=None, motion="static", frames=48, fps=DEFAULT_
         raise InputError(f"garment: its start placement intersects itself (faces {a} and {b}, and perhaps others): "
                          "self contact needs an intersection-free start; fix the placement (sim.contact_report "
                          "lists the pairs)")
-    model, params, contact, _ = build_model(garment, material, body, thickness, self_friction, welded)
+    model, params, contact, _ = build_model(garment, material, body, thickness, self_friction, welded,
+                                            body_friction=body_friction)
     waist = np.asarray(model.handle_vertices)
     waist_rest = welded.positions[waist]
     x = welded.positions.copy()
@@ -367,6 +380,7 @@ def drape(garment, material, body=None, motion="static", frames=48, fps=DEFAULT_
             "min_body_clearance_m": clearance_min,
             "self_intersections_final": int(sim.contact_report(welded.faces, x, max_listed=0)["intersecting_pairs"]),
             "hem_radius_m": hem_radius(last, garment, pelvis_last[:2, 3]), "self_contact_thickness_m": thickness,
+            "body_friction": float(body_friction),
             "cancelled": cancelled, "newton_iterations": iterations, "contact_step": contact_step, "solver": solver,
             "retried_frames": counters["retried_frames"],
             "retries": retries,

@@ -141,8 +141,12 @@ static double local_clearance(const RevolvedPart& part, const Eigen::Vector3d& y
   return rho - r;
 }
 
-double RevolvedBodyContact::part_clearance_at(int k, const RigidPose& P, const Eigen::Vector3d& q) const {
-  return local_clearance(parts_[k], P.R.transpose() * (q - P.c), nullptr, nullptr);
+double RevolvedBodyContact::part_clearance_at(int k, const RigidPose& P, const Eigen::Vector3d& q,
+                                             Eigen::Vector3d* grad) const {
+  Eigen::Vector3d gl;
+  const double v = local_clearance(parts_[k], P.R.transpose() * (q - P.c), grad ? &gl : nullptr, nullptr);
+  if (grad) *grad = P.R * gl;
+  return v;
 }
 
 double RevolvedBodyContact::part_clearance(int k, const Eigen::Vector3d& q, Eigen::Vector3d* grad,

@@ -10,7 +10,8 @@
 // g < 0 inside the part. g is not a Euclidean distance on sloped parts but |grad g| <= L_k = sqrt(1 + max r'^2),
 // which the collision check uses (conservative advancement with Lipschitz constant L_k).
 // Energy (one contact per cloth vertex and part, as disk_contact): E = sum kappa_i b(g_ik) with the IPC barrier
-// b of reach dhat (contact/barrier.hpp), kappa_i = weight-scaled as in disk_contact; no friction (yet).
+// b of reach dhat (contact/barrier.hpp), kappa_i = weight-scaled as in disk_contact. Friction with the body is its own term
+// (garment/body_friction.hpp), lagged on this term's poses and barrier.
 // Within one time step the body moves from its start pose to its end pose (set_poses) as the stepper advances it
 // (Term::obstacle_progress): its current pose is the geodesic interpolation (rotation about a fixed axis, linear
 // translation) at the progress reached, and the energy, derivatives, max_step and clearance are those of the
@@ -67,6 +68,12 @@ class RevolvedBodyContact : public Term {
   // Clearance of each edge (min over its points, ends included, and the parts) at the current pose, metres.
   Eigen::VectorXd edge_clearance(const Eigen::VectorXd& x) const;
   const std::vector<std::array<int, 2>>& edges() const { return edges_; }
+  int num_parts() const { return static_cast<int>(parts_.size()); }
+  // The poses the step goes from and to (set_poses), the barrier stiffness per vertex [J] and its reach [m].
+  const RigidPose& start_pose(int k) const { return start_[k]; }
+  const RigidPose& end_pose(int k) const { return end_[k]; }
+  const Eigen::VectorXd& kappa() const { return kappa_; }
+  double activation() const { return dhat_; }
   // The energy of the edges alone (the vertex barriers excluded), for tests.
   double edge_energy(const Eigen::VectorXd& x) const;
 
@@ -92,8 +99,9 @@ class RevolvedBodyContact : public Term {
   // g and its gradient / Hessian (world frame) of point q against part k at its current pose.
   double part_clearance(int k, const Eigen::Vector3d& q, Eigen::Vector3d* grad = nullptr,
                         Eigen::Matrix3d* hess = nullptr) const;
-  // The same at a given pose of the part.
-  double part_clearance_at(int k, const RigidPose& pose, const Eigen::Vector3d& q) const;
+  // The same at a given pose of the part (gradient in the world frame if asked).
+  double part_clearance_at(int k, const RigidPose& pose, const Eigen::Vector3d& q,
+                           Eigen::Vector3d* grad = nullptr) const;
 
   double obstacle_progress() const override { return progress_; }
   // u_i += f(c_i) sum_k w_ik D_k(q_i): D_k part k's rigid motion of q_i from its current to its end pose, w_ik a
