@@ -85,6 +85,19 @@ def test_walking_body_never_enters_the_cloth(small_skirt):
     assert r["min_body_clearance_m"] <= worst + 1e-6  # the stats' clearance counts the edges' points too
 
 
+def test_body_friction_reaches_the_walk(small_skirt):
+    # The physics of the body's friction is tested natively (tests/native/garment/test_body_friction.cpp: a bar
+    # sliding under a strip carries it only with friction); here: drape() passes the coefficient to the model.
+    m = material.sample_garment_material(WOOL, small_skirt, seed=0)[0]
+    # (the flared skirt first touches the legs in frame 10: the frames differ from then on, 0.8 mm by frame 11)
+    runs = {mu: simulate.drape(small_skirt, m, motion="walk", frames=12, keep_frames=False, body_friction=mu)
+            for mu in (0.0, 1.0)}
+    for mu, r in runs.items():
+        assert r["body_friction"] == mu
+        assert r["max_body_penetration_m"] == 0.0 and r["self_intersections_final"] == 0
+    assert np.abs(runs[0.0]["last"] - runs[1.0]["last"]).max() > 1e-5
+
+
 def test_dropped_skirt_has_no_self_intersection(small_skirt):
     # viscose, the softest shipped fabric, folds most: without self contact this drop ended with crossing folds
     m = material.sample_garment_material(VISCOSE, small_skirt, seed=0)[0]
@@ -186,6 +199,9 @@ def test_bad_input_is_named(small_skirt):
         simulate.drape(small_skirt, {"stretch": 1}, frames=2)
     with pytest.raises(sim.InputError, match="contact_step"):
         simulate.drape(small_skirt, m, frames=2, contact_step="implicit")
+    for bad in (-0.1, 3.0, float("nan"), "0.3", True):
+        with pytest.raises(sim.InputError, match="body_friction"):
+            simulate.drape(small_skirt, m, frames=2, body_friction=bad)
     # an inexact move solve cannot be differentiated: only an unrecorded rollout may ask for one
     model, params, _, welded = simulate.build_model(small_skirt, m, bodymod.make_body())
     with pytest.raises(sim.InputError, match="contact_direction_tolerance above 1e-10 needs record = false"):
@@ -199,13 +215,15 @@ def test_bad_input_is_named(small_skirt):
 def test_cli_writes_caches_objs_stats_and_a_render(tmp_path, capsys):
     out, stats, png = tmp_path / "out", tmp_path / "stats.json", tmp_path / "skirt.png"
     code = cli.main(["drape", "--preset", WOOL, "--vertices", "400", "--frames", "3", "--motion", "walk",
-                     "--samples", "2", "--out", str(out), "--json", str(stats), "--render", str(png)])
+                     "--samples", "2", "--body-friction", "0.5", "--out", str(out), "--json", str(stats),
+                     "--render", str(png)])
     assert code == 0
     s = json.loads(stats.read_text())
     for key in ("vertices", "frames", "seconds_per_frame", "max_body_penetration_m", "self_intersections_final",
                 "hem_radius_m"):
         assert key in s, key
     assert s["frames"] == 3 and len(s["samples"]) == 2 and s["max_body_penetration_m"] == 0.0
+    assert all(sample["body_friction"] == 0.5 for sample in s["samples"])
     for k in (0, 1):
         assert read_pc2(str(out / f"sample_{k:02d}.pc2")).shape == (3, s["vertices"], 3)
         assert (out / f"sample_{k:02d}_last.obj").stat().st_size > 0
