@@ -12,6 +12,7 @@
 #include "geometry/cusick.hpp"
 #include "physics/effect.hpp"
 #include "physics/model.hpp"
+#include "physics/sparse_pattern.hpp"
 #include "source_dir.hpp"
 
 namespace drapelab::testing {
@@ -42,6 +43,18 @@ inline Eigen::VectorXd perturbed_positions(const Model& model, double noise, uns
     for (int k = 0; k < 3; ++k) x[3 * i + k] += noise * n01(rng);
   }
   return x;
+}
+
+// Values on a pattern (upper triangle, pattern order) as a dense symmetric matrix.
+inline Eigen::MatrixXd dense_symmetric(const SparsePattern& pattern, const Eigen::VectorXd& values) {
+  const int n = pattern.size();
+  Eigen::MatrixXd M = Eigen::MatrixXd::Zero(n, n);
+  for (int c = 0; c < n; ++c)
+    for (int q = pattern.column_start()[c]; q < pattern.column_start()[c + 1]; ++q) {
+      const int r = pattern.row_index()[q];
+      M(r, c) = M(c, r) = values[q];
+    }
+  return M;
 }
 
 inline Eigen::VectorXd random_vector(int n, unsigned seed) {

@@ -64,4 +64,32 @@ inline double friction_f2_term(double u, double eps_u) {
   return -1.0 / (eps_u * eps_u * std::max(u, 1e-300));
 }
 
+// The friction potential's curvature in the slip u (3 x 3, row-major), per unit mu lambda:
+//   S(u) = f1(|u|)/|u| (I - u u^T/|u|^2) + f1'(|u|) u u^T/|u|^2,   PSD since f1 >= 0, f1' >= 0,
+// with its limit 2/eps_u I at u = 0 (below round-off of the slip). Templated for jets (step-matrix derivatives).
+template <class T>
+void friction_curvature(const T* u, double eps, T* S) {
+  const T u2 = u[0] * u[0] + u[1] * u[1] + u[2] * u[2];
+  for (int k = 0; k < 9; ++k) S[k] = T(0.0);
+  if (value_of(u2) < 1e-20 * eps * eps) {
+    for (int a = 0; a < 3; ++a) S[4 * a] = T(2.0 / eps);
+    return;
+  }
+  using std::sqrt;
+  const T un = sqrt(u2);
+  T f1_over_u, df1;
+  if (value_of(un) >= eps) {
+    f1_over_u = 1.0 / un;
+    df1 = T(0.0);
+  } else {
+    f1_over_u = -un / (eps * eps) + 2.0 / eps;
+    df1 = -2.0 * un / (eps * eps) + 2.0 / eps;
+  }
+  for (int a = 0; a < 3; ++a)
+    for (int b = 0; b < 3; ++b) {
+      const T rr = u[a] * u[b] / u2;
+      S[3 * a + b] = f1_over_u * ((a == b ? 1.0 : 0.0) - rr) + df1 * rr;
+    }
+}
+
 }  // namespace drapelab

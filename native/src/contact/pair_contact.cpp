@@ -711,36 +711,6 @@ void PairContactTerm::add_offpattern_step_matrix_product(const Eigen::VectorXd& 
   add_friction_product(x, p, dir, true, out);  // the friction part of K is its exact (PSD) Hessian
 }
 
-namespace {
-// The friction kernel's curvature S(u) (3 x 3, PairContactTerm::friction_kernel), templated on the slip u for
-// the step matrix's derivatives.
-template <class T>
-void friction_curvature(const T* u, double eps, T* S) {
-  const T u2 = u[0] * u[0] + u[1] * u[1] + u[2] * u[2];
-  const bool tiny = value_of(u2) < 1e-20 * eps * eps;
-  for (int k = 0; k < 9; ++k) S[k] = T(0.0);
-  if (tiny) {
-    for (int a = 0; a < 3; ++a) S[4 * a] = T(2.0 / eps);
-    return;
-  }
-  using std::sqrt;
-  const T un = sqrt(u2);
-  T f1_over_u, df1;
-  if (value_of(un) >= eps) {
-    f1_over_u = 1.0 / un;
-    df1 = T(0.0);
-  } else {
-    f1_over_u = -un / (eps * eps) + 2.0 / eps;
-    df1 = -2.0 * un / (eps * eps) + 2.0 / eps;
-  }
-  for (int a = 0; a < 3; ++a)
-    for (int b = 0; b < 3; ++b) {
-      const T rr = u[a] * u[b] / u2;
-      S[3 * a + b] = f1_over_u * ((a == b ? 1.0 : 0.0) - rr) + df1 * rr;
-    }
-}
-}  // namespace
-
 void PairContactTerm::add_step_matrix_derivatives(const Eigen::VectorXd& x, const Eigen::VectorXd& p,
                                                   const Eigen::VectorXd& lambda, const Eigen::VectorXd& w,
                                                   double scale, Eigen::VectorXd& gx, Eigen::VectorXd& gp) const {

@@ -55,34 +55,15 @@ class BodyFriction : public ElementTerm<BodyFriction, 1, 0, 3> {
     using std::sqrt;
     return mu_ * l.normal_force * friction_f0(sqrt(u2), eps_u_);
   }
-  // r = u = P (x - x_t - s); S = mu lambda [f1(u)/u (I - r r^T/u^2) + f1'(u) r r^T/u^2] (PSD).
+  // r = u = P (x - x_t - s); S = mu lambda friction_curvature(u) (contact/barrier.hpp, PSD).
   template <class T>
   void element_gauss_newton(int e, const T* x, const T*, T* r, T* S) const {
     const Lag& l = lag_[e];
     slip(l, x, r);
     for (int k = 0; k < 9; ++k) S[k] = T(0.0);
     if (l.normal_force == 0) return;
-    const double scale = mu_ * l.normal_force;
-    const T u2 = r[0] * r[0] + r[1] * r[1] + r[2] * r[2];
-    if (value_of(u2) < 1e-20 * eps_u_ * eps_u_) {
-      for (int a = 0; a < 3; ++a) S[4 * a] = T(scale * (2.0 / eps_u_));
-      return;
-    }
-    using std::sqrt;
-    const T u = sqrt(u2);
-    T f1_over_u, df1;
-    if (value_of(u) >= eps_u_) {
-      f1_over_u = 1.0 / u;
-      df1 = T(0.0);
-    } else {
-      f1_over_u = -u / (eps_u_ * eps_u_) + 2.0 / eps_u_;
-      df1 = -2.0 * u / (eps_u_ * eps_u_) + 2.0 / eps_u_;
-    }
-    for (int a = 0; a < 3; ++a)
-      for (int b = 0; b < 3; ++b) {
-        const T rr = r[a] * r[b] / u2;
-        S[3 * a + b] = scale * (f1_over_u * ((a == b ? 1.0 : 0.0) - rr) + df1 * rr);
-      }
+    friction_curvature(r, eps_u_, S);
+    for (int k = 0; k < 9; ++k) S[k] *= mu_ * l.normal_force;
   }
 
  private:

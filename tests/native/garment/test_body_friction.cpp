@@ -14,6 +14,7 @@
 #include "physics/model.hpp"
 #include "physics/sparse_pattern.hpp"
 #include "solver/implicit_euler.hpp"
+#include "../test_support.hpp"
 
 namespace drapelab {
 namespace {
@@ -25,14 +26,7 @@ RevolvedPart leg(double x) {  // radius 6 cm, conical ends, 56 cm long, hanging 
 }
 
 Eigen::MatrixXd dense(const SparsePattern& pattern, const Eigen::VectorXd& values) {
-  const int n = pattern.size();
-  Eigen::MatrixXd M = Eigen::MatrixXd::Zero(n, n);
-  for (int c = 0; c < n; ++c)
-    for (int q = pattern.column_start()[c]; q < pattern.column_start()[c + 1]; ++q) {
-      const int r = pattern.row_index()[q];
-      M(r, c) = M(c, r) = values[q];
-    }
-  return M;
+  return testing::dense_symmetric(pattern, values);
 }
 
 // Two legs; the second swings forward about its hip by 0.05 rad while the body shifts 5 mm sideways.

@@ -14,6 +14,7 @@
 #include "physics/model.hpp"
 #include "physics/sparse_pattern.hpp"
 #include "solver/implicit_euler.hpp"
+#include "../test_support.hpp"
 
 namespace drapelab {
 namespace {
@@ -79,14 +80,7 @@ TEST(RevolvedBodyEdges, SegmentMinimumMatchesDenseSampling) {
 
 // The Hessian's values in the pattern as a dense symmetric matrix.
 Eigen::MatrixXd dense(const SparsePattern& pattern, const Eigen::VectorXd& values) {
-  const int n = pattern.size();
-  Eigen::MatrixXd M = Eigen::MatrixXd::Zero(n, n);
-  for (int c = 0; c < n; ++c)
-    for (int q = pattern.column_start()[c]; q < pattern.column_start()[c + 1]; ++q) {
-      const int r = pattern.row_index()[q];
-      M(r, c) = M(c, r) = values[q];
-    }
-  return M;
+  return testing::dense_symmetric(pattern, values);
 }
 
 // Central differences of energy, gradient and Hessian at x; the step matrix is PSD; the edges add energy.
