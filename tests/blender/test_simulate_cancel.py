@@ -153,6 +153,12 @@ walked = check_cache(body_path, 4, body_obj)
 expected = body_module.body_frames(body, "walk", 4)
 assert np.abs(walked - expected).max() < 1e-5, np.abs(walked - expected).max()
 assert np.abs(expected[3] - expected[0]).max() > 0.01  # the legs moved
+# the panel's body friction reaches the simulator (0: frictionless; default 0.3)
+assert abs(s.body_friction - 0.3) < 1e-6, s.body_friction
+work, target = operators.simulation_job(bpy.context, skirt, body_obj, 1, 3, body_friction=0.0)
+state = jobs.Job("simulate", work).run_sync()
+assert state.status == jobs.DONE and state.result["body_friction"] == 0.0, state.snapshot()
+operators.finish_simulation(target, state.result)
 # a static bake puts the dress form back at rest
 assert bpy.ops.drapelab.simulate_garment(frame_start=1, frame_end=3) == {'FINISHED'}
 assert body_obj.modifiers.get("drapelab cache") is None

@@ -523,7 +523,7 @@ def _preset_argument(context, preset):
 
 
 def simulation_job(context, obj, collider, frame_start, frame_end, preset="", seed=0, time_limit=0.0,
-                   motion="static"):
+                   motion="static", body_friction=0.3):
     """What simulate_garment runs, checked and gathered from bpy on the main thread: (work, target). `work` is a
     jobs.Task of drapelab.ui.tasks.simulate_work (bpy-free, picklable: jobs.start runs it in a worker process,
     run_sync on this thread); `target` is what finish_simulation and attach_while_baking need (plain names and
@@ -553,7 +553,8 @@ def simulation_job(context, obj, collider, frame_start, frame_end, preset="", se
     work = jobs.Task(tasks.simulate_work, garment, mat, body, source, garment.blender_positions,
                      np.linalg.inv(np.array(obj.matrix_world)), path, frame_end - frame_start + 1, motion=motion,
                      time_limit=time_limit or None, collider_path=collider_path,
-                     collider_world_to_local=np.linalg.inv(np.array(collider.matrix_world)))
+                     collider_world_to_local=np.linalg.inv(np.array(collider.matrix_world)),
+                     body_friction=body_friction)
     target = {"object": obj.name, "path": path, "frame_start": frame_start, "collider": collider.name,
               "collider_path": collider_path, "motion": motion, "attached": False}
     return work, target
@@ -619,6 +620,8 @@ class DRAPELAB_OT_simulate_garment(_JobOperator, bpy.types.Operator):
                          description="the dress form's motion (a moving collider gets its own Mesh Cache)")
     time_limit: FloatProperty(name="Time limit (s)", default=0.0, min=0.0,
                               description="stop the bake after this many seconds, keeping the frames done (0: none)")
+    body_friction: FloatProperty(name="Body friction", default=0.3, min=0.0, max=2.0,
+                                 description="Coulomb friction coefficient between the garment and the dress form")
 
     def make_work(self, context):
         if self.collider and self.collider not in bpy.data.objects:
@@ -627,7 +630,8 @@ class DRAPELAB_OT_simulate_garment(_JobOperator, bpy.types.Operator):
         collider = bpy.data.objects[self.collider] if self.collider else s.collider
         work, self._target = simulation_job(context, s.garment or context.active_object, collider, self.frame_start,
                                             self.frame_end, preset=self.preset, seed=self.seed,
-                                            time_limit=self.time_limit, motion=self.motion)
+                                            time_limit=self.time_limit, motion=self.motion,
+                                            body_friction=self.body_friction)
         return work
 
     def poll_job(self, context):

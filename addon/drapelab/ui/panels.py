@@ -253,8 +253,10 @@ class DRAPELAB_PT_garment(_Panel, bpy.types.Panel):
         row.prop(s, "frame_start")
         row.prop(s, "frame_end")
         layout.prop(s, "motion")
+        layout.prop(s, "body_friction")
         op = layout.operator("drapelab.simulate_garment", icon='PHYSICS')
         op.frame_start, op.frame_end, op.motion = s.frame_start, s.frame_end, s.motion
+        op.body_friction = s.body_friction
         op.collider = s.collider.name if s.collider else ""
         layout.operator("drapelab.export_blender_cloth", icon='MOD_CLOTH')
 

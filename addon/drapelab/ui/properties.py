@@ -151,6 +151,9 @@ class DRAPELAB_PG_settings(bpy.types.PropertyGroup):
     frame_end: IntProperty(name="End", default=60, min=1)
     motion: EnumProperty(name="Motion", items=MOTIONS, default="static",
                          description="the dress form's motion during Simulate (it gets its own Mesh Cache)")
+    body_friction: FloatProperty(name="Body friction", default=0.3, min=0.0, max=2.0, precision=2,
+                                 description="Coulomb friction coefficient between the garment and the dress form "
+                                             "(0: frictionless)")
 
     def metrics(self):
         try:

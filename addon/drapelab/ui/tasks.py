@@ -168,7 +168,7 @@ def _read_pc2_frame(f, frame, num_points):
 
 
 def simulate_work(garment, material, body, source, rest_positions, world_to_local, path, frames, motion="static",
-                  time_limit=None, collider_path=None, collider_world_to_local=None):
+                  time_limit=None, collider_path=None, collider_world_to_local=None, body_friction=0.3):
     """Work of a garment bake (drapelab.simulate_garment): garment.simulate.drape of `garment` with
     `material` on `body` for `frames` frames, written to the PC2 cache `path` in the Blender mesh's vertex order
     (`source[i]`: the Blender vertex of garment vertex i; `rest_positions` (V, 3) world: the Blender vertices,
@@ -181,8 +181,9 @@ def simulate_work(garment, material, body, source, rest_positions, world_to_loca
     (state.cancel, checked between substeps) and `time_limit` (seconds from the start of the work) stop the bake
     keeping the frames done. A moving `motion` also writes the body's frames to `collider_path` (the collider's
     vertex order is the Body's; `collider_world_to_local` its local coordinates) so the collider moves with it.
+    `body_friction`: Coulomb coefficient between the garment and the body (drape's).
     Returns {"frames": frames simulated (with frame 0), "frames_written": frames in the cache, "cancelled",
-    "stopped_by_time_limit", "seconds_per_frame", "max_body_penetration_m", "hem_radius_m", "path",
+    "stopped_by_time_limit", "seconds_per_frame", "max_body_penetration_m", "hem_radius_m", "body_friction", "path",
     "collider_path"}. The
     arguments are plain values and numpy arrays (picklable: the work can be rebuilt in a worker process)."""
     from ..garment.pc2 import PC2Writer
@@ -248,7 +249,7 @@ def simulate_work(garment, material, body, source, rest_positions, world_to_loca
                 collider_writer = PC2Writer(collider_path, len(body.positions), start_frame=1, sample_rate=1.0)
             state.update(0.0, f"baking {frames} frames ({motion})")
             r = drape(garment, material, body=body, motion=motion, frames=int(frames), cancel_event=state.cancel,
-                      progress=progress, pc2_path=side, keep_frames=False)
+                      progress=progress, pc2_path=side, keep_frames=False, body_friction=body_friction)
             copy_frames(r["frames"])
         finally:
             if timer is not None:
@@ -265,7 +266,7 @@ def simulate_work(garment, material, body, source, rest_positions, world_to_loca
         return {"frames": r["frames"], "frames_written": writer.frames_written, "cancelled": r["cancelled"],
                 "stopped_by_time_limit": bool(stopped), "seconds_per_frame": r["seconds_per_frame"],
                 "max_body_penetration_m": r["max_body_penetration_m"], "hem_radius_m": r["hem_radius_m"],
-                "path": path,
+                "body_friction": r["body_friction"], "path": path,
                 "collider_path": collider_path if moving else None, "motion": motion}
 
     return work
