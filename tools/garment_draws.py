@@ -1,3 +1,4 @@
+#!/usr/bin/python3
 """Hem radius of K posterior draws per fabric on the bundled skirt (issue 21's "draws differ less than fabrics").
 
 Usage (from the repository, /usr/bin/python3 with PYTHONPATH=addon:build/python):
