@@ -19,6 +19,9 @@ Time (fit --time-budget T covers the whole job: set-up, epochs, drape calibratio
     thus ends by max(T + the last epoch, end of epochs + the first 3 sets) + the last set.
 Memory:
     A recorded rollout keeps one sparse Cholesky factor per step up to factor_memory_mb (sim.ClothModel.simulate);
+    with a contact effect (disk_contact, self_contact: linearised contact steps) one per iteration, up to
+    CONTACT_FACTOR_MEMORY_SCALE x factor_memory_mb (RolloutOptions::contact_factor_memory_scale), at most
+    CONTACT_ITERATIONS_PER_STEP iterations per step assumed;
     FACTOR_BYTES_PER_VERTEX is an upper bound of a factor's size per vertex measured on circle1..5 (10.2 MB on
     circle3, 35.3 MB on circle5: docs/performance.md). A fit keeps, per Monte Carlo lane, one recorded rollout
     (factors + the rollout's states); per image a float64 mask, and per epoch a soft image, its gradient and a
@@ -33,6 +36,8 @@ from ._native import InputError
 
 FACTOR_BYTES_PER_VERTEX = 5.0e3      # bytes of one kept Cholesky factor per vertex (measured 3.8-4.7 KB, circle3-5)
 DEFAULT_FACTOR_MEMORY_MB = 1024.0    # sim.ClothModel.simulate's default budget for kept factors
+CONTACT_FACTOR_MEMORY_SCALE = 1.6     # native RolloutOptions::contact_factor_memory_scale (kept factors with contact)
+CONTACT_ITERATIONS_PER_STEP = 1.7     # linearised contact iterations per step (circle3, seeds 0-5: 1.27-1.68)
 MODEL_BYTES_PER_VERTEX = 20.0e3      # a model, its solver workspace and one drape's vectors, per vertex (generous)
 MEMORY_FRACTION = 0.8                # of physical memory: leaves room for the OS and Blender's own scene
 EPOCH_DRAPE_FACTOR = 1.5             # an epoch's drape (recorded rollout + adjoint) / an unrecorded rollout
@@ -57,20 +62,27 @@ def check_memory(estimate_bytes, what, advice):
     return estimate_bytes
 
 
-def rollout_bytes(vertices, steps, record=True, factor_memory_mb=DEFAULT_FACTOR_MEMORY_MB):
+def rollout_bytes(vertices, steps, record=True, factor_memory_mb=DEFAULT_FACTOR_MEMORY_MB, contact=False):
     """About the memory of one model and one rollout on a mesh of `vertices` vertices (recorded: the kept factors,
-    capped at factor_memory_mb, and per step the state x, v and the step's solution)."""
+    capped at factor_memory_mb, and per step the state x, v and the step's solution). contact: the model has a
+    contact effect (linearised contact steps keep a factor and two vectors per iteration, within
+    CONTACT_FACTOR_MEMORY_SCALE x factor_memory_mb)."""
     model = MODEL_BYTES_PER_VERTEX * vertices
     if not record:
         return model
-    factors = min(steps * FACTOR_BYTES_PER_VERTEX * vertices, factor_memory_mb * 2 ** 20)
-    return model + factors + steps * 3 * 3 * vertices * 8
+    factors_kept, cap, vectors = steps, factor_memory_mb * 2 ** 20, 3
+    if contact:
+        factors_kept = steps * CONTACT_ITERATIONS_PER_STEP
+        cap *= CONTACT_FACTOR_MEMORY_SCALE
+        vectors += 2 * CONTACT_ITERATIONS_PER_STEP  # each iteration's x and move
+    factors = min(factors_kept * FACTOR_BYTES_PER_VERTEX * vertices, cap)
+    return model + factors + steps * vectors * 3 * vertices * 8
 
 
-def fit_memory_bytes(vertices, lanes, steps, images, image_pixels, samples):
+def fit_memory_bytes(vertices, lanes, steps, images, image_pixels, samples, contact=False):
     """About the peak memory of a fit: `lanes` recorded rollouts, the image masks, and per epoch three float64
-    images for each of samples x images drapes."""
-    return (lanes * rollout_bytes(vertices, steps) + images * image_pixels * 8
+    images for each of samples x images drapes (contact: see rollout_bytes)."""
+    return (lanes * rollout_bytes(vertices, steps, contact=contact) + images * image_pixels * 8
             + samples * images * 3 * image_pixels * 8)
 
 

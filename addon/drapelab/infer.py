@@ -697,8 +697,10 @@ class FitJob:
 def _check_fit_memory(job):
     """Refuses a fit whose lanes, images and samples would not fit in memory (budget.fit_memory_bytes)."""
     o = job.observations
-    estimate = budget.fit_memory_bytes(job.workers[0].model.num_vertices, len(job.workers),
-                                       int(job.config["dynamic"]["steps"]), len(o), o[0].mask.size, job.samples)
+    model = job.workers[0].model
+    contact = any(name in ("disk_contact", "self_contact") for name in model.active_effects)
+    estimate = budget.fit_memory_bytes(model.num_vertices, len(job.workers), int(job.config["dynamic"]["steps"]),
+                                       len(o), o[0].mask.size, job.samples, contact=contact)
     budget.check_memory(estimate, f"this fit ({len(job.workers)} lanes on circle{job.mesh_level}, {len(o)} images of "
                         f"{o[0].mask.shape[1]} x {o[0].mask.shape[0]} px, {job.samples} samples per epoch)",
                         "use fewer --threads, fewer or smaller images")

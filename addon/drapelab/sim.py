@@ -694,6 +694,8 @@ class ClothModel:
                 raise InputError("backward: run simulate(...) first (dynamic mode with record=True)")
             if self._last == "dynamic":
                 gp = self._dynamic.backward(g, progress=sink)["parameters"]
+                if "timing" in self.last_result:  # with the backward's split (backward_*)
+                    self.last_result["timing"] = dict(self._dynamic.timing)
             else:
                 gp = self._static.adjoint(g)
         gp = np.asarray(gp)

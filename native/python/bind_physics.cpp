@@ -420,9 +420,15 @@ void bind_physics(py::module_& m) {
         out["collision"] = t.collision;
         out["cg_iterations"] = t.cg_iterations;
         out["cut_iterations"] = t.cut_iterations;
+        out["backward_solve"] = t.backward_solve;
+        out["backward_refactorize"] = t.backward_refactorize;
+        out["backward_terms"] = t.backward_terms;
+        out["backward_start"] = t.backward_start;
+        out["backward_refactorizations"] = t.backward_refactorizations;
         return out;
       }, "Seconds spent in assembly, factorisation and solves during the last forward; with contact (IPC steps) "
-         "also the Newton iterations and factorisations, and the steps whose adjoint used a definite substitute.")
+         "also the Newton iterations and factorisations, and the steps whose adjoint used a definite substitute; "
+         "backward_*: the last backward's split (seconds; refactorisations past the factor budget counted).")
       .def(
           "step_system",
           [](PyImplicitEuler& s, const Vector& x, const Vector& v, const Vector& p, double h) {

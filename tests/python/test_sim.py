@@ -219,6 +219,19 @@ def test_dynamic_drape_hangs_down_and_stays_on_the_disk(model):
     assert model.last_result["mode"] == "dynamic" and model.last_result["steps"] == 20
 
 
+def test_the_backward_split_is_reported_with_contact(circle1):
+    # last_result["timing"] gains the backward's split (seconds) after backward; a contact rollout's adjoint
+    # works iteration by iteration (its solves and the terms' adjoint passes)
+    effects = {"disk_contact": {"clamp_radius_m": 0.02}, "self_contact": {"thickness_m": 1e-3}}
+    m = sim.ClothModel(circle1, density=tables.COTTON_BLUE.density, effects=effects)
+    x = m.simulate(m.parameters(material=tables.COTTON_BLUE), steps=10)
+    assert m.last_result["timing"]["backward_terms"] == 0
+    m.backward(np.ones_like(x))
+    t = m.last_result["timing"]
+    assert t["newton_iterations"] >= 10 and t["backward_solve"] > 0 and t["backward_terms"] > 0
+    assert t["backward_refactorizations"] == 0  # 10 circle1 factors fit in the default budget
+
+
 # ---------------------------------------------------------------- gradients vs central differences
 DIRECTIONS = [("bend", (1, 2)), ("bend", (0, 0)), ("stretch", (0, 3)), ("density", None), ("handle_stiffness", None)]
 

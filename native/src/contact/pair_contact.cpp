@@ -493,6 +493,31 @@ void PairContactTerm::restore_step(const std::shared_ptr<const void>& state) {
   cache_ = s.cache;
 }
 
+struct PairContactTerm::SavedIterate {
+  ContactPositions obstacle;
+  double dhat;
+  std::vector<ActivePair> pairs;
+};
+
+std::shared_ptr<const void> PairContactTerm::iterate_state(const Eigen::VectorXd& x) const {
+  std::lock_guard<std::mutex> lock(cache_mutex_);
+  if (!(cache_.dhat > 0) || cache_.x.size() != x.size() || !(cache_.x == x)) return nullptr;
+  auto s = std::make_shared<SavedIterate>();
+  s->obstacle = cache_.obstacle;
+  s->dhat = cache_.dhat;
+  s->pairs = cache_.pairs;
+  return s;
+}
+
+void PairContactTerm::restore_iterate(const std::shared_ptr<const void>& state, const Eigen::VectorXd& x) {
+  const auto& s = *static_cast<const SavedIterate*>(state.get());
+  std::lock_guard<std::mutex> lock(cache_mutex_);
+  cache_.x = x;
+  cache_.obstacle = s.obstacle;
+  cache_.dhat = s.dhat;
+  cache_.pairs = s.pairs;
+}
+
 void PairContactTerm::start_step(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double h,
                                  bool check_intersections, bool check_sweep) {
   friction_pairs_.clear();

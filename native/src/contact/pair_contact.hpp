@@ -115,6 +115,9 @@ class PairContactTerm : public Term, public SteppedContact {
   // The lagged friction pairs and the active pairs and candidates cached at the step's start.
   std::shared_ptr<const void> step_state() const override;
   void restore_step(const std::shared_ptr<const void>& state) override;
+  // The active pairs at the iterate x (those its assembly found), without the candidates.
+  std::shared_ptr<const void> iterate_state(const Eigen::VectorXd& x) const override;
+  void restore_iterate(const std::shared_ptr<const void>& state, const Eigen::VectorXd& x) override;
 
   // The pairs closer than dhat at x (cached per x).
   std::vector<ActivePair> active_pairs(const Eigen::VectorXd& x, double dhat) const;
@@ -193,6 +196,7 @@ class PairContactTerm : public Term, public SteppedContact {
   // Whether c's candidates hold every pair closer than dh at x (under cache_mutex_).
   bool candidates_valid(const Cache& c, const Eigen::VectorXd& x, double dh) const;
   struct SavedStep;
+  struct SavedIterate;
   mutable std::mutex cache_mutex_;
   mutable Cache cache_;
   // The active pairs' Hessians at one x (exact [0] and PSD-projected [1]), see pair_hessians.

@@ -185,6 +185,8 @@ RolloutGradient ImplicitEuler::backward(const Eigen::VectorXd& dL_dx, const Eige
   Eigen::VectorXd gp = Eigen::VectorXd::Zero(p_.size());
   Eigen::VectorXd K, tmp, start_bar;
   const int T = static_cast<int>(tape_.size());
+  timing_.backward_solve = timing_.backward_refactorize = timing_.backward_terms = timing_.backward_start = 0;
+  timing_.backward_refactorizations = 0;
   for (const auto& r : tape_)
     if (!r.iterates.empty()) {
       for (const auto& term : model_.terms())
@@ -205,14 +207,21 @@ RolloutGradient ImplicitEuler::backward(const Eigen::VectorXd& dL_dx, const Eige
     for (const auto& term : model_.terms()) term->resume_step(r.x, p_, h);  // the step's start state, as forward
     const Eigen::VectorXd gv_total = gv + h * gx;
     Eigen::VectorXd lambda;
+    auto t0 = std::chrono::steady_clock::now();
     if (r.factor) {
       lambda = solver_.solve_with(r.factor, gv_total);
+      timing_.backward_solve += seconds_since(t0);
     } else {  // not kept (memory budget): the same matrix, refactorised
       Eigen::VectorXd A, b;
       step_system(r.x, r.v, p_, h, A, b);
       if (!solver_.factorize(A)) throw SolverError("backward: step matrix is not positive definite");
+      ++timing_.backward_refactorizations;
+      timing_.backward_refactorize += seconds_since(t0);
+      t0 = std::chrono::steady_clock::now();
       lambda = solver_.solve(gv_total);
+      timing_.backward_solve += seconds_since(t0);
     }
+    t0 = std::chrono::steady_clock::now();
     const Eigen::VectorXd v_next = r.v + r.y;
     Eigen::VectorXd gx_prev = gx;
     Eigen::VectorXd gv_prev = gv_total;
@@ -225,11 +234,14 @@ RolloutGradient ImplicitEuler::backward(const Eigen::VectorXd& dL_dx, const Eige
         term->add_step_matrix(r.x, p_, h * h, K);
       }
     if (K.size() != 0) gv_prev -= symmetric_multiply(pattern, K, lambda);
+    timing_.backward_terms += seconds_since(t0);
+    t0 = std::chrono::steady_clock::now();
     // Terms that depend on the step start x_t besides x (damping): the x_t-derivative of lambda . (h grad E +
     // h^2 K v') at fixed x (Term::add_step_start_adjoint).
     start_bar.setZero(n);
     for (const auto& term : model_.terms()) term->add_step_start_adjoint(r.x, p_, lambda, v_next, h, start_bar);
     gx_prev -= h * start_bar;
+    timing_.backward_start += seconds_since(t0);
     double gdensity = 0;
     for (int i = 0; i < model_.num_vertices(); ++i) gdensity -= w[i] * lambda.segment<3>(3 * i).dot(r.y.segment<3>(3 * i));
     gp[density_block.offset] += gdensity;
@@ -658,7 +670,11 @@ Eigen::VectorXd ImplicitEuler::linear_contact_step(const Eigen::VectorXd& p, con
       std::fprintf(stderr, "step %d linear it %d cap %.3g bound %.3g by %s |dx| %.3g\n", step, it, alpha, bound,
                    binding ? binding->name().c_str() : "-", dx.lpNorm<Eigen::Infinity>());
     if (iterates) {
-      ContactIterate r{x, dx, alpha, CholmodSolver::Factor(), Eigen::VectorXd()};
+      ContactIterate r{x, dx, alpha, CholmodSolver::Factor(), Eigen::VectorXd(), {}};
+      for (const auto& t : model_.terms()) {  // what the terms found at x (the adjoint restores it)
+        auto* stepped = dynamic_cast<SteppedContact*>(t.get());
+        r.term_states.push_back(stepped ? stepped->iterate_state(x) : nullptr);
+      }
       const double bytes = static_cast<double>(solver_.kept_factor_bytes()) + (coupled ? 8.0 * A.size() : 0.0);
       if (kept_bytes + bytes <= options.factor_memory_mb * options.contact_factor_memory_scale * 1048576.0) {
         r.factor = solver_.keep_factor();
@@ -708,13 +724,20 @@ void ImplicitEuler::linear_contact_step_adjoint(const StepRecord& r, Eigen::Vect
   Eigen::VectorXd A, g, lambda, unused(n);
   for (int k = static_cast<int>(r.iterates.size()) - 1; k >= 0; --k) {
     const ContactIterate& it = r.iterates[k];
+    for (size_t i = 0; i < it.term_states.size(); ++i)
+      if (it.term_states[i])
+        dynamic_cast<SteppedContact*>(model_.terms()[i].get())->restore_iterate(it.term_states[i], it.x);
     const Eigen::VectorXd rhs = it.alpha * xbar;
     const Eigen::VectorXd* values = &it.matrix;
     const CholmodSolver::Factor* factor = it.factor ? &it.factor : nullptr;
+    auto t0 = std::chrono::steady_clock::now();
     if (!factor) {  // not kept (memory budget): the same matrix, refactorised
       linear_contact_system(it.x, x_hat, p_, inv_h2, m, A, g);
       if (!solver_.factorize(A)) throw SolverError("backward: a contact step's matrix is not positive definite");
       values = &A;
+      ++timing_.backward_refactorizations;
+      timing_.backward_refactorize += seconds_since(t0);
+      t0 = std::chrono::steady_clock::now();
     }
     if (offpattern) {
       OffpatternSolveStats stats;
@@ -729,11 +752,16 @@ void ImplicitEuler::linear_contact_step_adjoint(const StepRecord& r, Eigen::Vect
     } else {
       lambda = factor ? solver_.solve_with(*factor, rhs) : solver_.solve(rhs);
     }
+    timing_.backward_solve += seconds_since(t0);
     Eigen::VectorXd xbar_prev = xbar;
     unused.setZero();
     for (const auto& t : model_.terms()) {
+      t0 = std::chrono::steady_clock::now();
       t->add_step_adjoint(it.x, p_, lambda, it.dx, 1.0, xbar_prev, unused, gp);
+      timing_.backward_terms += seconds_since(t0);
+      t0 = std::chrono::steady_clock::now();
       t->add_step_start_adjoint(it.x, p_, lambda, it.dx, 1.0, start_bar);  // the lagged friction's slip start
+      timing_.backward_start += seconds_since(t0);
     }
     double gdensity = 0;
     for (int i = 0; i < nv; ++i) {

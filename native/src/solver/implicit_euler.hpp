@@ -91,6 +91,11 @@ class ImplicitEuler {
     double collision = 0;           // contact steps: seconds in continuous collision detection (Term::max_step)
     int cg_iterations = 0;          // contact steps: CG iterations of solves with off-pattern couplings
     int cut_iterations = 0;         // linearised contact steps: iterations whose move collision detection cut
+    // The last backward (seconds): solves with kept factors (CG included), refactorisations of iterates past the
+    // factor budget (assembly + factorisation), the terms' adjoint passes, their step-start adjoints
+    // (lagged friction); and how many iterates (contact steps) or steps it refactorised.
+    double backward_solve = 0, backward_refactorize = 0, backward_terms = 0, backward_start = 0;
+    int backward_refactorizations = 0;
   };
   const Timing& timing() const { return timing_; }
   CholmodSolver& linear_solver() { return solver_; }
@@ -107,6 +112,8 @@ class ImplicitEuler {
     double alpha = 1;
     CholmodSolver::Factor factor;
     Eigen::VectorXd matrix;
+    // per term, its SteppedContact::iterate_state at x (null for other terms): the adjoint needs no broad phase
+    std::vector<std::shared_ptr<const void>> term_states;
   };
   struct StepRecord {
     Eigen::VectorXd x, v, y;  // contact steps: y = v_{t+1} - v_t as well

@@ -519,6 +519,64 @@ TEST(SelfContact, RestoredStepStateMatchesABegunStep) {
   EXPECT_EQ((sr - sb).lpNorm<Eigen::Infinity>(), 0.0);
 }
 
+// The active pairs at an iterate of a step (SteppedContact::iterate_state), restored after the term was evaluated
+// elsewhere, give the energy, gradient, Hessian product and step-matrix derivatives at that iterate of a term
+// that evaluated it itself, bit for bit (the adjoint restores them instead of a broad phase at each iterate
+// after a cut move); a state is taken only for the iterate the term last evaluated.
+TEST(SelfContact, RestoredIterateStateMatchesAnEvaluatedIterate) {
+  const TriangleMesh mesh = stacked_sheets(5, 0.04, 2e-3);
+  ModelOptions o = self_contact_options(1e-3);
+  o.effects["self_contact"]["friction"] = 0.3;
+  Model model(mesh, o), other(mesh, o);
+  Eigen::VectorXd p = model.default_parameters();
+  p[model.layout().block("self_contact.friction").offset] = 0.3;
+  auto pair_term = [](const Model& m) {
+    for (const auto& t : m.terms())
+      if (t->name() == "self_contact") return dynamic_cast<PairContactTerm*>(t.get());
+    throw std::runtime_error("no self_contact term");
+  };
+  PairContactTerm *term = pair_term(model), *evaluated = pair_term(other);
+  const int n = model.num_dofs();
+  Eigen::VectorXd xt = jittered_start(model);
+  for (int i = model.num_vertices() / 2; i < model.num_vertices(); ++i) xt[3 * i + 2] -= 1.6e-3;  // 0.4 mm apart
+  const Eigen::VectorXd x = xt + 1e-5 * testing::random_vector(n, 3), lambda = testing::random_vector(n, 4),
+                        w = testing::random_vector(n, 5);
+  const Eigen::VectorXd elsewhere = xt + 3e-4 * testing::random_vector(n, 6);
+  const double h = 0.02;
+  term->begin_step(xt, p, h);
+  const double E_iterate = term->energy(x, p);  // the iterate's assembly finds its pairs
+  const std::shared_ptr<const void> state = term->iterate_state(x);
+  ASSERT_TRUE(state);
+  EXPECT_FALSE(term->iterate_state(elsewhere)) << "the term has not evaluated that state";
+  term->energy(elsewhere, p);  // a later iterate's pairs replace the cached ones
+  EXPECT_FALSE(term->iterate_state(x));
+  term->restore_iterate(state, x);
+  EXPECT_TRUE(term->iterate_state(x)) << "the restored pairs are the term's pairs at x (no evaluation needed)";
+  evaluated->begin_step(xt, p, h);
+  auto evaluate = [&](const PairContactTerm& t, double& E, Eigen::VectorXd& g, Eigen::VectorXd& Hl,
+                      Eigen::VectorXd& gx, Eigen::VectorXd& gp) {
+    E = t.energy(x, p);
+    g = Eigen::VectorXd::Zero(n);
+    t.add_gradient(x, p, g);
+    Hl = Eigen::VectorXd::Zero(n);
+    t.add_hessian_product(x, p, lambda, Hl);
+    gx = Eigen::VectorXd::Zero(n);
+    gp = Eigen::VectorXd::Zero(p.size());
+    t.add_step_matrix_derivatives(x, p, lambda, w, 1.0, gx, gp);
+  };
+  double Er, Ee;
+  Eigen::VectorXd gr, ge, Hr, He, xr, xe, pr, pe;
+  evaluate(*term, Er, gr, Hr, xr, pr);
+  evaluate(*evaluated, Ee, ge, He, xe, pe);
+  EXPECT_GT(Ee, 0.0) << "pairs within the thickness at the iterate";
+  EXPECT_EQ(Er, E_iterate);
+  EXPECT_EQ(Er, Ee);
+  EXPECT_EQ((gr - ge).lpNorm<Eigen::Infinity>(), 0.0);
+  EXPECT_EQ((Hr - He).lpNorm<Eigen::Infinity>(), 0.0);
+  EXPECT_EQ((xr - xe).lpNorm<Eigen::Infinity>(), 0.0);
+  EXPECT_EQ((pr - pe).lpNorm<Eigen::Infinity>(), 0.0);
+}
+
 // The pair friction's step-start adjoint (Term::add_step_start_adjoint): the x_t-derivative of
 // lambda . grad E(x) + c lambda^T K(x) w at fixed x, where the term began its step at x_t (the slip's start and
 // the lagged normal forces, normals and closest-point weights), against central differences of begin_step's x_t.
