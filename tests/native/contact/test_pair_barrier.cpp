@@ -250,8 +250,8 @@ TEST(PairBarrier, GaussNewtonCurvatureFloorBelowTheFloorMatchesCentralDifference
   for (int trial = 0; trial < 72; ++trial) {
     const PairKind kind = (trial / 6) % 2 ? PairKind::kEdgeEdge : PairKind::kPointTriangle;
     double x[12];
-    // from half the floor down to a few 1e-12 m (a pinched garment fold reached 1e-13 m, docs/lab/garment-speed.md);
-    // the central differences only down to about 1e-9 m (below, the coordinates' round-off is a visible part of d)
+    // from half the floor down to 1e-11 m (a pinched garment fold reached 1e-13 m, docs/lab/garment-speed.md); the
+    // central differences only down to about 1e-8 m (below, the coordinates' round-off is a visible part of d)
     const int decade = trial % 6;
     const double scale = 0.5 * kGaussNewtonDistanceFloor * std::pow(10.0, -decade);
     random_pair(kind, (trial / 12) % 3, rng, dhat, x, scale);
