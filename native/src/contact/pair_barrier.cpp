@@ -198,8 +198,9 @@ void pair_barrier_gauss_newton_derivatives(PairKind kind, int type, const double
   distance_gradient_hessian<12>([&](const auto* y) { return distance2_of(kind, type, y); }, x, d2, g2, H2);
   const double d = std::sqrt(d2);
   if (!(d > 0) || d >= dhat) return;
-  // phi = s (l.r)(w.r), s = m c dhat b''(max(d, floor dhat); dhat), r = grad d = g2 / (2d), Hess d = H2 / (2d) - g2 g2^T / (4 d^3):
-  // dphi = ds (l.r)(w.r) + s ((w.r) Hess d l + (l.r) Hess d w),  ds = c dhat (b''(d) grad m + m b'''(d) r).
+  // phi = s (l.r)(w.r), s = m c dhat b''(max(d, floor dhat); dhat), r = grad d = g2 / (2d),
+  // Hess d = H2 / (2d) - g2 g2^T / (4 d^3): dphi = ds (l.r)(w.r) + s ((w.r) Hess d l + (l.r) Hess d w),
+  // ds = c dhat (b''(d) grad m + m b'''(d) r) (b''' = 0 below the floor).
   using J = Jet<double, 2>;
   // below the floor the curvature is b''(floor dhat; dhat): no d-dependence, its dhat-dependence through both
   const J curvature = d > kGaussNewtonDistanceFloor * dhat
