@@ -1,6 +1,7 @@
 #include "contact/pair_barrier.hpp"
 
 #include <Eigen/Core>
+#include <algorithm>
 #include <cmath>
 #include <limits>
 
@@ -183,7 +184,7 @@ void pair_barrier_gauss_newton(PairKind kind, int type, const double* x, double 
   const double d = std::sqrt(d2.a);
   if (!(d > 0) || d >= dhat) return;
   double b, db, d2b;
-  barrier_derivatives(d, dhat, b, db, d2b);
+  barrier_derivatives(std::max(d, kGaussNewtonDistanceFloor * dhat), dhat, b, db, d2b);
   s = kappa * d2b * pair_mollifier(kind, x, eps);
   for (int i = 0; i < 12; ++i) r[i] = d2.v[i] / (2 * d);
 }
@@ -197,10 +198,14 @@ void pair_barrier_gauss_newton_derivatives(PairKind kind, int type, const double
   distance_gradient_hessian<12>([&](const auto* y) { return distance2_of(kind, type, y); }, x, d2, g2, H2);
   const double d = std::sqrt(d2);
   if (!(d > 0) || d >= dhat) return;
-  // phi = s (l.r)(w.r), s = m c dhat b''(d; dhat), r = grad d = g2 / (2d), Hess d = H2 / (2d) - g2 g2^T / (4 d^3):
-  // dphi = ds (l.r)(w.r) + s ((w.r) Hess d l + (l.r) Hess d w),  ds = c dhat (b''(d) grad m + m b'''(d) r).
+  // phi = s (l.r)(w.r), s = m c dhat b''(max(d, floor dhat); dhat), r = grad d = g2 / (2d),
+  // Hess d = H2 / (2d) - g2 g2^T / (4 d^3): dphi = ds (l.r)(w.r) + s ((w.r) Hess d l + (l.r) Hess d w),
+  // ds = c dhat (b''(d) grad m + m b'''(d) r) (b''' = 0 below the floor).
   using J = Jet<double, 2>;
-  const J curvature = barrier_curvature_in(J(d, 0), J(dhat, 1));
+  // below the floor the curvature is b''(floor dhat; dhat): no d-dependence, its dhat-dependence through both
+  const J curvature = d > kGaussNewtonDistanceFloor * dhat
+                          ? barrier_curvature_in(J(d, 0), J(dhat, 1))
+                          : barrier_curvature_in(kGaussNewtonDistanceFloor * J(dhat, 1), J(dhat, 1));
   double m = 1.0, gm[12] = {0};
   if (kind == PairKind::kEdgeEdge && eps > 0) {
     using M = Jet<double, 12>;

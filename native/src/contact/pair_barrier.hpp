@@ -40,9 +40,20 @@ void pair_barrier_hessian(PairKind kind, int type, const double* x, double dhat,
 void pair_barrier_dhat_derivatives(PairKind kind, int type, const double* x, double dhat, double c, double& dE,
                                    double* dg, double mollifier_eps = 0);
 // The barrier's Gauss-Newton step matrix (the PSD matrix of linearised implicit steps, solver/implicit_euler.hpp):
-//   K = s r r^T,  r = grad d (12),  s = m kappa b''(d) >= 0   (b'' >= 0 on (0, dhat); m the mollifier),
-// dropping kappa b'(d) Hess d and the mollifier's derivatives from the exact Hessian. Fills r and s (r = 0, s = 0
-// beyond dhat).
+//   K = s r r^T,  r = grad d (12),  s = m kappa b''(max(d, d_floor)) >= 0   (b'' >= 0 on (0, dhat); m the
+// mollifier; d_floor = kGaussNewtonDistanceFloor dhat), dropping kappa b'(d) Hess d and the mollifier's
+// derivatives from the exact Hessian. Fills r and s (r = 0, s = 0 beyond dhat).
+// The floor: b'' ~ 1/d^2 grows without bound as a pair closes, and a moving obstacle's carry can pinch a pair
+// by 90 % per advance (each advance is bounded only by CCD), down to 1e-13 m: s ~ 1e18-1e22 N/m beside the
+// inertia M/h^2 ~ 0.3 N/m, a matrix that is PSD but whose Cholesky factorisation fails on round-off (measured on
+// a walking skirt, docs/lab/garment-speed.md). Below d_floor the step matrix keeps the curvature at d_floor: still
+// PSD, with s / (m / h^2) <= g h^2 / (floor^2 dhat) for a pair whose stiffness is its vertices' weight (about 2e4
+// for a garment's 1/96 s steps and 0.56 mm reach); a softer model there, so the move it gives opens the pinched
+// pair by about d_floor^2 / d instead of d, and the body's next advance finds room (the gradient stays exact).
+// Resting layers sit near dhat / 2 (their barrier carries their weight), far above the floor. Measured floors:
+// 1e-4 left the gap cycling below 2e-7 m and a walking skirt's body stuck; 1e-3 and 1e-2 both cleared the pinches,
+// 1e-2 in fewer linear solves (docs/lab/garment-speed.md).
+constexpr double kGaussNewtonDistanceFloor = 1e-2;  // d_floor / dhat
 void pair_barrier_gauss_newton(PairKind kind, int type, const double* x, double dhat, double kappa, double* r,
                                double& s, double mollifier_eps = 0);
 // With kappa = c dhat, for fixed l and w (12 each): phi = l^T K(x, dhat) w; dphi (12) = dphi/dx, dphi_ddhat.

@@ -224,6 +224,11 @@ bool CholmodSolver::factorize(const Eigen::VectorXd& values) {
   return common_.status == CHOLMOD_OK;
 }
 
+int CholmodSolver::failed_dof() const {
+  if (!factor_ || factor_->minor >= factor_->n || perm_.empty()) return -1;
+  return perm_[factor_->minor];
+}
+
 Eigen::VectorXd CholmodSolver::solve_impl(cholmod_factor* factor, const Eigen::VectorXd& b) const {
   const int n = pattern_.size();
   cholmod_dense rhs;

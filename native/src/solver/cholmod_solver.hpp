@@ -31,6 +31,8 @@ class CholmodSolver {
   // Numeric factorisation of the matrix with these values (upper triangle, pattern order).
   // Returns false if the matrix is not positive definite.
   bool factorize(const Eigen::VectorXd& values);
+  // After factorize() returned false: the dof (pattern order) at whose pivot the factorisation stopped, or -1.
+  int failed_dof() const;
   // x = A^-1 b with the current factor.
   Eigen::VectorXd solve(const Eigen::VectorXd& b) const;
 

@@ -35,7 +35,9 @@ void check_not_diverged(const Eigen::VectorXd& v_next, const RolloutOptions& opt
 void factorize_step(CholmodSolver& solver, const Eigen::VectorXd& A, int step) {
   if (!solver.factorize(A)) {
     std::ostringstream s;
-    s << "rollout: step " << step << " matrix is not positive definite (stiffness tables invalid?)";
+    s << "rollout: step " << step << " matrix is not positive definite (";
+    if (solver.failed_dof() >= 0) s << "at vertex " << solver.failed_dof() / 3 << "; ";
+    s << "stiffness tables invalid?)";
     throw SolverError(s.str());
   }
 }

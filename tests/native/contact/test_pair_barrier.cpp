@@ -9,21 +9,22 @@
 #include <cmath>
 #include <random>
 
+#include "contact/barrier.hpp"
 #include "contact/pair_barrier.hpp"
 
 namespace drapelab {
 namespace {
 
-// A random pair of the kind at a distance in (0.3, 0.7) dhat: for point-triangle, the point over the face, beyond
+// A random pair of the kind at a distance in (0.3, 0.7) scale dhat: for point-triangle, the point over the face, beyond
 // an edge or beyond a vertex (variant 0, 1, 2); for edge-edge, crossing edges offset along their common normal.
 void put(double* x, int k, const Eigen::Vector3d& v) {
   for (int a = 0; a < 3; ++a) x[k + a] = v[a];
 }
 
-void random_pair(PairKind kind, int variant, std::mt19937& rng, double dhat, double* x) {
+void random_pair(PairKind kind, int variant, std::mt19937& rng, double dhat, double* x, double scale = 1.0) {
   std::uniform_real_distribution<double> u(-1, 1);
   auto rv = [&] { return Eigen::Vector3d(u(rng), u(rng), u(rng)); };
-  const double target = (0.5 + 0.2 * u(rng)) * dhat;
+  const double target = scale * (0.5 + 0.2 * u(rng)) * dhat;
   if (kind == PairKind::kPointTriangle) {
     const Eigen::Vector3d a = 0.01 * rv(), b = 0.01 * rv(), c = 0.01 * rv();
     const Eigen::Vector3d n = (b - a).cross(c - a).normalized(), g = (a + b + c) / 3;
@@ -225,6 +226,69 @@ TEST(PairBarrier, GaussNewtonMatrixDerivativesMatchCentralDifferences) {
   double r[12], s;
   pair_barrier_gauss_newton(PairKind::kPointTriangle, pair_type(PairKind::kPointTriangle, far), far, 1e-3, 1e-3, r, s);
   EXPECT_EQ(s, 0.0);
+}
+
+// Below the distance floor (pairs pinched to a tiny fraction of dhat) the Gauss-Newton curvature stays at the
+// floor's, s = kappa b''(floor dhat) (finite and independent of d: the step matrix's condition is bounded), and its
+// derivatives in x and dhat (the floor moves with dhat) still match central differences.
+TEST(PairBarrier, GaussNewtonCurvatureFloorBelowTheFloorMatchesCentralDifferences) {
+  std::mt19937 rng(11);
+  std::normal_distribution<double> n01(0, 1);
+  const double dhat = 1e-3, c = 0.7, floor_d = kGaussNewtonDistanceFloor * dhat;
+  double b, db, d2b_floor;
+  barrier_derivatives(floor_d, dhat, b, db, d2b_floor);
+  auto phi = [&](PairKind kind, int type, const double* x, double dh, const double* l, const double* w) {
+    double r[12], s, lr = 0, wr = 0;
+    pair_barrier_gauss_newton(kind, type, x, dh, c * dh, r, s);
+    for (int i = 0; i < 12; ++i) {
+      lr += l[i] * r[i];
+      wr += w[i] * r[i];
+    }
+    return s * lr * wr;
+  };
+  int tested = 0;
+  for (int trial = 0; trial < 72; ++trial) {
+    const PairKind kind = (trial / 6) % 2 ? PairKind::kEdgeEdge : PairKind::kPointTriangle;
+    double x[12];
+    // from half the floor down to 1e-11 m (a pinched garment fold reached 1e-13 m, docs/lab/garment-speed.md); the
+    // central differences only down to about 1e-8 m (below, the coordinates' round-off is a visible part of d)
+    const int decade = trial % 6;
+    const double scale = 0.5 * kGaussNewtonDistanceFloor * std::pow(10.0, -decade);
+    random_pair(kind, (trial / 12) % 3, rng, dhat, x, scale);
+    const int type = pair_type(kind, x);
+    const double d = std::sqrt(pair_distance2(kind, type, x));
+    ASSERT_LT(d, floor_d);
+    double r[12], s;
+    pair_barrier_gauss_newton(kind, type, x, dhat, c * dhat, r, s);
+    EXPECT_NEAR(s, c * dhat * d2b_floor, 1e-12 * c * dhat * d2b_floor) << "trial " << trial;
+    if (decade > 2) continue;
+    double l[12], w[12], dir[12], xp[12], xm[12];
+    for (int i = 0; i < 12; ++i) {
+      l[i] = n01(rng);
+      w[i] = n01(rng);
+      dir[i] = n01(rng);
+    }
+    const double h = 1e-3 * d;  // the distance's derivatives vary on the scale of d
+    for (int i = 0; i < 12; ++i) {
+      xp[i] = x[i] + h * dir[i];
+      xm[i] = x[i] - h * dir[i];
+    }
+    if (pair_type(kind, xp) != type || pair_type(kind, xm) != type) continue;
+    ++tested;
+    double dphi[12], dphi_ddhat, dd = 0;
+    pair_barrier_gauss_newton_derivatives(kind, type, x, dhat, c, l, w, dphi, dphi_ddhat);
+    for (int i = 0; i < 12; ++i) dd += dphi[i] * (xp[i] - xm[i]) / (2 * h);  // the steps as rounded
+    const double fd = (phi(kind, type, xp, dhat, l, w) - phi(kind, type, xm, dhat, l, w)) / (2 * h);
+    const double scale_x = std::abs(phi(kind, type, x, dhat, l, w)) / d;
+    // 1e-4: the truncation (h / d)^2 of a distance whose curvature is 1 / d, and the coordinates' round-off (d is
+    // a difference of coordinates 1e8 times larger)
+    EXPECT_NEAR(dd, fd, 1e-4 * std::max(std::abs(fd), scale_x)) << "x, trial " << trial;
+    const double hd = 1e-9 * dhat;
+    const double fdh = (phi(kind, type, x, dhat + hd, l, w) - phi(kind, type, x, dhat - hd, l, w)) / (2 * hd);
+    EXPECT_NEAR(dphi_ddhat, fdh, 1e-6 * std::abs(fdh)) << "dhat, trial " << trial;
+    EXPECT_NE(dphi_ddhat, 0.0);
+  }
+  EXPECT_GT(tested, 20);
 }
 
 TEST(PairBarrier, ZeroBeyondActivationInfiniteAtContact) {

@@ -5,12 +5,15 @@
 // a state that starts intersecting is refused naming the triangles.
 #include <gtest/gtest.h>
 
+#include <Eigen/Geometry>
+
 #include <array>
 #include <random>
 #include <utility>
 
 #include "../test_support.hpp"
 #include "contact/diagnostics.hpp"
+#include "contact/pair_barrier.hpp"
 #include "contact/pair_contact.hpp"
 #include "contact_support.hpp"
 #include "physics/sparse_pattern.hpp"
@@ -118,6 +121,49 @@ Eigen::VectorXd throw_sheet(const Model& model, int first_upper, int steps, Impl
   ro.record = false;
   const Eigen::VectorXd x0 = model.rest_positions();
   return sim.forward(p, ro, nullptr, &x0, &v0);
+}
+
+// A pair pinched to 1e-13 m, as a walking skirt's fold squeezed by the body's carry (docs/lab/garment-speed.md),
+// beside the inertia of a light fabric at a garment's step (1/96 s): the linearised step's assembled matrix
+// M/h^2 + sum of the terms' step matrices (the pairs' diagonal blocks) is PSD in exact arithmetic, but the pair's
+// Gauss-Newton curvature kappa b''(d) ~ kappa / d^2 reaches 1e18 N/m and more there (the skirt: up to 1e22)
+// against M/h^2 below 1 N/m, and CHOLMOD failed on round-off (this test did, without the floor). With the
+// curvature floor (contact/pair_barrier.hpp) it factorises and solves accurately.
+// The sheets are rotated so that the pair's normal lies along no coordinate axis (an axis-aligned rank-one block
+// is eliminated without cancellation).
+TEST(SelfContact, PinchedPairStepMatrixFactorises) {
+  TriangleMesh mesh = stacked_sheets(6, 0.05, 6e-4);
+  const Eigen::Matrix3d R = Eigen::AngleAxisd(0.7, Eigen::Vector3d(1, 2, 3).normalized()).toRotationMatrix();
+  mesh.positions = (mesh.positions * R.transpose()).eval();
+  Model model(mesh, self_contact_options(1e-3));
+  const Eigen::VectorXd p = model.default_parameters();
+  Eigen::VectorXd x = model.rest_positions();
+  // upper vertex (2, 2) pinched onto the lower face under it: 1e-13 m along the sheets' normal
+  const int pinched = 36 + 2 * 6 + 2, below = 2 * 6 + 2;
+  const Eigen::Vector3d offset(0.003, 0.001, 1e-13);
+  x.segment<3>(3 * pinched) = x.segment<3>(3 * below) + R * offset;
+  const auto& term = dynamic_cast<const PairContactTerm&>(term_named(model, "self_contact"));
+  double dmin = 1;
+  for (const auto& q : term.active_pairs(x, 1e-3)) {
+    double x12[12];
+    for (int k = 0; k < 4; ++k)
+      for (int a = 0; a < 3; ++a) x12[3 * k + a] = x[3 * q.v[k] + a];
+    dmin = std::min(dmin, std::sqrt(pair_distance2(q.kind, q.type, x12)));
+  }
+  ASSERT_LT(dmin, 1e-12);
+  ASSERT_GT(dmin, 0.0);
+  const SparsePattern& pat = model.pattern();
+  const double h = 1.0 / 96, inv_h2 = 1 / (h * h);
+  Eigen::VectorXd A = Eigen::VectorXd::Zero(pat.nnz());
+  for (const auto& t : model.terms()) t->add_step_matrix(x, p, 1.0, A);
+  const Eigen::VectorXd m = model.masses(p);
+  for (int i = 0; i < model.num_vertices(); ++i)
+    for (int k = 0; k < 3; ++k) A[pat.diagonal(3 * i + k)] += inv_h2 * m[i];
+  CholmodSolver solver(pat);
+  ASSERT_TRUE(solver.factorize(A));
+  const Eigen::VectorXd b = testing::random_vector(model.num_dofs(), 3);
+  const Eigen::VectorXd y = solver.solve(b);
+  EXPECT_LT((symmetric_multiply(pat, A, y) - b).norm(), 1e-6 * b.norm());
 }
 
 TEST(SelfContact, ThrownSheetStaysIntersectionFreeAndFallsThroughWithout) {
