@@ -9,6 +9,7 @@
 
 #include "contact/barrier.hpp"
 #include "contact/disk_edge.hpp"
+#include "contact/pair_barrier.hpp"
 #include "physics/sparse_pattern.hpp"
 #include "util/error.hpp"
 #include "util/psd_projection.hpp"
@@ -186,11 +187,16 @@ double RevolvedBodyContact::vertex_terms(int i, const Eigen::Vector3d& q, Eigen:
     if (!(c > 0)) return std::numeric_limits<double>::infinity();
     double b, db, d2b;
     barrier_derivatives(c, dhat_, b, db, d2b);
+    if (kind == 3 && c < kGaussNewtonDistanceFloor * dhat_) {  // the step matrix's curvature cap (header)
+      double b_floor, db_floor;
+      barrier_derivatives(kGaussNewtonDistanceFloor * dhat_, dhat_, b_floor, db_floor, d2b);
+    }
     E += kappa_[i] * b;
     if (g) *g += kappa_[i] * db * dg;
     if (H) {
       Eigen::Matrix3d h = kappa_[i] * d2b * dg * dg.transpose();
-      if (kind != 1) h += kappa_[i] * db * dH;  // kind 1: Gauss-Newton (the dropped part is NSD on convex parts)
+      // kinds 1 and 3: Gauss-Newton (the dropped part is NSD on convex parts)
+      if (kind != 1 && kind != 3) h += kappa_[i] * db * dH;
       if (kind == 2) project_psd<3>(h.data());
       *H += h;
     }
@@ -245,14 +251,14 @@ void RevolvedBodyContact::add_step_matrix(const Eigen::VectorXd& x, const Eigen:
                                           Eigen::VectorXd& values) const {
   Eigen::Matrix3d h;
   for (int i = 0; i < kappa_.size(); ++i) {
-    vertex_terms(i, x.segment<3>(3 * i), nullptr, &h, 1);
+    vertex_terms(i, x.segment<3>(3 * i), nullptr, &h, 3);
     scatter(diag_, i, h, scale, values);
   }
   // The edges' step matrix is their exact Hessian projected onto the PSD cone, not Gauss-Newton: an edge's
   // clearance is a minimum over the segment, and b' times its curvature (-g_xt g_tt^-1 g_tx from the moving
   // minimiser) is what resists sliding a chord across a convex part (measured: with Gauss-Newton alone, 2k wool
   // walking, a 3 cm chord of the hip was pushed 1 nm from it over 50 Newton iterations, the residual growing).
-  edge_terms(x, nullptr, 2, scale, &values, nullptr, nullptr);
+  edge_terms(x, nullptr, 3, scale, &values, nullptr, nullptr);
 }
 
 void RevolvedBodyContact::add_hessian(const Eigen::VectorXd& x, const Eigen::VectorXd&, double scale,
@@ -485,7 +491,13 @@ bool RevolvedBodyContact::edge_part_terms(int e, int k, const std::vector<Eigen:
     for (int i = 0; i < 6; ++i) g[i] = Ej.a.v[i];
   for (int i = 0; i < 6; ++i)
     for (int j = 0; j < 6; ++j) H[6 * i + j] = 0.5 * (Ej.v[i].v[j] + Ej.v[j].v[i]);
-  if (kind == 2) project_psd<6>(H);
+  if (kind >= 2) project_psd<6>(H);
+  if (kind == 3 && m.clearance < kGaussNewtonDistanceFloor * dhat_) {  // the step matrix's curvature cap (header)
+    double b0, db0, d2b0, b1, db1, d2b1;
+    barrier_derivatives(m.clearance, dhat_, b0, db0, d2b0);
+    barrier_derivatives(kGaussNewtonDistanceFloor * dhat_, dhat_, b1, db1, d2b1);
+    for (int i = 0; i < 36; ++i) H[i] *= d2b1 / d2b0;  // a positive factor below 1: still PSD
+  }
   return true;
 }
 

@@ -28,6 +28,10 @@
 // barrier continuously, nothing counted twice; cut between two vertices (d_ek -> 0, both dips > 0) E -> infinity.
 // The edges' step matrix is their projected exact Hessian (b' times the minimum's curvature is what resists
 // sliding a chord across a convex part; Gauss-Newton alone let Newton push hip chords to 1 nm).
+// Step matrix cap (add_step_matrix only; energy, forces and the Hessians are exact): below kGaussNewtonDistanceFloor
+// of the reach (contact/pair_barrier.hpp, as self contact) a vertex's Gauss-Newton curvature is b'' at the floor and
+// an edge's projected Hessian is scaled by b''(floor) / b''(d): a contact pinched to 1e-13 m otherwise puts
+// 1e19 N/m beside an inertia of 0.3 N/m and CHOLMOD fails on round-off (docs/lab/garment-speed.md).
 // max_step and obstacle_max_advance bound every edge as every vertex (conservative advancement on d_ek; an
 // edge's points move by convex combinations of its ends' moves, so its ends' speed bounds bound it). Edges out
 // of reach are skipped on a bounding box test before any segment search.
@@ -115,12 +119,14 @@ class RevolvedBodyContact : public Term {
   static RigidPose interpolate(const RigidPose& a, const RigidPose& b, double t);
 
  private:
-  // Per vertex: E_i = sum_k kappa_i b(g_ik); value, gradient and (exact or Gauss-Newton) Hessian.
+  // Per vertex: E_i = sum_k kappa_i b(g_ik); value, gradient and Hessian of kind 0 exact, 1 Gauss-Newton,
+  // 2 projected, 3 the step matrix (Gauss-Newton with the curvature cap).
   double vertex_terms(int i, const Eigen::Vector3d& q, Eigen::Vector3d* g, Eigen::Matrix3d* H, int kind) const;
   // Per part: every vertex in the part's rest frame at its current pose (3V).
   std::vector<Eigen::VectorXd> local_positions(const Eigen::VectorXd& x) const;
   // Edge e against part k (local: local_positions): energy, and gradient / 6x6 Hessian (row-major) of kind 0
-  // exact, 2 projected onto the PSD cone (also the step matrix); false when out of reach (nothing written).
+  // exact, 2 projected onto the PSD cone, 3 the step matrix (projected, with the curvature cap); false when out of
+  // reach (nothing written).
   bool edge_part_terms(int e, int k, const std::vector<Eigen::VectorXd>& local, double* E, double* g, double* H,
                        int kind) const;
   // sum over edges and parts; out: gradient (3V) / Hessian values (pattern) / Hessian product, as requested.

@@ -10,6 +10,8 @@
 #include <cmath>
 #include <random>
 
+#include "contact/barrier.hpp"
+#include "contact/pair_barrier.hpp"
 #include "garment/revolved_body.hpp"
 #include "physics/model.hpp"
 #include "physics/sparse_pattern.hpp"
@@ -345,6 +347,55 @@ TEST(RevolvedBodyEdges, CoarseStripDroppedOnABarHangsOnItsEdges) {
   std::printf("strip dropped on a bar, 0.5 s: vertices only: lowest vertex z %.3f m, deepest edge point %.1f mm inside; "
               "with edges: lowest vertex z %.3f m, least edge clearance %.3f mm\n",
               lowest_vertices_only, -worst_vertices_only * 1e3, lowest, worst * 1e3);
+}
+
+}  // namespace
+}  // namespace drapelab
+
+namespace drapelab {
+namespace {
+
+// The step matrix's curvature cap (garment/revolved_body.hpp): a vertex pinched to 1e-13 m gets the Gauss-Newton
+// block of the floor's curvature, one above the floor its own; an edge pinched at its middle gets a step matrix of
+// the size it has at the floor (uncapped it would be ~1e16 times larger and CHOLMOD fails on round-off).
+TEST(RevolvedBodyEdges, StepMatrixCurvatureIsCappedForPinchedContacts) {
+  const double floor = kGaussNewtonDistanceFloor * kReach;
+  const Eigen::VectorXd p;
+  for (const double gap : {1e-13, 3.0 * floor}) {
+    RevolvedBodyContact body({leg(0.0)}, Eigen::VectorXd::Constant(1, 1e-4), kReach);
+    const SparsePattern pattern(1, body.stencils());
+    body.bind_pattern(pattern);
+    Eigen::VectorXd x(3);
+    x << 0.06 + gap, 0.0, 0.7;
+    Eigen::VectorXd values = Eigen::VectorXd::Zero(pattern.nnz());
+    body.add_step_matrix(x, p, 1.0, values);
+    Eigen::Vector3d grad;
+    const double c = body.part_clearance(0, x, &grad);
+    ASSERT_NEAR(c, gap, 1e-15);
+    double b, db, d2b;
+    barrier_derivatives(std::max(c, floor), kReach, b, db, d2b);
+    const Eigen::Matrix3d expected = 1e-4 * d2b * grad * grad.transpose();
+    EXPECT_LT((dense(pattern, values) - expected).norm(), 1e-12 * expected.norm()) << gap;
+  }
+  // a 2 cm chord across the leg, its middle `gap` off the surface (its ends sqrt(0.06^2 + 0.01^2) - 0.06 = 0.83 mm
+  // off: in the vertices' reach, not pinched)
+  double largest[2];
+  int k = 0;
+  for (const double gap : {1e-13, floor}) {
+    RevolvedBodyContact body({leg(0.0)}, Eigen::VectorXd::Constant(2, 1e-4), kReach, {{0, 1}});
+    const SparsePattern pattern(2, body.stencils());
+    body.bind_pattern(pattern);
+    Eigen::VectorXd x(6);
+    x << 0.06 + gap, -0.01, 0.7, 0.06 + gap, 0.01, 0.7;
+    ASSERT_NEAR(body.edge_clearance(x)[0], gap, 1e-15);
+    Eigen::VectorXd values = Eigen::VectorXd::Zero(pattern.nnz());
+    body.add_step_matrix(x, p, 1.0, values);
+    const Eigen::MatrixXd K = dense(pattern, values);
+    EXPECT_GT(Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd>(K).eigenvalues().minCoeff(), -1e-12 * K.norm());
+    largest[k++] = K.cwiseAbs().maxCoeff();
+  }
+  EXPECT_LT(largest[0], 2.0 * largest[1]) << "pinched " << largest[0] << " against " << largest[1] << " at the floor";
+  EXPECT_GT(largest[0], 0.5 * largest[1]);
 }
 
 }  // namespace
