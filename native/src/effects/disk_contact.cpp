@@ -276,6 +276,11 @@ class DiskEdgeBarrierTerm : public ElementTerm<DiskEdgeBarrierTerm, 2, 1, 2> {
   T element_energy(int e, const T* x, const T* p) const {
     SegmentDiskMinimum m;
     if (!active(x, p[0], m)) return T(0.0);
+    return energy_at(e, x, p, m);
+  }
+  // The energy of an active edge (active() true) with its minimum m, found once by the caller.
+  template <class T>
+  T energy_at(int e, const T* x, const T* p, const SegmentDiskMinimum& m) const {
     if (!(m.distance > 0)) return T(std::numeric_limits<double>::infinity());
     T t;
     const T d = segment_support_disk_distance(setup_->disk, x, x + 3, p[0], m.t, t);
@@ -302,7 +307,13 @@ class DiskEdgeBarrierTerm : public ElementTerm<DiskEdgeBarrierTerm, 2, 1, 2> {
     SegmentDiskMinimum m;
     for (int k = 0; k < 2; ++k) r[k] = T(0.0);
     for (int k = 0; k < 4; ++k) S[k] = T(0.0);
-    if (!active(x, p[0], m) || !(m.distance > 0)) return;
+    if (!active(x, p[0], m)) return;
+    gauss_newton_at(e, x, p, m, r, S);
+  }
+  // element_gauss_newton of an active edge with its minimum m, r and S zero on entry.
+  template <class T>
+  void gauss_newton_at(int e, const T* x, const T* p, const SegmentDiskMinimum& m, T* r, T* S) const {
+    if (!(m.distance > 0)) return;
     T t, ftt;
     const T d = segment_support_disk_distance(setup_->disk, x, x + 3, p[0], m.t, t, &ftt);
     r[0] = d;
@@ -331,8 +342,10 @@ class DiskEdgeBarrierTerm : public ElementTerm<DiskEdgeBarrierTerm, 2, 1, 2> {
                         Eigen::VectorXd& gp) const override;
   bool add_step_system(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& v, double scale,
                        Eigen::VectorXd& values, Eigen::VectorXd& Kv, Eigen::VectorXd& g) const override;
-  // Indices of the edges whose energy is not identically zero near x (active() on the values).
-  std::vector<int> active_edges(const Eigen::VectorXd& x, const Eigen::VectorXd& p) const {
+  // Indices of the edges whose energy is not identically zero near x (active() on the values), and (if minima is
+  // given) their minima.
+  std::vector<int> active_edges(const Eigen::VectorXd& x, const Eigen::VectorXd& p,
+                                std::vector<SegmentDiskMinimum>* minima = nullptr) const {
     std::vector<int> ids;
     const double rim = p[rim_];
     SegmentDiskMinimum m;
@@ -343,7 +356,10 @@ class DiskEdgeBarrierTerm : public ElementTerm<DiskEdgeBarrierTerm, 2, 1, 2> {
         xe[k] = x[3 * v[0] + k];
         xe[3 + k] = x[3 * v[1] + k];
       }
-      if (active(xe, rim, m)) ids.push_back(static_cast<int>(e));
+      if (active(xe, rim, m)) {
+        ids.push_back(static_cast<int>(e));
+        if (minima) minima->push_back(m);
+      }
     }
     return ids;
   }
@@ -464,11 +480,104 @@ bool DiskBarrierTerm::add_step_system(const Eigen::VectorXd& x, const Eigen::Vec
   return near.add_step_matrix_product(x, p, v, scale, Kv);
 }
 
+// Term::add_step_adjoint's four products (and the rim radius part of the step matrix's derivative) in one pass over
+// the active edges: each edge's minimiser is found once (by active_edges) and its functions are evaluated twice,
+// the energy with jets over (x, rim) around a direction lambda (Hess E lambda and d(lambda . grad E)/drim) and
+// the Gauss-Newton residuals and weight with jets over (x, rim) around the directions (lambda, w)
+// (d(lambda^T K w)/d(x, rim), and K lambda from their first derivatives), instead of five passes (six
+// minimisers) through ElementTerm's loops. Each jet component is computed by the same operations as in those
+// loops, and the sums are accumulated in their order, so the result is theirs bit for bit
+// (tests/native/contact/test_disk_edge.cpp).
 bool DiskEdgeBarrierTerm::add_step_adjoint(const Eigen::VectorXd& x, const Eigen::VectorXd& p,
                                            const Eigen::VectorXd& lambda, const Eigen::VectorXd& w, double h,
                                            Eigen::VectorXd& gx, Eigen::VectorXd& gv, Eigen::VectorXd& gp) const {
-  const NearDiskEdges near(*this, active_edges(x, p), rim_);
-  return near.Term::add_step_adjoint(x, p, lambda, w, h, gx, gv, gp);
+  std::vector<SegmentDiskMinimum> minima;
+  const std::vector<int> ids = active_edges(x, p, &minima);
+  const int ne = static_cast<int>(ids.size());
+  constexpr int M = 2;      // residuals
+  constexpr int R = D;      // the rim radius's jet component (after the D position components)
+  using E1 = Jet<double, 1>;
+  using E2 = Jet<E1, D + 1>;
+  using K1 = Jet<double, 2>;
+  using K2 = Jet<K1, D + 1>;
+  Eigen::VectorXd Hl = Eigen::VectorXd::Zero(x.size());
+  std::vector<double> gxe(static_cast<size_t>(ne) * D), gp_energy(ne);
+  const double c = -h * h;  // the scale of the step matrix's products
+  E2 xe[D], pe[1];
+  K2 xk[D], pk[1], r[M], S[M * M];
+  for (int k = 0; k < ne; ++k) {
+    const int e = ids[k];
+    const auto& v = setup_->edges[e];
+    for (int i = 0; i < D; ++i) {
+      const int dof = 3 * v[i / 3] + i % 3;
+      E1 inner(x[dof]);
+      inner.v[0] = lambda[dof];
+      xe[i] = E2(inner);
+      xe[i].v[i] = E1(1.0);
+      K1 inner2(x[dof]);
+      inner2.v[0] = lambda[dof];
+      inner2.v[1] = w[dof];
+      xk[i] = K2(inner2);
+      xk[i].v[i] = K1(1.0);
+    }
+    pe[0] = E2(p[rim_]);
+    pe[0].v[R] = E1(1.0);
+    pk[0] = K2(p[rim_]);
+    pk[0].v[R] = K1(1.0);
+    // Hess E lambda, d(lambda . grad E)/drim
+    const E2 E = energy_at<E2>(e, xe, pe, minima[k]);
+    for (int i = 0; i < D; ++i) Hl[3 * v[i / 3] + i % 3] += 1.0 * E.v[i].v[0];
+    gp_energy[k] = E.v[R].v[0];
+    // d(lambda^T K w)/dx as ElementTerm::add_step_matrix_derivatives, d/drim as add_rim_step_matrix_derivative
+    for (int a = 0; a < M; ++a) r[a] = K2(0.0);
+    for (int a = 0; a < M * M; ++a) S[a] = K2(0.0);
+    gauss_newton_at<K2>(e, xk, pk, minima[k], r, S);
+    double Jl[M], Jw[M];
+    for (int a = 0; a < M; ++a) {
+      Jl[a] = r[a].a.v[0];
+      Jw[a] = r[a].a.v[1];
+    }
+    for (int j = 0; j < D; ++j) {
+      double s = 0;
+      for (int a = 0; a < M; ++a)
+        for (int b = 0; b < M; ++b) {
+          const double Sab = S[a * M + b].a.a;
+          s += r[a].v[j].v[0] * Sab * Jw[b] + Jl[a] * S[a * M + b].v[j].a * Jw[b] + Jl[a] * Sab * r[b].v[j].v[1];
+        }
+      gxe[static_cast<size_t>(k) * D + j] = s;
+    }
+    double sum = 0;
+    for (int a = 0; a < M; ++a)
+      for (int b = 0; b < M; ++b) {
+        const double Sab = S[a * M + b].a.a;
+        sum += S[a * M + b].v[R].a * Jl[a] * Jw[b] + Sab * (r[a].v[R].v[0] * Jw[b] + Jl[a] * r[b].v[R].v[1]);
+      }
+    gp[rim_] += c * sum;
+    // K lambda = J_r^T S (J_r lambda), J_r from the residuals' first derivatives
+    double Jd[M], SJd[M];
+    for (int a = 0; a < M; ++a) {
+      double s = 0;
+      for (int j = 0; j < D; ++j) s += r[a].v[j].a * lambda[3 * v[j / 3] + j % 3];
+      Jd[a] = s;
+    }
+    for (int a = 0; a < M; ++a) {
+      double s = 0;
+      for (int b = 0; b < M; ++b) s += S[a * M + b].a.a * Jd[b];
+      SJd[a] = s;
+    }
+    for (int i = 0; i < D; ++i) {
+      double s = 0;
+      for (int a = 0; a < M; ++a) s += r[a].v[i].a * SJd[a];
+      gv[3 * v[i / 3] + i % 3] += c * s;
+    }
+  }
+  gx -= h * Hl;
+  for (int k = 0; k < ne; ++k) {
+    const auto& v = setup_->edges[ids[k]];
+    for (int i = 0; i < D; ++i) gx[3 * v[i / 3] + i % 3] += c * gxe[static_cast<size_t>(k) * D + i];
+  }
+  for (int k = 0; k < ne; ++k) gp[rim_] += -h * gp_energy[k];
+  return true;
 }
 
 bool DiskEdgeBarrierTerm::add_step_system(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& v,

@@ -606,6 +606,45 @@ TEST(DiskEdge, ActiveEdgeAndVertexPassesEqualTheFullLoops) {
   expect_active_passes_equal_full_loops(model, *vertex_term, y, p, rim_index);
 }
 
+// The edge term's fused adjoint (disk_contact.cpp DiskEdgeBarrierTerm::add_step_adjoint: one pass over the active
+// edges, each edge's minimiser found once) against Term's generic composition of the four products, bit for bit, on
+// several random states of circle1 wrapped over the rim (edges within reach, at various dips and clearances) and
+// at several rim radii (the rim part of gp); also on a state with no edge active (everything zero).
+TEST(DiskEdge, FusedEdgeAdjointEqualsTheGenericProductsOnRandomStates) {
+  ModelOptions o;
+  o.effects["disk_contact"] = {{"clamp_radius_m", 0.02}};
+  const Model model(load_cusick_template(1, testing::template_dir()), o);
+  const int rim_index = model.layout().block("disk_contact.rim_radius_m").offset;
+  const double top = model.rest_positions()[2] - 5e-4;
+  const Term* edge_term = find_term(model, "disk_edge_contact");
+  ASSERT_NE(edge_term, nullptr);
+  int states = 0;
+  for (const double rim : {0.0015, 0.002, 0.003}) {
+    Eigen::VectorXd p = model.default_parameters();
+    p[rim_index] = rim;
+    const Eigen::VectorXd wrapped = wrapped_within_reach(model, rim, top);
+    ASSERT_GT(wrapped.size(), 0) << "no gap puts the chords within reach (rim " << rim << ")";
+    for (const unsigned seed : {1u, 2u, 3u}) {
+      std::mt19937 g(seed);
+      std::uniform_real_distribution<double> u(-1.0, 1.0);
+      Eigen::VectorXd x = wrapped;
+      const double jitter = 1e-5 * seed;
+      for (int i = 0; i < x.size(); ++i) x[i] += jitter * u(g);
+      if (!std::isfinite(edge_term->energy(x, p))) continue;  // a jitter that cut the rim: not a state
+      expect_active_passes_equal_full_loops(model, *edge_term, x, p, rim_index);
+      ++states;
+    }
+  }
+  EXPECT_GE(states, 6);
+  // nothing within reach: the rest state (the flat cloth 0.5 mm above the disk)
+  const Eigen::VectorXd p = model.default_parameters(), x = model.rest_positions();
+  const int n = static_cast<int>(x.size());
+  Eigen::VectorXd gx = Eigen::VectorXd::Zero(n), gv = Eigen::VectorXd::Zero(n), gp = Eigen::VectorXd::Zero(p.size());
+  ASSERT_TRUE(edge_term->add_step_adjoint(x, p, testing::random_vector(n, 1), testing::random_vector(n, 2), 0.05, gx,
+                                          gv, gp));
+  EXPECT_EQ(gx.norm() + gv.norm() + gp.norm(), 0.0);
+}
+
 // The disk friction's adjoint, start adjoint and step system visit only the vertices with a lagged normal force
 // (disk_contact.cpp FrictionVertices): on a state with some vertices within the barrier's reach (and many not),
 // they equal the full loops bit for bit.
