@@ -730,7 +730,7 @@ class DiskFrictionTerm : public ElementTerm<DiskFrictionTerm, 1, 1, 3> {
     using std::sqrt;
     return p[0] * normal_force_[e] * friction_f0(sqrt(u2), eps_u_);
   }
-  // r = P (x - x_t); S = mu lambda [f1(u)/u (I - r r^T/u^2) + f1'(u) r r^T/u^2], PSD since f1 >= 0, f1' >= 0.
+  // r = P (x - x_t); S = mu lambda friction_curvature(r) (contact/barrier.hpp: PSD since f1 >= 0, f1' >= 0).
   template <class T>
   void element_gauss_newton(int e, const T* x, const T* p, T* r, T* S) const {
     for (int a = 0; a < 3; ++a) {
@@ -740,26 +740,8 @@ class DiskFrictionTerm : public ElementTerm<DiskFrictionTerm, 1, 1, 3> {
     for (int k = 0; k < 9; ++k) S[k] = T(0.0);
     if (normal_force_[e] == 0) return;
     const T scale = p[0] * normal_force_[e];
-    const T u2 = r[0] * r[0] + r[1] * r[1] + r[2] * r[2];
-    using std::sqrt;
-    if (value_of(u2) < 1e-20 * eps_u_ * eps_u_) {
-      for (int a = 0; a < 3; ++a) S[4 * a] = scale * (2.0 / eps_u_);
-      return;
-    }
-    const T u = sqrt(u2);
-    T f1_over_u, df1;
-    if (value_of(u) >= eps_u_) {
-      f1_over_u = 1.0 / u;
-      df1 = T(0.0);
-    } else {
-      f1_over_u = -u / (eps_u_ * eps_u_) + 2.0 / eps_u_;
-      df1 = -2.0 * u / (eps_u_ * eps_u_) + 2.0 / eps_u_;
-    }
-    for (int a = 0; a < 3; ++a)
-      for (int b = 0; b < 3; ++b) {
-        const T rr = r[a] * r[b] / u2;
-        S[3 * a + b] = scale * (f1_over_u * ((a == b ? 1.0 : 0.0) - rr) + df1 * rr);
-      }
+    friction_curvature(r, eps_u_, S);
+    for (int k = 0; k < 9; ++k) S[k] = scale * S[k];
   }
 
  private:
