@@ -521,26 +521,48 @@ TEST(SelfContact, SweptCandidatesGiveTheActivePairsAlongTheMove) {
   EXPECT_GT(active_at_end, 20u) << "the layers end within the thickness";
 }
 
+// Two identical models of two stacked sheets 0.4 mm apart with self contact and friction 0.3 (one to restore a
+// state into, its twin to compute it afresh); xt: the jittered start.
+struct TwinStackedSheets {
+  TriangleMesh mesh = stacked_sheets(5, 0.04, 2e-3);
+  ModelOptions o = options();
+  Model model{mesh, o}, other{mesh, o};
+  Eigen::VectorXd p = parameters(model);
+  PairContactTerm *term = pair_term(model), *twin = pair_term(other);
+  int n = model.num_dofs();
+  Eigen::VectorXd xt = start(model);
+
+  static ModelOptions options() {
+    ModelOptions o = self_contact_options(1e-3);
+    o.effects["self_contact"]["friction"] = 0.3;
+    return o;
+  }
+  static Eigen::VectorXd parameters(const Model& m) {
+    Eigen::VectorXd p = m.default_parameters();
+    p[m.layout().block("self_contact.friction").offset] = 0.3;
+    return p;
+  }
+  static PairContactTerm* pair_term(const Model& m) {
+    for (const auto& t : m.terms())
+      if (t->name() == "self_contact") return dynamic_cast<PairContactTerm*>(t.get());
+    throw std::runtime_error("no self_contact term");
+  }
+  static Eigen::VectorXd start(const Model& m) {
+    Eigen::VectorXd xt = jittered_start(m);
+    for (int i = m.num_vertices() / 2; i < m.num_vertices(); ++i) xt[3 * i + 2] -= 1.6e-3;  // 0.4 mm apart
+    return xt;
+  }
+};
+
 // The state a step began with (SteppedContact::step_state: lagged friction pairs, active pairs and candidates at
 // its start), restored after other steps, gives the energy, gradient and friction start adjoint of a term that
 // began that step itself, bit for bit (the adjoint restores it instead of a broad phase; continue_step is
 // begin_step without the intersection check).
 TEST(SelfContact, RestoredStepStateMatchesABegunStep) {
-  const TriangleMesh mesh = stacked_sheets(5, 0.04, 2e-3);
-  ModelOptions o = self_contact_options(1e-3);
-  o.effects["self_contact"]["friction"] = 0.3;
-  Model model(mesh, o), other(mesh, o);
-  Eigen::VectorXd p = model.default_parameters();
-  p[model.layout().block("self_contact.friction").offset] = 0.3;
-  auto pair_term = [](const Model& m) {
-    for (const auto& t : m.terms())
-      if (t->name() == "self_contact") return dynamic_cast<PairContactTerm*>(t.get());
-    throw std::runtime_error("no self_contact term");
-  };
-  PairContactTerm *term = pair_term(model), *begun = pair_term(other);
-  const int n = model.num_dofs();
-  Eigen::VectorXd xt = jittered_start(model);
-  for (int i = model.num_vertices() / 2; i < model.num_vertices(); ++i) xt[3 * i + 2] -= 1.6e-3;  // 0.4 mm apart
+  TwinStackedSheets sheets;
+  PairContactTerm *term = sheets.term, *begun = sheets.twin;
+  const int n = sheets.n;
+  const Eigen::VectorXd &xt = sheets.xt, &p = sheets.p;
   const Eigen::VectorXd x = xt + 1e-5 * testing::random_vector(n, 3), lambda = testing::random_vector(n, 4);
   const double h = 0.02;
   term->begin_step(xt, p, h);
@@ -570,21 +592,10 @@ TEST(SelfContact, RestoredStepStateMatchesABegunStep) {
 // that evaluated it itself, bit for bit (the adjoint restores them instead of a broad phase at each iterate
 // after a cut move); a state is taken only for the iterate the term last evaluated.
 TEST(SelfContact, RestoredIterateStateMatchesAnEvaluatedIterate) {
-  const TriangleMesh mesh = stacked_sheets(5, 0.04, 2e-3);
-  ModelOptions o = self_contact_options(1e-3);
-  o.effects["self_contact"]["friction"] = 0.3;
-  Model model(mesh, o), other(mesh, o);
-  Eigen::VectorXd p = model.default_parameters();
-  p[model.layout().block("self_contact.friction").offset] = 0.3;
-  auto pair_term = [](const Model& m) {
-    for (const auto& t : m.terms())
-      if (t->name() == "self_contact") return dynamic_cast<PairContactTerm*>(t.get());
-    throw std::runtime_error("no self_contact term");
-  };
-  PairContactTerm *term = pair_term(model), *evaluated = pair_term(other);
-  const int n = model.num_dofs();
-  Eigen::VectorXd xt = jittered_start(model);
-  for (int i = model.num_vertices() / 2; i < model.num_vertices(); ++i) xt[3 * i + 2] -= 1.6e-3;  // 0.4 mm apart
+  TwinStackedSheets sheets;
+  PairContactTerm *term = sheets.term, *evaluated = sheets.twin;
+  const int n = sheets.n;
+  const Eigen::VectorXd &xt = sheets.xt, &p = sheets.p;
   const Eigen::VectorXd x = xt + 1e-5 * testing::random_vector(n, 3), lambda = testing::random_vector(n, 4),
                         w = testing::random_vector(n, 5);
   const Eigen::VectorXd elsewhere = xt + 3e-4 * testing::random_vector(n, 6);
