@@ -533,19 +533,7 @@ bool DiskEdgeBarrierTerm::add_step_adjoint(const Eigen::VectorXd& x, const Eigen
     for (int a = 0; a < M * M; ++a) S[a] = K2(0.0);
     gauss_newton_at<K2>(e, xk, pk, minima[k], r, S);
     double Jl[M], Jw[M];
-    for (int a = 0; a < M; ++a) {
-      Jl[a] = r[a].a.v[0];
-      Jw[a] = r[a].a.v[1];
-    }
-    for (int j = 0; j < D; ++j) {
-      double s = 0;
-      for (int a = 0; a < M; ++a)
-        for (int b = 0; b < M; ++b) {
-          const double Sab = S[a * M + b].a.a;
-          s += r[a].v[j].v[0] * Sab * Jw[b] + Jl[a] * S[a * M + b].v[j].a * Jw[b] + Jl[a] * Sab * r[b].v[j].v[1];
-        }
-      gxe[static_cast<size_t>(k) * D + j] = s;
-    }
+    contract_step_matrix_derivative<M, D>(r, S, &gxe[static_cast<size_t>(k) * D], Jl, Jw);
     double sum = 0;
     for (int a = 0; a < M; ++a)
       for (int b = 0; b < M; ++b) {

@@ -32,6 +32,26 @@ template <class T>
 struct has_parameter_indices<T, std::void_t<decltype(std::declval<const T&>().parameter_indices(0))>>
     : std::true_type {};
 
+// d(lambda^T K w)/dx_j, j < D, of an element's K = J_r^T S J_r from its M residuals r and weights S evaluated on
+// nested jets: outer derivatives in the element's D coordinates, inner ones along lambda (0) and w (1). Also gives
+// J_r lambda and J_r w (Jl, Jw).
+template <int M, int D, class U>
+void contract_step_matrix_derivative(const U* r, const U* S, double* out, double* Jl, double* Jw) {
+  for (int a = 0; a < M; ++a) {
+    Jl[a] = r[a].a.v[0];
+    Jw[a] = r[a].a.v[1];
+  }
+  for (int j = 0; j < D; ++j) {
+    double s = 0;
+    for (int a = 0; a < M; ++a)
+      for (int b = 0; b < M; ++b) {
+        const double Sab = S[a * M + b].a.a;
+        s += r[a].v[j].v[0] * Sab * Jw[b] + Jl[a] * S[a * M + b].v[j].a * Jw[b] + Jl[a] * Sab * r[b].v[j].v[1];
+      }
+    out[j] = s;
+  }
+}
+
 template <class Derived, int kVertices, int kParams, int kResiduals>
 class ElementTerm : public Term {
  public:
@@ -252,19 +272,7 @@ class ElementTerm : public Term {
         for (int k = 0; k < kParams; ++k) pe[k] = U(p[parameter_index(e, k)]);
         self().template element_gauss_newton<U>(e, xe, pe, r, S);
         double Jl[M], Jw[M];
-        for (int a = 0; a < M; ++a) {
-          Jl[a] = r[a].a.v[0];
-          Jw[a] = r[a].a.v[1];
-        }
-        for (int j = 0; j < D; ++j) {
-          double s = 0;
-          for (int a = 0; a < M; ++a)
-            for (int b = 0; b < M; ++b) {
-              const double Sab = S[a * M + b].a.a;
-              s += r[a].v[j].v[0] * Sab * Jw[b] + Jl[a] * S[a * M + b].v[j].a * Jw[b] + Jl[a] * Sab * r[b].v[j].v[1];
-            }
-          gxe[j] = s;
-        }
+        contract_step_matrix_derivative<M, D>(r, S, gxe, Jl, Jw);
         scatter_vector(e, gxe, scale, gx);
         if constexpr (kParams > 0) {
           for (int i = 0; i < D; ++i) xp[i] = JP(x[3 * v[i / 3] + i % 3]);
