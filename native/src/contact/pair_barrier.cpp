@@ -1,7 +1,6 @@
 #include "contact/pair_barrier.hpp"
 
 #include <Eigen/Core>
-#include <algorithm>
 #include <cmath>
 #include <limits>
 
@@ -183,9 +182,7 @@ void pair_barrier_gauss_newton(PairKind kind, int type, const double* x, double 
   for (int i = 0; i < 12; ++i) r[i] = 0;
   const double d = std::sqrt(d2.a);
   if (!(d > 0) || d >= dhat) return;
-  double b, db, d2b;
-  barrier_derivatives(std::max(d, kGaussNewtonDistanceFloor * dhat), dhat, b, db, d2b);
-  s = kappa * d2b * pair_mollifier(kind, x, eps);
+  s = kappa * barrier_step_curvature(d, dhat) * pair_mollifier(kind, x, eps);
   for (int i = 0; i < 12; ++i) r[i] = d2.v[i] / (2 * d);
 }
 

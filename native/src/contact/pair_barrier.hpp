@@ -16,7 +16,10 @@
 // contact is carried by the point-triangle pairs of their end points), where the line-line distance's
 // derivatives blow up and its closest-feature type flips (Newton bounced between them on stacked sheets).
 #pragma once
+#include <algorithm>
 #include <cstdint>
+
+#include "contact/barrier.hpp"
 
 namespace drapelab {
 
@@ -54,6 +57,13 @@ void pair_barrier_dhat_derivatives(PairKind kind, int type, const double* x, dou
 // 1e-4 left the gap cycling below 2e-7 m and a walking skirt's body stuck; 1e-3 and 1e-2 both cleared the pinches,
 // 1e-2 in fewer linear solves (docs/lab/garment-speed.md).
 constexpr double kGaussNewtonDistanceFloor = 1e-2;  // d_floor / dhat
+// b''(max(d, d_floor)) / dhat^2 (barrier_derivatives' scaling): the curvature step matrices use (the body's
+// too, garment/revolved_body.hpp).
+inline double barrier_step_curvature(double d, double dhat) {
+  double b, db, d2b;
+  barrier_derivatives(std::max(d, kGaussNewtonDistanceFloor * dhat), dhat, b, db, d2b);
+  return d2b;
+}
 void pair_barrier_gauss_newton(PairKind kind, int type, const double* x, double dhat, double kappa, double* r,
                                double& s, double mollifier_eps = 0);
 // With kappa = c dhat, for fixed l and w (12 each): phi = l^T K(x, dhat) w; dphi (12) = dphi/dx, dphi_ddhat.

@@ -143,23 +143,18 @@ static double local_clearance(const RevolvedPart& part, const Eigen::Vector3d& y
 }
 
 double RevolvedBodyContact::part_clearance_at(int k, const RigidPose& P, const Eigen::Vector3d& q,
-                                             Eigen::Vector3d* grad) const {
+                                             Eigen::Vector3d* grad, Eigen::Matrix3d* hess) const {
   Eigen::Vector3d gl;
-  const double v = local_clearance(parts_[k], P.R.transpose() * (q - P.c), grad ? &gl : nullptr, nullptr);
+  Eigen::Matrix3d Hl;
+  const double v = local_clearance(parts_[k], P.R.transpose() * (q - P.c), grad ? &gl : nullptr, hess ? &Hl : nullptr);
   if (grad) *grad = P.R * gl;
+  if (hess) *hess = P.R * Hl * P.R.transpose();
   return v;
 }
 
 double RevolvedBodyContact::part_clearance(int k, const Eigen::Vector3d& q, Eigen::Vector3d* grad,
                                            Eigen::Matrix3d* hess) const {
-  const RigidPose& P = current_[k];
-  const Eigen::Vector3d y = P.R.transpose() * (q - P.c);
-  Eigen::Vector3d gl;
-  Eigen::Matrix3d Hl;
-  const double v = local_clearance(parts_[k], y, grad ? &gl : nullptr, hess ? &Hl : nullptr);
-  if (grad) *grad = P.R * gl;
-  if (hess) *hess = P.R * Hl * P.R.transpose();
-  return v;
+  return part_clearance_at(k, current_[k], q, grad, hess);
 }
 
 Eigen::VectorXd RevolvedBodyContact::clearance(const Eigen::VectorXd& x) const {
@@ -187,10 +182,7 @@ double RevolvedBodyContact::vertex_terms(int i, const Eigen::Vector3d& q, Eigen:
     if (!(c > 0)) return std::numeric_limits<double>::infinity();
     double b, db, d2b;
     barrier_derivatives(c, dhat_, b, db, d2b);
-    if (kind == 3 && c < kGaussNewtonDistanceFloor * dhat_) {  // the step matrix's curvature cap (header)
-      double b_floor, db_floor;
-      barrier_derivatives(kGaussNewtonDistanceFloor * dhat_, dhat_, b_floor, db_floor, d2b);
-    }
+    if (kind == 3) d2b = barrier_step_curvature(c, dhat_);  // the step matrix's curvature cap (header)
     E += kappa_[i] * b;
     if (g) *g += kappa_[i] * db * dg;
     if (H) {
@@ -493,10 +485,10 @@ bool RevolvedBodyContact::edge_part_terms(int e, int k, const std::vector<Eigen:
     for (int j = 0; j < 6; ++j) H[6 * i + j] = 0.5 * (Ej.v[i].v[j] + Ej.v[j].v[i]);
   if (kind >= 2) project_psd<6>(H);
   if (kind == 3 && m.clearance < kGaussNewtonDistanceFloor * dhat_) {  // the step matrix's curvature cap (header)
-    double b0, db0, d2b0, b1, db1, d2b1;
-    barrier_derivatives(m.clearance, dhat_, b0, db0, d2b0);
-    barrier_derivatives(kGaussNewtonDistanceFloor * dhat_, dhat_, b1, db1, d2b1);
-    for (int i = 0; i < 36; ++i) H[i] *= d2b1 / d2b0;  // a positive factor below 1: still PSD
+    double b, db, d2b;
+    barrier_derivatives(m.clearance, dhat_, b, db, d2b);
+    const double factor = barrier_step_curvature(m.clearance, dhat_) / d2b;  // positive, below 1: still PSD
+    for (int i = 0; i < 36; ++i) H[i] *= factor;
   }
   return true;
 }

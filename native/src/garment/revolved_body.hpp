@@ -103,9 +103,9 @@ class RevolvedBodyContact : public Term {
   // g and its gradient / Hessian (world frame) of point q against part k at its current pose.
   double part_clearance(int k, const Eigen::Vector3d& q, Eigen::Vector3d* grad = nullptr,
                         Eigen::Matrix3d* hess = nullptr) const;
-  // The same at a given pose of the part (gradient in the world frame if asked).
+  // The same at a given pose of the part.
   double part_clearance_at(int k, const RigidPose& pose, const Eigen::Vector3d& q,
-                           Eigen::Vector3d* grad = nullptr) const;
+                           Eigen::Vector3d* grad = nullptr, Eigen::Matrix3d* hess = nullptr) const;
 
   double obstacle_progress() const override { return progress_; }
   // u_i += f(c_i) sum_k w_ik D_k(q_i): D_k part k's rigid motion of q_i from its current to its end pose, w_ik a
