@@ -52,6 +52,14 @@ T friction_f0(const T& u, double eps_u) {
   if (value_of(u) >= eps_u) return u;
   return -(u * u * u) / (3.0 * eps_u * eps_u) + (u * u) / eps_u + eps_u / 3.0;
 }
+// f0 of a slip given by its square u2 = |u|^2, smooth at u = 0: there f0's odd term u^3 / (3 eps_u^2) is below
+// round-off, and eps_u / 3 + u2 / eps_u keeps jets of u2 finite.
+template <class T>
+T friction_f0_of_squared(const T& u2, double eps_u) {
+  if (value_of(u2) < 1e-20 * eps_u * eps_u) return eps_u / 3.0 + u2 / eps_u;
+  using std::sqrt;
+  return friction_f0(sqrt(u2), eps_u);
+}
 // f1(u) / u, finite at u = 0 (the factor of the friction force along the slip direction).
 inline double friction_f1_over_u(double u, double eps_u) {
   if (u >= eps_u) return 1.0 / u;

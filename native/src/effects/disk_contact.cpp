@@ -713,10 +713,7 @@ class DiskFrictionTerm : public ElementTerm<DiskFrictionTerm, 1, 1, 3> {
       for (int b = 0; b < 3; ++b) ua += projector_[e](a, b) * (x[b] - start_[e][b]);
       u2 += ua * ua;
     }
-    // f0 smooth in u^2 near zero slip (its odd term u^3 / (3 eps^2) is below round-off there)
-    if (value_of(u2) < 1e-20 * eps_u_ * eps_u_) return p[0] * normal_force_[e] * (eps_u_ / 3.0 + u2 / eps_u_);
-    using std::sqrt;
-    return p[0] * normal_force_[e] * friction_f0(sqrt(u2), eps_u_);
+    return p[0] * normal_force_[e] * friction_f0_of_squared(u2, eps_u_);
   }
   // r = P (x - x_t); S = mu lambda friction_curvature(r) (contact/barrier.hpp: PSD since f1 >= 0, f1' >= 0).
   template <class T>

@@ -49,11 +49,7 @@ class BodyFriction : public ElementTerm<BodyFriction, 1, 0, 3> {
     if (l.normal_force == 0) return T(0.0);
     T u[3];
     slip(l, x, u);
-    const T u2 = u[0] * u[0] + u[1] * u[1] + u[2] * u[2];
-    // f0 smooth in u^2 near zero slip (its odd term u^3 / (3 eps^2) is below round-off there)
-    if (value_of(u2) < 1e-20 * eps_u_ * eps_u_) return mu_ * l.normal_force * (eps_u_ / 3.0 + u2 / eps_u_);
-    using std::sqrt;
-    return mu_ * l.normal_force * friction_f0(sqrt(u2), eps_u_);
+    return mu_ * l.normal_force * friction_f0_of_squared(u[0] * u[0] + u[1] * u[1] + u[2] * u[2], eps_u_);
   }
   // r = u = P (x - x_t - s); S = mu lambda friction_curvature(u) (contact/barrier.hpp, PSD).
   template <class T>
