@@ -26,7 +26,6 @@ BodyFriction::BodyFriction(const RevolvedBodyContact& body, int num_vertices, do
 
 void BodyFriction::begin_step(const Eigen::VectorXd& x, const Eigen::VectorXd&, double h) {
   eps_u_ = kSlipSpeed * h;
-  active_.clear();
   std::fill(lag_.begin(), lag_.end(), Lag{});
   if (h <= 0 || mu_ == 0) return;
   const int parts = body_.num_parts();
@@ -47,7 +46,6 @@ void BodyFriction::begin_step(const Eigen::VectorXd& x, const Eigen::VectorXd&, 
     l.projector = Eigen::Matrix3d::Identity() - n * n.transpose();
     const RigidPose &a = body_.start_pose(k), &z = body_.end_pose(k);
     l.origin = z.R * (a.R.transpose() * (q - a.c)) + z.c;  // the body's material point at q, carried to the end
-    active_.push_back(e);
   }
 }
 

@@ -17,6 +17,7 @@
 // quantities' dependence on x_t is not differentiated: like the body's barrier (provides_step_matrix_derivatives
 // false), a rollout with a garment body is not recorded for an adjoint. A static drape (h = 0) has no friction.
 #pragma once
+#include <algorithm>
 #include <array>
 #include <vector>
 
@@ -36,7 +37,9 @@ class BodyFriction : public ElementTerm<BodyFriction, 1, 0, 3> {
   void begin_step(const Eigen::VectorXd& x, const Eigen::VectorXd& p, double h) override;
   double friction() const { return mu_; }
   // (vertex, part) pairs with a lagged normal force this step.
-  int num_active() const { return static_cast<int>(active_.size()); }
+  int num_active() const {
+    return static_cast<int>(std::count_if(lag_.begin(), lag_.end(), [](const Lag& l) { return l.normal_force > 0; }));
+  }
 
   // Elements: one per (vertex, part), e = i * parts + k.
   int num_elements() const { return static_cast<int>(vertices_.size()); }
@@ -80,7 +83,6 @@ class BodyFriction : public ElementTerm<BodyFriction, 1, 0, 3> {
   double eps_u_ = 0;
   std::vector<std::array<int, 1>> vertices_;
   std::vector<Lag> lag_;
-  std::vector<int> active_;
 };
 
 }  // namespace drapelab
