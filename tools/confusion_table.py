@@ -89,12 +89,16 @@ def main():
             rec = next((e for e in d["ranking"] if e["effect"] == d["recommended"]), None)
             row = {"case": case, "seed": seed, "first": first["effect"] if first else None,
                    "first_p": first["p_value"] if first else None, "recommended": d["recommended"],
+                   "ranked_first": d["ranking"][0]["effect"] if d["ranking"] else None,
                    "threshold": d["threshold"], "base_mse": d["base"]["mse"],
                    "refit_mse": rec["refit"]["mse"] if rec and rec.get("refit") else None,
                    "redrape_mse": d["base"].get("redrape_mse"),
                    "falls_of_redrape": {e["effect"]: e.get("fall_of_redrape") for e in d["ranking"]
                                         if e.get("fall_of_redrape") is not None},
                    "p_values": {e["effect"]: e["p_value"] for e in tested},
+                   "p_values_score": {e["effect"]: e.get("p_value_score", e["p_value"]) for e in tested},
+                   "p_values_step": {e["effect"]: e["step"]["p_value"] for e in tested if e.get("step")},
+                   "steps": {e["effect"]: e["step"]["step"] for e in tested if e.get("step")},
                    "seconds": time.monotonic() - t0}
             rows.append(row)
             print(f"seed {seed} {case}: first {row['first']} (p {row['first_p']}), recommended {row['recommended']}, "
@@ -106,8 +110,9 @@ def main():
 
 def report(rows, names):
     control_mse = {r["seed"]: r["base_mse"] for r in rows if r["case"] == "control"}
-    print("| true case | seeds | ranked first | recommended | MSE gap closed by the recommended refit |")
-    print("|---|---|---|---|---|")
+    print("| true case | seeds | ranked first (refits first) | smallest p | recommended | MSE gap closed by the "
+          "recommended refit |")
+    print("|---|---|---|---|---|---|")
     for case in names + ["control", "weak"]:
         rs = [r for r in rows if r["case"] == case]
         if not rs:
@@ -121,11 +126,14 @@ def report(rows, names):
                 closed.append("-")
             else:
                 closed.append(f"{(r['base_mse'] - r['refit_mse']) / (r['base_mse'] - c):.2f}")
-        print(f"| {case} | {len(rs)} | {firsts} | {recs} | {', '.join(closed)} |")
+        ranked = ", ".join(str(r.get("ranked_first")) for r in rs)
+        print(f"| {case} | {len(rs)} | {ranked} | {firsts} | {recs} | {', '.join(closed)} |")
     eff = [r for r in rows if r["case"] in names]
     null = [r for r in rows if r["case"] in ("control", "weak")]
     if eff:
-        print(f"\ntrue effect ranked first: {sum(r['first'] == r['case'] for r in eff)} of {len(eff)}; "
+        print(f"\nsmallest p on the true effect: {sum(r['first'] == r['case'] for r in eff)} of {len(eff)}; "
+              f"the diagnosis's ranking (refits first) puts it first: "
+              f"{sum(r.get('ranked_first') == r['case'] for r in eff)} of {len(eff)}; "
               f"recommended: {sum(r['recommended'] == r['case'] for r in eff)} of {len(eff)}")
     if null:
         print(f"null cases with nothing recommended: {sum(r['recommended'] is None for r in null)} of {len(null)}")

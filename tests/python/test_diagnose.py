@@ -40,7 +40,7 @@ def _one_draw(images, names, seed=3):
     cfg = small_config()
     preset = infer.load_preset(PRESET)
     obs = diagnose._observations([images["tilt"]])
-    pred, models, shapes, grads, _, _, pseudo = diagnose._joint_drapes(preset, obs, names, 1, seed, cfg, 1, None, 1,
+    pred, models, shapes, grads, _, _, pseudo, _ = diagnose._joint_drapes(preset, obs, names, 1, seed, cfg, 1, None, 1,
                                                                        None, None)
     draw = infer.preset_bend_samples(preset, models[0].num_bending_edges, np.random.default_rng(seed), 1)[0]
     v0 = infer.placement_velocities(models[0].rest_positions, np.random.default_rng([seed, 0, 1]), *pred.placement)
@@ -263,3 +263,46 @@ def test_the_schema_refuses_a_broken_diagnosis():
                        ("ranking", [{"effect": "tilt"}])):
         with pytest.raises(jsonschema.ValidationError):
             validate(dict(good, **{key: value}))
+
+
+def test_step_permutation_test_finds_the_step_that_brings_the_draws_closer():
+    rng = np.random.default_rng(5)
+    n, refs = 6, 12
+    null = rng.normal(0.0, 1e-3, size=(2, n + refs))
+    best, stat, p = diagnose.step_permutation_test(null, n)
+    assert p > 0.01  # exchangeable: no labelling stands out
+    shifted = null.copy()
+    shifted[1, :n] -= 0.01  # step 1 lowers the MSE against the measured images only
+    best, stat, p = diagnose.step_permutation_test(shifted, n)
+    assert best == 1 and stat == pytest.approx(shifted[1, :n].mean() - shifted[1, n:].mean())
+    assert p == pytest.approx(1.0 / math.comb(n + refs, n))  # only the observed labelling is as extreme
+    # the choice of step is part of the statistic: with more steps of noise the same shift is less surprising
+    wide = np.vstack([shifted[1], rng.normal(0.0, 1e-3, size=(40, n + refs))])
+    assert diagnose.step_permutation_test(wide, n)[2] >= p
+    # a step that moves every image alike (the drape changes, but not towards the measurements) is not significant
+    common = null.copy()
+    common[0] -= 0.01
+    assert diagnose.step_permutation_test(common, n)[2] > 0.01
+    # drawn labellings beyond the enumeration limit: the observed labelling is among them
+    best, _, p_drawn = diagnose.step_permutation_test(shifted, n, max_permutations=500)
+    assert best == 1 and p_drawn == pytest.approx(1.0 / 500)
+    with pytest.raises(ValueError):
+        diagnose.step_permutation_test(shifted, 0)
+
+
+def test_effect_steps_are_the_primary_at_its_moderate_strength():
+    reg = fit_effects.registry()
+    steps = diagnose.effect_steps(reg, list(reg))
+    assert set(steps) == {n for n, e in reg.items() if not e["parameters"][0].get("structural")}
+    for n, st in steps.items():
+        primary = reg[n]["parameters"][0]
+        assert st[0][1][primary["name"]] == primary["moderate"]
+        for _, values in st:  # the other parameters off, unless turned
+            assert set(values) == {q["name"] for q in reg[n]["parameters"]}
+            turned = diagnose.second_directions(reg).get(n, {})
+            for q in reg[n]["parameters"][1:]:
+                assert values[q["name"]] in (q["off"], turned.get(q["name"]))
+            assert primary["lower"] <= values[primary["name"]] <= primary["upper"]
+    tilt = steps["tilt"]
+    assert [v["angle_rad"] for _, v in tilt] == pytest.approx([0.15, -0.15, 0.15, -0.15])
+    assert [v["azimuth_rad"] for _, v in tilt] == pytest.approx([0.0, 0.0, math.pi / 2, math.pi / 2])
