@@ -880,12 +880,13 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
         steps = effect_steps(reg, names, second)
         n_steps = sum(len(v) for v in steps.values())
         k_step = len(done)
-        if time_budget is not None and n_steps:
+        j_step = max(STEP_REFERENCES_MIN, 2 * len(observations))
+        if time_budget is not None and n_steps:  # the extra references and the step drapes within a share
             left = float(time_budget) - (time.monotonic() - t0)
             forward = per_draw * STEP_FORWARD_SHARE / lanes  # a forward drape, per lane
-            k_step = min(k_step, int(STEP_BUDGET_SHARE * left / max(forward * n_steps, 1e-9)))
+            spare = STEP_BUDGET_SHARE * left - max(0, j_step - len(pseudo)) * forward
+            k_step = min(k_step, int(spare / max(forward * n_steps, 1e-9)))
         tests = {}
-        j_step = max(STEP_REFERENCES_MIN, 2 * len(observations))
         # with few images the relabelling cannot reach the threshold (one image: 1 in 13), and the combined p would
         # only halve the score test's power: then the step test is not run
         attainable = 2.0 / math.comb(len(observations) + j_step, len(observations)) < threshold
@@ -893,6 +894,10 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
             result["step_test"] = {"draws": 0, "references": 0,
                                    "rule": f"not run: with {len(observations)} image(s) and {j_step} references the "
                                            f"smallest p it can give is above the threshold {threshold:.2g}"}
+        if n_steps and attainable and k_step < MIN_SAMPLES:
+            result["step_test"] = {"draws": 0, "references": 0,
+                                   "rule": f"not run: the time budget left room for {k_step} draws per step "
+                                           f"({MIN_SAMPLES} needed)"}
         if n_steps and attainable and k_step >= MIN_SAMPLES and not result["cancelled"]:
             ts = time.monotonic()
             _progress(progress, "steps", f"step test: {n_steps} steps of {len(steps)} candidates x {k_step} draws")
@@ -1159,7 +1164,7 @@ def write_report(out_dir, result, figures, observations, calibration):
     ax.set_yticks(y)
     ax.set_yticklabels([e["effect"] for e in ranked])
     ax.invert_yaxis()
-    ax.set_xlabel("-log10 p (score test)")
+    ax.set_xlabel("-log10 p (score and step tests combined)")
     ax.legend(fontsize=7)
     fig.tight_layout()
     _save(fig, os.path.join(out_dir, "ranking.png"))
@@ -1169,12 +1174,17 @@ def write_report(out_dir, result, figures, observations, calibration):
     rows = ""
     for e in result["ranking"]:
         refit_mse = None if e["refit"] is None else e["refit"]["mse"]
+        step = e.get("step") or {}
         rows += (f"<tr><td>{html.escape(e['effect'])}</td><td>{cell(e['statistic'], '.3g')}</td>"
+                 f"<td>{cell(e.get('p_value_score', e['p_value']), '.2g')}</td>"
+                 f"<td>{html.escape(step.get('step', ''))}</td><td>{cell(step.get('p_value'), '.2g')}</td>"
                  f"<td>{cell(e['p_value'], '.2g')}</td><td>{cell(refit_mse, '.4f')}</td>"
                  f"<td>{cell(e['gain'], '.4g')}</td><td>{html.escape(e['explanation'] or '')}</td></tr>")
-    parts.append("<h2>What is missing: score tests at each effect's off value</h2><img src='ranking.png'>"
+    parts.append("<h2>What is missing: score tests at each effect's off value, step tests at its moderate strength"
+                 "</h2><img src='ranking.png'>"
                  f"<p>{html.escape(result['threshold_rule'])}. {html.escape(result['test'])}.</p>"
-                 "<table border=1 cellpadding=3><tr><th>effect</th><th>T^2</th><th>p</th><th>refit MSE</th>"
+                 "<table border=1 cellpadding=3><tr><th>effect</th><th>score T^2</th><th>score p</th><th>step</th>"
+                 "<th>step p</th><th>p</th><th>refit MSE</th>"
                  f"<th>gain / parameter</th><th>explanation</th></tr>{rows}</table>")
     # history
     hist = [h for h in result["history"] if h.get("mse") is not None]
