@@ -28,6 +28,10 @@ from drapelab import diagnose, infer, measure, sim, synth  # noqa: E402
 
 DENSITY = 0.192       # Cotton Blue (kg/m^2): synth's default material
 WEAK_TILT_RAD = 0.07  # 4 degrees: changes the drape less than re-draping does (issue 18's null case)
+# the diagnosis's seed is the drapes' + this: synth's drape i and the diagnosis's draw i both take their placement
+# velocities from default_rng([seed, i, 1]), so with one seed the first draws re-drape the measured drapes exactly
+# (before 2026-11-24 they did: the control's base MSE 0.0151 against a re-drape floor of 0.0227 at seed 601)
+DIAGNOSE_SEED_OFFSET = 1000
 
 
 def images_of(folder):
@@ -82,7 +86,8 @@ def main():
                         force=True)
             t0 = time.monotonic()
             d = diagnose.diagnose(reference_path, images_of(folder), time_budget=args.time_budget,
-                                  samples=args.samples, seed=seed, config=config, mesh_level=args.mesh_level,
+                                  samples=args.samples, seed=seed + DIAGNOSE_SEED_OFFSET, config=config,
+                                  mesh_level=args.mesh_level,
                                   out_dir=os.path.join(folder, "report"))
             tested = [e for e in d["ranking"] if e.get("p_value") is not None]
             first = min(tested, key=lambda e: (e["p_value"], -(e["statistic"] or 0))) if tested else None

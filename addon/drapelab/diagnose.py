@@ -71,9 +71,10 @@
    fall first), then the rest in the score tests' order. ``recommended`` = the first of them when its fall is at
    least MIN_MSE_FALL and some candidate was significant (or it is a switch named with --candidates), and the
    MSE it removes is at least MIN_FALL_OF_REDRAPE of the re-drape floor, else None. The re-drape floor
-   (base.redrape_mse) is the best-of-K MSE of the same K draws against P's own predictive silhouettes (the score
-   test's references): what the base MSE would be if P were right, i.e. how much re-draping alone changes a
-   drape. An effect whose refit removes less than half of that changes the drape less than re-draping does (a
+   (base.redrape_mse) is the best-of-K MSE of the same K draws against P's mean material re-draped (placement
+   noise only): what the base MSE would be if P were right about the specimen, i.e. how much re-draping alone
+   changes a drape. (Until 2026-11-24 the references were posterior draws, whose material spread made the floor
+   twice the control drapes' base MSE: 0.031 against 0.009 in the round-trip test's setting.) An effect whose refit removes less than half of that changes the drape less than re-draping does (a
    4 degree tilt: significant with six images, p 2.6e-6, yet its refit removed 0.0027 of a 0.0158 MSE against a
    control MSE of 0.0105, about 0.26 of the floor; the moderate 0.15 rad tilt removed 0.0098, 0.93 of it) and is
    reported, not recommended. gain = (base loss - refit loss) / added parameters, loss = the expected pixel data term of the
@@ -525,14 +526,25 @@ def _signature(obs, ok, best, calibration):
         {"r_measured": r_obs, "r_best": r_best, "residual": residual}
 
 
-def _pseudo_observations(pred, preset, models, offs, j, seed, config, lanes, progress, cancel_event, stream=0):
+def _pseudo_observations(pred, preset, models, offs, j, seed, config, lanes, progress, cancel_event, stream=0,
+                         mean_material=False):
     """`j` silhouettes of the preset's own predictive (posterior draws with placement noise, independent of the
     scored draws): what the measurement would look like if P were right. Forward drapes only (no record).
-    `stream` 1 draws another, independent set (the step test's extra references)."""
-    draws = infer.preset_bend_samples(preset, models[0].num_bending_edges,
-                                      np.random.default_rng([seed, 23] if stream == 0 else [seed, 23, stream]), j)
-    effects = fit_effects.sample_effect_values(pred.effects, np.random.default_rng(
-        [seed, 29] if stream == 0 else [seed, 29, stream]), j)
+    `stream` 1, 2 draw other, independent sets (the step test's extra references, the re-drape floor's);
+    `mean_material`: every drape of P's mean material and effects, only the placement differs (re-draping alone)."""
+    if mean_material:
+        mean = copy.deepcopy(preset)
+        bend = mean["posterior"]["bend"]
+        bend["log_std"] = np.zeros_like(np.asarray(bend["log_std"], dtype=float)).tolist()
+        bend["global_log_std"] = 0.0
+        draws = infer.preset_bend_samples(mean, models[0].num_bending_edges, np.random.default_rng([seed, 23, stream]), j)
+        values = fit_effects.active_effect_values(pred.effects)
+        effects = [values] * j if values else None
+    else:
+        draws = infer.preset_bend_samples(preset, models[0].num_bending_edges,
+                                          np.random.default_rng([seed, 23] if stream == 0 else [seed, 23, stream]), j)
+        effects = fit_effects.sample_effect_values(pred.effects, np.random.default_rng(
+            [seed, 29] if stream == 0 else [seed, 29, stream]), j)
     amplitude, modes = pred.placement
     rest = models[0].rest_positions
     images = [None] * j
@@ -553,8 +565,8 @@ def _pseudo_observations(pred, preset, models, offs, j, seed, config, lanes, pro
             except Cancelled:
                 return
             images[i] = infer._hard_image(pred.camera, infer._observed(m, x, p), m.faces)
-            _progress(progress, "draws", f"predictive silhouette {i + 1}/{j} draped (the "
-                                         f"{'score' if stream == 0 else 'step test'}'s null reference)")
+            what = ("the score's null reference", "the step test's references", "the re-drape floor")[stream]
+            _progress(progress, "draws", f"predictive silhouette {i + 1}/{j} draped ({what})")
 
     if lanes == 1:
         run(0)
@@ -758,12 +770,15 @@ def refit_with_effect(preset, images, name, level, seed, config, threads=None, t
 
 def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, samples=None, seed=0, config=None,
              threads=None, template_dir=None, mesh_level=None, out_dir=None, progress=None, cancel_event=None,
-             alpha=ALPHA):
-    """Diagnoses `preset` (a path or a preset dict) against measured silhouettes (module doc). Returns the diagnosis
+             alpha=ALPHA, max_refits=MAX_REFITS):
+    """Diagnoses `preset` (a path or a preset dict) against measured silhouettes (module doc); `max_refits`: how
+    many of the most promising candidates are refitted (default MAX_REFITS). Returns the diagnosis
     dict; with `out_dir`, writes DIR/diagnosis.json (after every stage), DIR/presets/<effect>.json per refit and
     the report DIR/index.html with its PNGs. `progress` receives {stage, message, ...}; `cancel_event` stops
     cleanly: the diagnosis then holds what was done ("cancelled": true)."""
     t0 = time.monotonic()
+    if isinstance(max_refits, bool) or not isinstance(max_refits, (int, np.integer)) or max_refits < 0:
+        raise InputError(f"max_refits: a whole number >= 0, got {max_refits!r}")
     preset_path = os.fspath(preset) if isinstance(preset, (str, os.PathLike)) else None
     p, meshes, names, k = _check_inputs(preset, images, meshes, candidates, time_budget, samples)
     config = copy.deepcopy(config or infer.load_config())
@@ -825,7 +840,10 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
             raise SolverError(f"diagnose: every one of the {k} posterior draws failed to drape")
         base, per_image, ok = _summary([shapes[i] for i in done], observations, pred.calibration,
                                        float(config["sigma_obs"]), SCORE_SIGMA_DC)
-        floor = _redrape_floor([shapes[i] for i in done], pseudo)
+        # the re-drape floor: the draws against P's mean material re-draped (placement noise only)
+        redrapes = _pseudo_observations(pred, p, models, drawn["offs"], max(PSEUDO_MIN, len(observations)), seed,
+                                        config, lanes, progress, cancel_event, stream=2, mean_material=True)
+        floor = _redrape_floor([shapes[i] for i in done], redrapes)
         if floor is not None:
             base["redrape_mse"], base["redrape_mse_sd"] = floor
         result["base"] = base
@@ -945,7 +963,7 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
 
         # 2. refits of the most promising candidates
         tested = [e for e in result["ranking"] if e["p_value"] is not None]
-        promising = ([e for e in tested if e["p_value"] < max(threshold, REFIT_P_MAX)][:MAX_REFITS]
+        promising = ([e for e in tested if e["p_value"] < max(threshold, REFIT_P_MAX)][:int(max_refits)]
                      if any(e["p_value"] < threshold for e in tested) else [])
         promising += [e for e in result["ranking"] if e["switch"] and explicit_switch(e["effect"])]
         if promising:
@@ -1035,7 +1053,7 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                            f"{100 * MIN_MSE_FALL:.0f} %")
             if not_run:
                 reason = "the diagnosis was cancelled" if result["cancelled"] else "no time was left or only " \
-                         f"{MAX_REFITS} are refitted"
+                         f"{int(max_refits)} are refitted"
                 why.append(f"{', '.join(not_run)} not refitted ({reason})")
             result["verdict"] = (f"No recommendation: {', '.join(e['effect'] for e in significant)} below the "
                                  f"threshold {threshold:.2g}, but {'; '.join(why)}.")

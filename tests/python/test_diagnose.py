@@ -197,6 +197,8 @@ def test_cli_writes_the_report_the_contract_and_a_refit(images, tmp_path, capsys
     ({"images": ["/nonexistent/img.png"]}, "/nonexistent/img.png"),
     ({"samples": 2}, "samples"),
     ({"time_budget": 0}, "time_budget"),
+    ({"max_refits": -1}, "max_refits"),
+    ({"max_refits": 1.5}, "max_refits"),
 ])
 def test_bad_input_is_named(images, kwargs, message):
     args = dict(preset=PRESET, images=[images["control"]], config=small_config(), mesh_level=1)

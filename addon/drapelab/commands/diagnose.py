@@ -7,16 +7,18 @@ best draw's overlay, r(theta) of the measurement and of the best draw with the r
 k = 1..6 (against the re-drape floor), and the drape coefficient, node count and node amplitude against the
 draws' 90 % interval. For every registered effect not in P (or only --candidates) it runs a score test at the
 effect's off value (the data term's gradient per draw, back-propagated through the rollout; Hotelling's T^2
-over the draws, p from sign flips of the draws), with the threshold --alpha (0.01) Bonferroni-corrected over
-the candidates tested. Up to two candidates below the threshold are refitted (fit --effects NAME with P's
-material held at its posterior: only the effect is fitted) and written as DIR/presets/NAME.json;
-`recommended` is the significant effect whose refit lowers the loss most per added parameter, or null
-("nothing significant").
+over the draws, p from sign flips of the draws) and a step test (the same draws with the effect at its moderate
+strength, forward only; p from relabelling the measured images and P's own predictive silhouettes), combined
+per candidate (twice the smaller p), with the threshold --alpha (0.01) Bonferroni-corrected over the candidates
+tested. Once one is below it, up to --max-refits (3) candidates with p below 0.05 are refitted (fit --effects NAME
+with P's material held at its posterior: only the effect is fitted) and written as DIR/presets/NAME.json;
+`recommended` is the refit that lowers the best-of-K MSE most, if by at least 5 % and by at least half of what
+re-draping alone leaves (the re-drape floor), or null ("nothing significant", or why not).
 
 --time-budget S covers the whole job: the draws and score tests run first (K drapes with backward; not
-shortened by the budget: choose K), then what remains, less an estimate of the refits' evaluations (K drapes
-each) and a 5 s reserve for the report, is split equally between the refits. Without it each refit runs
-fit.json's default_epochs.
+shortened by the budget: choose K), then the step test (at most 40 % of what is left; draws dropped first),
+then what remains, less an estimate of the refits' evaluations (K drapes each) and a 5 s reserve for the
+report, is split equally between the refits. Without it each refit runs fit.json's default_epochs.
 
 Writes DIR/index.html (figures), its PNGs and DIR/diagnosis.json (base, ranking, recommended, threshold,
 history, and details). Progress goes to stderr. Ctrl-C stops cleanly: what is done is written (exit 130).
@@ -43,6 +45,8 @@ def register(subparsers):
     p.add_argument("--seed", type=int, default=0, metavar="S")
     p.add_argument("--alpha", type=float, default=0.01, metavar="A",
                    help="family-wise significance level, Bonferroni-corrected over the candidates (default 0.01)")
+    p.add_argument("--max-refits", type=int, default=3, metavar="N",
+                   help="refit at most the N most promising candidates (default 3; 0: tests only)")
     p.add_argument("--mesh-level", type=int, default=None, choices=[1, 2, 3, 4, 5],
                    help="Cusick template mesh of the draws and refits (default: the preset's)")
     p.add_argument("--config", default=None, metavar="FIT.json", help="fit settings (default addon/drapelab/config/fit.json)")
@@ -70,7 +74,8 @@ def run(args):
         result = diagnose.diagnose(args.preset, args.images, meshes=args.meshes, candidates=args.candidates,
                                    time_budget=args.time_budget, samples=args.samples, seed=args.seed, config=config,
                                    threads=args.threads, mesh_level=args.mesh_level, out_dir=args.report,
-                                   progress=progress, cancel_event=cancel, alpha=args.alpha)
+                                   progress=progress, cancel_event=cancel, alpha=args.alpha,
+                                   max_refits=args.max_refits)
     finally:
         signal.signal(signal.SIGINT, previous)
     b = result.get("base")
@@ -83,7 +88,12 @@ def run(args):
             continue
         refit = "" if e["refit"] is None else f"  refit MSE {e['refit']['mse']:.4f} loss {e['refit']['loss']:.4g} " \
                                               f"gain {e['gain']:.4g}/parameter"
-        print(f"{e['effect']:20s} T^2 {e['statistic']:9.3g}  p {e['p_value']:.2g}{refit}")
+        step = e.get("step")
+        score_p = e.get("p_value_score")
+        step = "" if not step else (f"  ({'' if score_p is None else f'score p {score_p:.2g}, '}step {step['step']} "
+                                    f"p {step['p_value']:.2g})")
+        score = "" if e["statistic"] is None else f"T^2 {e['statistic']:9.3g}  "
+        print(f"{e['effect']:20s} {score}p {e['p_value']:.2g}{step}{refit}")
     print(result.get("verdict", ""))
     print(f"wrote {os.path.join(args.report, 'index.html')} and diagnosis.json")
     if result.get("cancelled"):
