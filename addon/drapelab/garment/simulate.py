@@ -60,7 +60,7 @@ DEFAULT_CONTACT_STEP = "linearised"
 # animation that is not differentiated; the Cusick fits' recorded rollouts solve to 1e-10).
 DIRECTION_TOLERANCE = 1e-3
 BODY_REACH_M = 2e-3           # the body barrier acts within 2 mm of its surface
-BARRIER_WEIGHT_SCALE = 1.0    # barrier stiffness in units of each vertex's weight x reach (as disk_contact)
+BARRIER_WEIGHT_SCALE = 1.0    # barrier stiffness in vertex weights x reach (as self_contact; disk_contact: 5)
 GRAVITY = 9.8                 # m/s^2
 HOLD_STIFFNESS = 1e3          # N/m: the waistband's attachment spring (the Cusick handle's value)
 SEAM_STIFFNESS = 1e3          # N/m per seam pair

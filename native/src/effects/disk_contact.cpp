@@ -5,8 +5,9 @@
 // Contact is the IPC barrier (contact/barrier.hpp) on the distance of each free vertex over the disk to the
 // disk's surface (contact/distance.hpp SupportDisk: a plate whose rim is rounded with radius `rim_radius_m`):
 //   E_i = kappa_i b(d_i),  kappa_i = kWeightScale * w_i * rho * g * dhat   [J]
-// (w_i the vertex's area weight, rho the model's nominal density: the barrier carries about the vertex's weight
-// at d = dhat / 2). The disk's top face lies dhat below the flat rest state, so the rest state feels no force.
+// (w_i the vertex's area weight, rho the model's nominal density: with kWeightScale = 5 the barrier carries about
+// five times the vertex's weight at d = dhat / 2, and a vertex resting on the face with its own weight only sits
+// 0.38 mm above it). The disk's top face lies dhat below the flat rest state, so the rest state feels no force.
 // Friction is IPC's lagged, smoothed Coulomb potential (Li et al. 2020, sec. 5): with the normal force
 // lambda_i = |dE_i/dd| and the tangent projector P_i = I - n_i n_i^T taken at the start of each time step
 // (x_t), D_i = mu lambda_i f0(|P_i (x_i - x_t,i)|, eps_v h) [J]; f0 smooths the stick-slip switch over a slip
@@ -38,7 +39,15 @@ namespace drapelab {
 namespace {
 
 constexpr double kActivation = 5e-4;     // dhat [m]: the barrier acts within 0.5 mm of the disk
-constexpr double kWeightScale = 1.0;     // barrier stiffness in units of the vertex's weight (see header)
+// Barrier stiffness in units of the vertex's weight (see header). The rim carries the hanging skirt's tension,
+// tens of its edges' weights on circle3 (more on finer meshes), so this sets how far cloth wrapped over the rim
+// stays from it: an edge carrying 50 of its weights sits at 61 um (11 um with a scale of 1, 36 um with 3). At a
+// clearance far below a linearised move's second-order geometry (an edge tilting about its contact point on the
+// 2 mm rim loses rho theta^2 / 2: 0.05-0.2 um per iteration while the drape lands) collision detection cuts
+// the move, and the step iterates again: with a scale of 1, wrapped edges were pushed to 1e-8 m and 27-68 of
+// circle3's 100 steps took extra iterations; with 5, 4 in steps 0-1, the skirt's first fall (lab/contact-speed.md,
+// helper C19).
+constexpr double kWeightScale = 5.0;
 constexpr double kSlipSpeed = 1e-3;      // eps_v [m/s]: below this slip speed friction is smoothed (static)
 constexpr double kCcdGapFraction = 0.1;  // a step may close at most 90 % of a vertex's (edge's) distance to the disk
 constexpr double kEdgeDip = 1e-4;        // [m] the edge term fades in as its minimum dips below its ends' distances

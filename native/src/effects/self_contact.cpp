@@ -17,7 +17,7 @@
 namespace drapelab {
 namespace {
 
-constexpr double kWeightScale = 1.0;  // barrier stiffness in units of the vertex's weight (as disk_contact)
+constexpr double kWeightScale = 1.0;  // barrier stiffness in units of the vertex's weight (disk_contact: 5, for the rim)
 
 double built_thickness(const EffectContext& c) {
   const auto it = c.options.effects.find("self_contact");
