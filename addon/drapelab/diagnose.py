@@ -560,9 +560,11 @@ def _joint_drapes(preset, observations, names, k, seed, config, threads, templat
 
 
 def refit_with_effect(preset, images, name, level, seed, config, threads=None, template_dir=None, budget=None,
-                      cancel_event=None, progress=None):
+                      cancel_event=None, progress=None, spec=None):
     """Short refit with `name` fitted from P's material (see the module doc); returns the refit preset and its
-    FitJob. Also the recovery table's refit (tools/effect_recovery.py)."""
+    FitJob. Also the recovery table's refit (tools/effect_recovery.py). spec: the effect's entry in the fit's
+    effects argument (fit_effects.EffectPlan): None fits all its parameters (diagnose's refit), e.g.
+    {"strain": None} fits only that one (the others off)."""
     cfg = copy.deepcopy(config)
     log_std = float(np.mean(preset["posterior"]["bend"]["log_std"]))
     prior_sd = max(log_std, 1e-3)
@@ -580,7 +582,7 @@ def refit_with_effect(preset, images, name, level, seed, config, threads=None, t
         cfg["placement_noise"] = dict(preset["placement_noise"])
     effects = {n: {p: v for p, v in vals.items()} for n, vals in
                fit_effects.active_effect_values(preset.get("active_effects")).items()}
-    effects[name] = None
+    effects[name] = None if spec is None else dict(spec)
     job = infer.FitJob(images, preset["density_kg_m2"], model=preset["model"], seed=seed, config=cfg,
                        mesh_level=level, template_dir=template_dir, threads=threads,
                        init_bend=np.exp(np.asarray(preset["posterior"]["bend"]["log_mean"])),
