@@ -14,11 +14,13 @@ interval. (Fitting the base model afresh on the effect drapes shows nothing: the
 Usage (from the repository root):
     PYTHONPATH=addon:build/python /usr/bin/python3 tools/effect_recovery.py --out /tmp/recovery \
         [--effects tilt,density_variation,...] [--count 6] [--seed 101] [--mesh-level 1] [--epochs 15] \
-        [--samples 16] [--refit-epochs 25] [--refit all|primary] [--strength EFFECT=VALUE,...] [--reference P]
+        [--samples 16] [--refit-epochs 25] [--refit all|primary] [--refit-likelihood pixel|fit] \
+        [--strength EFFECT=VALUE,...] [--reference P]
 Writes OUT/recovery.json and prints a markdown table. The reference fit runs without the drape calibration.
 --refit all (the default) fits every parameter of the effect, as `fit --effects NAME` and diagnose do, which is
 what issue 17's target asks of a user who does not know which parameter moved; --refit primary fits the primary
-only (`fit --effects NAME.PARAM`), the identifiability of the strength itself. --strength sets an effect's truth
+only (`fit --effects NAME.PARAM`), the identifiability of the strength itself. --refit-likelihood fit adds the
+fit's drape-coefficient term (bias-corrected) to the refit's pixel term. --strength sets an effect's truth
 (its primary) instead of the registry's moderate value. The reference is written to OUT/reference.json;
 --reference PATH reuses one (it must come from the same --count, --seed, --mesh-level and --epochs: the control
 drapes are made again from them).
@@ -64,6 +66,9 @@ def main():
     ap.add_argument("--refit-epochs", type=int, default=25)
     ap.add_argument("--refit", choices=("all", "primary"), default="all",
                     help="fit all the effect's parameters (fit --effects NAME) or its primary only (NAME.PARAM)")
+    ap.add_argument("--refit-likelihood", choices=("pixel", "fit"), default="pixel",
+                    help="the refit's likelihood: the pixel term only (diagnose's) or with the fit's drape-coefficient "
+                         "term (fit.json sigma_dc, soft bias estimated)")
     ap.add_argument("--strength", default=None,
                     help="comma-separated EFFECT=VALUE: the primary's truth (default: its registry moderate)")
     ap.add_argument("--reference", default=None, help="a reference preset written by an earlier run")
@@ -102,7 +107,8 @@ def main():
         base = evaluate(reference, images_of(folder), config, args)
         spec = {primary["name"]: None} if args.refit == "primary" else None
         refit, _ = diagnose.refit_with_effect(reference, images_of(folder), name, args.mesh_level, args.seed + 3,
-                                              config, spec=spec)
+                                              config, spec=spec,
+                                              sigma_dc=config["sigma_dc"] if args.refit_likelihood == "fit" else None)
         fixed = evaluate(refit, images_of(folder), config, args)
         rec = refit["active_effects"][name][primary["name"]]
         row = {"effect": name, "parameter": primary["name"], "unit": primary["unit"], "truth": truth,
