@@ -54,6 +54,14 @@ def fall(base, fixed, control):
     return None if abs(gap) < 1e-12 else (base - fixed) / gap
 
 
+def falls(entry):
+    """The fall as the table prints it: "no gap" when the effect drapes are not further from the reference than
+    the control drapes (the fall's sign then means nothing), with "worse" when the refit is further still."""
+    if entry["fall"] is None or entry["base"] <= entry["control"]:
+        return "no gap" + ("; worse" if entry["with_effect"] > entry["base"] else "")
+    return f"{entry['fall']:.2f}"
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", required=True)
@@ -132,8 +140,7 @@ def main():
     print("|---|---|---|---|---|---|")
     for r in rows:
         iv = "-" if r["interval90"] is None else f"{r['interval90'][0]:.3g} .. {r['interval90'][1]:.3g}"
-        f1 = "-" if r["mse"]["fall"] is None else f"{r['mse']['fall']:.2f}"
-        f2 = "-" if r["dc_abs_error"]["fall"] is None else f"{r['dc_abs_error']['fall']:.2f}"
+        f1, f2 = (falls(r[key]) for key in ("mse", "dc_abs_error"))
         print(f"| {r['effect']}.{r['parameter']} | {r['truth']:.3g} {r['unit']} | {r['recovered']:.3g} | {iv} | "
               f"{r['mse']['base']:.4f} / {r['mse']['with_effect']:.4f} / {r['mse']['control']:.4f} ({f1}) | "
               f"{r['dc_abs_error']['base']:.4f} / {r['dc_abs_error']['with_effect']:.4f} / "
