@@ -722,9 +722,12 @@ def _joint_drapes(preset, observations, names, k, seed, config, threads, templat
 
 
 def refit_with_effect(preset, images, name, level, seed, config, threads=None, template_dir=None, budget=None,
-                      cancel_event=None, progress=None):
+                      cancel_event=None, progress=None, spec=None, sigma_dc=None):
     """Short refit with `name` fitted from P's material (see the module doc); returns the refit preset and its
-    FitJob. Also the recovery table's refit (tools/effect_recovery.py)."""
+    FitJob. Also the recovery table's refit (tools/effect_recovery.py). spec: the effect's entry in the fit's
+    effects argument (fit_effects.EffectPlan): None fits all its parameters (diagnose's refit), e.g.
+    {"strain": None} fits only that one (the others off). sigma_dc: None keeps the score test's pixel term only
+    (SCORE_SIGMA_DC); a number adds the fit's drape-coefficient term with that sd (and its soft-bias estimate)."""
     cfg = copy.deepcopy(config)
     log_std = float(np.mean(preset["posterior"]["bend"]["log_std"]))
     prior_sd = max(log_std, 1e-3)
@@ -737,12 +740,12 @@ def refit_with_effect(preset, images, name, level, seed, config, threads=None, t
                                               for key, v in cfg["learning_rates"][preset["model"]].items()}
     # pixel term only, as in the score test: with the soft drape coefficient's bias the drape-coefficient term
     # pulled a tilt back towards zero (measured: 0.15 -> 0.03 rad in 8 epochs on a 0.3 rad tilt)
-    cfg["sigma_dc"] = SCORE_SIGMA_DC
+    cfg["sigma_dc"] = SCORE_SIGMA_DC if sigma_dc is None else float(sigma_dc)
     if preset.get("placement_noise"):
         cfg["placement_noise"] = dict(preset["placement_noise"])
     effects = {n: {p: v for p, v in vals.items()} for n, vals in
                fit_effects.active_effect_values(preset.get("active_effects")).items()}
-    effects[name] = None
+    effects[name] = None if spec is None else dict(spec)
     job = infer.FitJob(images, preset["density_kg_m2"], model=preset["model"], seed=seed, config=cfg,
                        mesh_level=level, template_dir=template_dir, threads=threads,
                        init_bend=np.exp(np.asarray(preset["posterior"]["bend"]["log_mean"])),

@@ -89,15 +89,20 @@ def parse_effects_arg(text, bare="moderate", registry=None):
     """The command-line effects syntax as {name: {param: value}} (the ``effects=`` argument of ClothModel).
 
     text: comma-separated items, each ``NAME`` (switch the effect on), ``NAME=VALUE`` (set its primary
-    parameter, the first of its block, in that parameter's unit) or ``NAME.PARAM=VALUE`` (set any one);
-    spaces around items, names and values are ignored; None or "" gives {} (no effect).
+    parameter, the first of its block, in that parameter's unit), ``NAME.PARAM=VALUE`` (set any one) or, only
+    with bare=None (``fit``), ``NAME.PARAM`` (fit that one parameter: its value comes back as None, the
+    fit's "fitted from its off value"; the effect's parameters not named stay off); spaces around items, names
+    and values are ignored; None or "" gives {} (no effect).
     bare: what a named effect's primary parameter is when the text does not set it: "moderate" (the registry's
     moderate strength: ``synth``) or "off" (its off value: ``fit``, which fits it from there); the effect's
     other parameters not set take their off values, so every named effect comes back with its whole block.
     bare=None returns only what the text sets (a bare NAME gives {}), for callers that must tell a value
-    given from one filled in (``fit`` fixes the given values and fits the rest).
+    given from one filled in (``fit``: fit_effects.EffectPlan fixes the given values, fits the parameters given
+    as None and every parameter of an effect given as {}, and holds the rest of a named effect off).
     registry: the effect list (default ``effects()``). Errors (InputError naming the item): an unknown effect
-    or parameter (listing the known ones), a value that is not a finite number, a parameter set twice. Ranges
+    or parameter (listing the known ones), a value that is not a finite number, a parameter set (or fitted)
+    twice, ``NAME.PARAM`` without a value where nothing is fitted (bare not None) or on a structural parameter
+    (it chooses the model's structure and has no gradient: it needs a value). Ranges
     are checked where values meet the model, by the native registry (``ClothModel(effects=...)``).
     """
     if bare not in EFFECT_BARE_VALUES:
@@ -123,13 +128,21 @@ def parse_effects_arg(text, bare="moderate", registry=None):
             raise InputError(f"effects: effect {name!r} has no parameter {param!r} in {item!r} "
                              f"(parameters: {', '.join(names)})")
         if has_param and not has_value:
-            raise InputError(f"effects: {item!r} names a parameter without a value (write {name}.{param}=VALUE)")
+            if bare is not None:
+                raise InputError(f"effects: {item!r} names a parameter without a value (write {name}.{param}=VALUE; "
+                                 f"a bare {name}.{param} fits it, only in fit --effects)")
+            if next(q for q in blocks[name] if q["name"] == param).get("structural"):
+                raise InputError(f"effects: {name}.{param} is structural (it has no gradient and cannot be fitted): "
+                                 f"write {name}.{param}=VALUE")
         values = given.setdefault(name, {})
-        if not has_value:
+        if not has_value and not has_param:
             continue
         param = param if has_param else names[0]
         if param in values:
             raise InputError(f"effects: {name}.{param} is set twice in {text!r}")
+        if not has_value:
+            values[param] = None  # fitted (bare=None only)
+            continue
         try:
             number = float(value)
         except ValueError:

@@ -54,3 +54,24 @@ def test_fit_with_bad_density_fails_cleanly_and_writes_nothing(tmp_path, capsys)
     assert cli.main(["fit", "--images", IMAGE, "--density", "-1", "--epochs", "1", "--out", str(out)]) != 0
     assert "density" in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_fit_with_a_bare_effect_parameter_fits_that_parameter_only(tmp_path, capsys):
+    # --effects tilt.angle_rad: the angle fitted from its off value, the azimuth held off; the preset says which.
+    cfg = copy.deepcopy(infer.load_config())
+    cfg["mesh_level"] = 1
+    cfg["init"]["scale_search"] = [1.0]
+    config = tmp_path / "fit.json"
+    config.write_text(json.dumps(cfg))
+    preset_path = tmp_path / "tilted.json"
+    assert cli.main(["fit", "--images", IMAGE, "--density", "0.192", "--model", "homo", "--epochs", "1",
+                     "--no-calibration", "--config", str(config), "--effects", "tilt.angle_rad",
+                     "--out", str(preset_path)]) == 0
+    assert "tilt.angle_rad" in capsys.readouterr().out
+    tilt = infer.load_preset(str(preset_path))["active_effects"]["tilt"]
+    assert tilt["angle_rad"]["fitted"] and not tilt["azimuth_rad"]["fitted"]
+    assert tilt["azimuth_rad"]["value"] == 0.0 and np.isfinite(tilt["angle_rad"]["value"])
+    bad = tmp_path / "bad.json"
+    assert cli.main(["fit", "--images", IMAGE, "--density", "0.192", "--epochs", "1", "--effects", "tilt.angle",
+                     "--out", str(bad)]) != 0
+    assert "no parameter 'angle'" in capsys.readouterr().err and not bad.exists()

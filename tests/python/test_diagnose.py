@@ -308,3 +308,19 @@ def test_effect_steps_are_the_primary_at_its_moderate_strength():
     tilt = steps["tilt"]
     assert [v["angle_rad"] for _, v in tilt] == pytest.approx([0.15, -0.15, 0.15, -0.15])
     assert [v["azimuth_rad"] for _, v in tilt] == pytest.approx([0.0, 0.0, math.pi / 2, math.pi / 2])
+
+
+def test_refit_with_effect_fits_the_given_parameters_with_the_given_likelihood(images):
+    # The recovery table's refit (tools/effect_recovery.py): by default every parameter of the effect and the
+    # pixel term only (diagnose's); spec={param: None} fits that one (the others off), sigma_dc adds the fit's
+    # drape-coefficient term.
+    preset = infer.load_preset(PRESET)
+    cfg = small_config(default_epochs=1)
+    refit, job = diagnose.refit_with_effect(preset, [images["control"]], "prestrain", 1, 5, cfg)
+    assert job.plan.names == ["prestrain.strain", "prestrain.warp_minus_weft"] and job.sigma_dc == 0.0
+    refit, job = diagnose.refit_with_effect(preset, [images["control"]], "prestrain", 1, 5, cfg,
+                                            spec={"strain": None}, sigma_dc=0.0076)
+    assert job.plan.names == ["prestrain.strain"] and job.sigma_dc == 0.0076
+    block = refit["active_effects"]["prestrain"]
+    assert block["strain"]["fitted"] and not block["warp_minus_weft"]["fitted"]
+    assert block["warp_minus_weft"]["value"] == 0.0 and np.isfinite(block["strain"]["value"])

@@ -1,4 +1,5 @@
-"""sim.parse_effects_arg: the command-line effects syntax NAME[=VALUE][,NAME.PARAM=VALUE...] shared by synth and fit."""
+"""sim.parse_effects_arg: the command-line effects syntax NAME[=VALUE][,NAME.PARAM[=VALUE]...] shared by synth and fit
+(a bare NAME.PARAM, fitting that parameter, only in fit)."""
 import pytest
 
 from drapelab import sim
@@ -38,6 +39,41 @@ def test_name_value_sets_the_primary_and_name_param_value_any_one():
     assert parse("tilt.azimuth_rad=1") == {"tilt": {"angle_rad": 0.15, "azimuth_rad": 1.0}}
     assert parse("tilt.azimuth_rad=1", bare="off") == {"tilt": {"angle_rad": 0.0, "azimuth_rad": 1.0}}
     assert parse("tilt.azimuth_rad=1,prestrain", bare=None) == {"tilt": {"azimuth_rad": 1.0}, "prestrain": {}}
+
+
+def test_bare_name_param_fits_that_parameter_only_in_fit():
+    # fit --effects NAME.PARAM: that parameter comes back as None (fitted from its off value); with bare=None
+    # the effect's other parameters are not filled in (fit holds them off unless given).
+    assert parse("prestrain.strain", bare=None) == {"prestrain": {"strain": None}}
+    assert parse(" tilt.azimuth_rad , tilt=0.07,prestrain.warp_minus_weft ", bare=None) == {
+        "tilt": {"azimuth_rad": None, "angle_rad": 0.07}, "prestrain": {"warp_minus_weft": None}}
+    assert parse("tilt.angle_rad,tilt.azimuth_rad", bare=None) == {"tilt": {"angle_rad": None, "azimuth_rad": None}}
+    # A bare NAME next to it adds nothing, as it adds nothing next to NAME.PARAM=VALUE.
+    assert parse("tilt,tilt.angle_rad", bare=None) == {"tilt": {"angle_rad": None}}
+
+
+@pytest.mark.parametrize("text, bare, message", [
+    ("tilt.azimuth_rad", "moderate", r"without a value \(write tilt.azimuth_rad=VALUE; a bare tilt.azimuth_rad fits"),
+    ("tilt.azimuth_rad", "off", "without a value"),
+    ("tilt.angle_rad,tilt.angle_rad", None, "tilt.angle_rad is set twice"),
+    ("tilt=0.1,tilt.angle_rad", None, "tilt.angle_rad is set twice"),
+    ("tilt.angle_rad,tilt.angle_rad=0.1", None, "tilt.angle_rad is set twice"),
+    ("tilt.angle", None, "no parameter 'angle'.*angle_rad, azimuth_rad"),
+    ("tlt.angle_rad", None, "unknown effect 'tlt'"),
+])
+def test_bare_name_param_errors(text, bare, message):
+    with pytest.raises(sim.InputError, match=message):
+        parse(text, bare=bare)
+
+
+def test_a_structural_parameter_cannot_be_fitted_bare():
+    registry = [{"name": "disk_contact", "parameters": [
+        {"name": "clamp_radius_m", "off": 0.0, "moderate": 0.02, "structural": True},
+        {"name": "friction", "off": 0.0, "moderate": 0.3}]}]
+    with pytest.raises(sim.InputError, match="disk_contact.clamp_radius_m is structural"):
+        sim.parse_effects_arg("disk_contact.clamp_radius_m", bare=None, registry=registry)
+    assert sim.parse_effects_arg("disk_contact.friction,disk_contact.clamp_radius_m=0.03", bare=None,
+                                 registry=registry) == {"disk_contact": {"friction": None, "clamp_radius_m": 0.03}}
 
 
 @pytest.mark.parametrize("text, message", [

@@ -37,6 +37,26 @@ def test_plan_fits_bare_effects_and_fixes_given_values():
     assert clipped[0] == tilt["parameters"][0]["upper"] and list(inside) == [False, True]
 
 
+def test_the_command_line_plan_of_a_bare_name_param_fits_that_parameter_only():
+    # fit --effects NAME.PARAM: the parameter fitted from its off value, the effect's others off (fixed) unless
+    # given; a bare NAME still fits them all.
+    prestrain = registered("prestrain")
+    primary, second = (p["name"] for p in prestrain["parameters"][:2])
+    off = {p["name"]: p["off"] for p in prestrain["parameters"]}
+    plan = fit_effects.EffectPlan(sim.parse_effects_arg(f"prestrain.{primary}", bare=None))
+    assert plan.names == [f"prestrain.{primary}"] and list(plan.off) == [off[primary]]
+    assert plan.values([0.02])["prestrain"] == {**off, primary: 0.02}
+    assert plan.describe()["prestrain"] == {**off, primary: "fitted"}
+    given = fit_effects.EffectPlan(sim.parse_effects_arg(f"prestrain.{second},prestrain={0.01}", bare=None))
+    assert given.names == [f"prestrain.{second}"] and given.values([0.005])["prestrain"] == {
+        **off, primary: 0.01, second: 0.005}
+    every = fit_effects.EffectPlan(sim.parse_effects_arg("prestrain", bare=None))
+    assert every.names == [f"prestrain.{p['name']}" for p in prestrain["parameters"] if not p.get("structural")]
+    # the start candidates of a one-parameter plan: off and +- the moderate strength
+    m = prestrain["parameters"][0]["moderate"]
+    assert [list(c) for c in plan.start_candidates(plan.off)] == [[0.0], [m], [-m]]
+
+
 def test_structural_parameters_are_held_and_the_model_rejects_a_mismatch():
     # disk_contact's clamp radius chooses which vertices the model holds: never fitted (no gradient), held at the
     # given value or, when the effect is fitted bare, at its registry strength (the 2 cm clamp).

@@ -9,7 +9,8 @@ PRESET.json.ckpt) and --resume continues from one. Ctrl-C cancels cleanly: the l
 
 --effects switches on effects from the registry (./drapelab effects): a bare NAME fits all its parameters
 with the material, from their off values (prior: the registry's prior scale); NAME=VALUE fixes the effect's
-primary parameter (its others stay off) and NAME.PARAM=VALUE fixes one parameter. The preset's
+primary parameter (its others stay off), NAME.PARAM=VALUE fixes one parameter and a bare NAME.PARAM fits that
+one parameter from its off value (the effect's others stay off unless given). The preset's
 active_effects records the values (fitted: with the posterior sd and 90 % interval for bdp).
 """
 import os
@@ -48,8 +49,9 @@ def register(subparsers):
     p.add_argument("--resume", default=None, metavar="CKPT.json", help="continue a fit from its checkpoint")
     p.add_argument("--threads", type=int, default=None, help="Monte Carlo lanes (default: up to 2 cores)")
     p.add_argument("--name", default=None, help="fabric name recorded in the preset")
-    p.add_argument("--effects", default=None, metavar="NAME[=VALUE][,NAME.PARAM=VALUE...]",
-                   help="effects to switch on: a bare NAME is fitted, a value fixes it (see ./drapelab effects)")
+    p.add_argument("--effects", default=None, metavar="NAME[=VALUE][,NAME.PARAM[=VALUE]...]",
+                   help="effects to switch on: a bare NAME is fitted, a bare NAME.PARAM fits that parameter only, "
+                        "a value fixes it (see ./drapelab effects)")
     p.set_defaults(func=run)
 
 
