@@ -414,6 +414,26 @@ def step_permutation_test(deltas, n, max_permutations=None, seed=0):
     return best, float(observed[best]), p
 
 
+def _in_lanes(run, lanes):
+    """run(lane) for lane in range(lanes), on threads when there are several (the drapes' lanes)."""
+    if lanes == 1:
+        run(0)
+        return
+    with concurrent.futures.ThreadPoolExecutor(lanes) as pool:
+        for f in [pool.submit(run, lane) for lane in range(lanes)]:
+            f.result()
+
+
+def _forward_silhouette(m, p, v0, pred, config, cancel_event):
+    """The hard silhouette of one forward drape (no record), or None when the drape fails; Cancelled passes."""
+    try:
+        x = m.simulate(p, mode="dynamic", record=False, velocities0=v0, cancel_event=cancel_event,
+                       **config["dynamic"])
+    except SolverError:
+        return None
+    return infer._hard_image(pred.camera, infer._observed(m, x, p), m.faces)
+
+
 def _step_drapes(pred, models, drawn, steps, k, seed, config, lanes, progress, cancel_event):
     """Hard images of the first `k` scored draws (the same material draws, P's effect draws and placement noise)
     with each step's effect switched on: {(effect, step index): [image or None per draw]}. Forward drapes only."""
@@ -436,25 +456,16 @@ def _step_drapes(pred, models, drawn, steps, k, seed, config, lanes, progress, c
             v0 = infer.placement_velocities(rest, np.random.default_rng([seed, i, 1]), amplitude, modes) \
                 if amplitude > 0 else None
             try:
-                x = m.simulate(p, mode="dynamic", record=False, velocities0=v0, cancel_event=cancel_event,
-                               **config["dynamic"])
-            except SolverError:
-                continue
+                out[(n, si)][i] = _forward_silhouette(m, p, v0, pred, config, cancel_event)
             except Cancelled:
                 return
-            out[(n, si)][i] = infer._hard_image(pred.camera, infer._observed(m, x, p), m.faces)
             with lock:
                 done[0] += 1
                 if done[0] % max(1, len(tasks) // 10) == 0 or done[0] == len(tasks):
                     _progress(progress, "steps", f"step drapes {done[0]}/{len(tasks)} ({time.monotonic() - t0:.1f} s)",
                               done=done[0], total=len(tasks))
 
-    if lanes == 1:
-        run(0)
-    else:
-        with concurrent.futures.ThreadPoolExecutor(lanes) as pool:
-            for f in [pool.submit(run, lane) for lane in range(lanes)]:
-                f.result()
+    _in_lanes(run, lanes)
     return out
 
 
@@ -558,22 +569,15 @@ def _pseudo_observations(pred, preset, models, offs, j, seed, config, lanes, pro
             v0 = infer.placement_velocities(rest, np.random.default_rng([seed, PSEUDO_SEED_OFFSET * (1 + stream) + i, 1]),
                                             amplitude, modes) if amplitude > 0 else None
             try:
-                x = m.simulate(p, mode="dynamic", record=False, velocities0=v0, cancel_event=cancel_event,
-                               **config["dynamic"])
-            except SolverError:
-                continue
+                images[i] = _forward_silhouette(m, p, v0, pred, config, cancel_event)
             except Cancelled:
                 return
-            images[i] = infer._hard_image(pred.camera, infer._observed(m, x, p), m.faces)
+            if images[i] is None:
+                continue
             what = ("the score's null reference", "the step test's references", "the re-drape floor")[stream]
             _progress(progress, "draws", f"predictive silhouette {i + 1}/{j} draped ({what})")
 
-    if lanes == 1:
-        run(0)
-    else:
-        with concurrent.futures.ThreadPoolExecutor(lanes) as pool:
-            for f in [pool.submit(run, lane) for lane in range(lanes)]:
-                f.result()
+    _in_lanes(run, lanes)
     return [im for im in images if im is not None]
 
 
@@ -712,12 +716,7 @@ def _joint_drapes(preset, observations, names, k, seed, config, threads, templat
                 _progress(progress, "draws", f"draw {done[0]}/{k} draped and differentiated "
                                              f"({time.monotonic() - t0:.1f} s)", done=done[0], total=k)
 
-    if lanes == 1:
-        run(0)
-    else:
-        with concurrent.futures.ThreadPoolExecutor(lanes) as pool:
-            for f in [pool.submit(run, lane) for lane in range(lanes)]:
-                f.result()
+    _in_lanes(run, lanes)
     return pred, models, shapes, grads, time.monotonic() - t0, lanes, pseudo, drawn
 
 
