@@ -434,29 +434,26 @@ def _forward_silhouette(m, p, v0, pred, config, cancel_event):
     return infer._hard_image(pred.camera, infer._observed(m, x, p), m.faces)
 
 
-def _step_drapes(pred, models, drawn, steps, k, seed, config, lanes, progress, cancel_event):
-    """Hard images of the first `k` scored draws (the same material draws, P's effect draws and placement noise)
-    with each step's effect switched on: {(effect, step index): [image or None per draw]}. Forward drapes only."""
+def _step_drapes(pred, models, drawn, steps, used, config, lanes, progress, cancel_event):
+    """Hard images of the scored draws `used` (the same material draws, P's effect draws and placement noise) with
+    each step's effect switched on: {(effect, step index): [image or None per used draw]}. Forward drapes only."""
     jobs = [(n, si, values) for n, st in steps.items() for si, (_, values) in enumerate(st)]
-    out = {(n, si): [None] * k for n, si, _ in jobs}
-    tasks = [(n, si, values, i) for n, si, values in jobs for i in range(k)]
-    amplitude, modes = pred.placement
-    rest = models[0].rest_positions
+    out = {(n, si): [None] * len(used) for n, si, _ in jobs}
+    tasks = [(n, si, values, u) for n, si, values in jobs for u in range(len(used))]
     done = [0]
     lock = threading.Lock()
     t0 = time.monotonic()
 
     def run(lane):
         m = models[lane]
-        for n, si, values, i in tasks[lane::lanes]:
+        for n, si, values, u in tasks[lane::lanes]:
             if cancel_event is not None and cancel_event.is_set():
                 return
+            i = used[u]
             base = drawn["effects"][i] if drawn["effects"] else {}
             p = m.parameters(stretch=pred.stretch, bend=drawn["bend"][i], effects={**base, **drawn["offs"], n: values})
-            v0 = infer.placement_velocities(rest, np.random.default_rng([seed, i, 1]), amplitude, modes) \
-                if amplitude > 0 else None
             try:
-                out[(n, si)][i] = _forward_silhouette(m, p, v0, pred, config, cancel_event)
+                out[(n, si)][u] = _forward_silhouette(m, p, drawn["velocities"][i], pred, config, cancel_event)
             except Cancelled:
                 return
             with lock:
@@ -632,8 +629,10 @@ def _joint_drapes(preset, observations, names, k, seed, config, threads, templat
     amplitude, modes = pred.placement
     rest = models[0].rest_positions
     shapes, grads = [None] * k, [None] * k
+    velocities = [infer.placement_velocities(rest, np.random.default_rng([seed, i, 1]), amplitude, modes)
+                  if amplitude > 0 else None for i in range(k)]
     # what the step test (_step_drapes) needs to drape the same draws with an effect switched on
-    drawn = {"bend": draws, "effects": base_effects, "offs": offs, "p_active": p_active}
+    drawn = {"bend": draws, "effects": base_effects, "offs": offs, "velocities": velocities}
     done = [0]
     lock = threading.Lock()
     t0 = time.monotonic()
@@ -669,8 +668,7 @@ def _joint_drapes(preset, observations, names, k, seed, config, threads, templat
                 return
             effects = {**(base_effects[i] if base_effects else {}), **offs}
             p = m.parameters(stretch=pred.stretch, bend=draws[i], effects=effects)
-            v0 = infer.placement_velocities(rest, np.random.default_rng([seed, i, 1]), amplitude, modes) \
-                if amplitude > 0 else None
+            v0 = velocities[i]
             try:
                 x = m.simulate(p, mode="dynamic", record=True, velocities0=v0, cancel_event=cancel_event,
                                **config["dynamic"])
@@ -927,14 +925,12 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                 references += _pseudo_observations(pred, p, models, drawn["offs"], j_extra, seed, config, lanes,
                                                    progress, cancel_event, stream=1)
             used = done[:k_step]
-            images_k = _step_drapes(pred, models, drawn, steps, max(used) + 1, seed, config, lanes, progress,
-                                    cancel_event)
+            images_k = _step_drapes(pred, models, drawn, steps, used, config, lanes, progress, cancel_event)
             if cancel_event is not None and cancel_event.is_set():
                 result["cancelled"] = True
             else:
-                tests = step_tests([shapes[i]["image"] for i in used], {key: [v[i] for i in used]
-                                                                         for key, v in images_k.items()},
-                                   steps, [o.mask for o in observations], references)
+                tests = step_tests([shapes[i]["image"] for i in used], images_k, steps,
+                                   [o.mask for o in observations], references)
             result["seconds"]["steps"] = time.monotonic() - ts
             result["step_test"] = {"draws": len(used), "references": len(references),
                                    "rule": "per candidate the primary parameter at +- its moderate strength (and "
