@@ -3,7 +3,7 @@
 "Diagnosing against a reference" prescribes: a reference preset is fitted on control drapes (synthetic, no
 effect, placement seed --reference-seed); then, for every seed of --seeds (seeds not used in any tuning run),
 6 drapes of the same material are made per case and diagnosed with the reference:
-    each registered effect whose primary parameter is not structural, at its registry moderate strength,
+    each registered effect whose primary parameter is not structural, at its registry moderate strength (times --strength-factor),
     `control` (no effect) and `weak` (a 4 degree tilt, 0.07 rad: below the re-drape noise),
 recording what the diagnosis ranks first (smallest p), what it recommends (or null), and, where a refit ran,
 how much of the gap between the reference on these drapes and the reference on control drapes of the same seed
@@ -22,6 +22,8 @@ import os
 import sys
 import time
 
+import numpy as np
+
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "addon"))
 
 from drapelab import diagnose, infer, measure, sim, synth  # noqa: E402
@@ -38,11 +40,26 @@ def images_of(folder):
     return sorted(glob.glob(os.path.join(folder, "fabric_00", "silhouettes", "*.png")))
 
 
-def cases(names, registry):
+STRENGTH_FACTOR_RANGE = (0.7, 1.4)  # --strength-factor random: log-uniform factors of the moderate strength
+
+
+def strength_factor(arg, seed, name):
+    """The factor of the registry's moderate strength at which `name` is drawn for `seed`: a number, or "random"
+    (log-uniform in STRENGTH_FACTOR_RANGE, from the seed and the effect's name). The diagnosis's step test moves
+    each candidate by exactly its moderate strength, so drapes at exactly that strength would flatter it."""
+    if arg != "random":
+        return float(arg)
+    lo, hi = STRENGTH_FACTOR_RANGE
+    rng = np.random.default_rng([seed, sum(ord(c) for c in name), 7])
+    return float(np.exp(rng.uniform(np.log(lo), np.log(hi))))
+
+
+def cases(names, registry, factor="1", seed=0):
     out = []
     for name in names:
         primary = registry[name]["parameters"][0]
-        out.append((name, {name: {primary["name"]: primary["moderate"]}}))
+        value = primary["moderate"] * strength_factor(factor, seed, name)
+        out.append((name, {name: {primary["name"]: float(np.clip(value, primary["lower"], primary["upper"]))}}))
     return out + [("control", None), ("weak", {"tilt": {"angle_rad": WEAK_TILT_RAD}})]
 
 
@@ -57,6 +74,9 @@ def main():
     ap.add_argument("--epochs", type=int, default=15)
     ap.add_argument("--samples", type=int, default=16)
     ap.add_argument("--time-budget", type=float, default=150.0)
+    ap.add_argument("--strength-factor", default="1",
+                    help="the hidden effects' strength as a factor of the registry's moderate (the step test's "
+                         "step), or 'random': log-uniform in [0.7, 1.4] per seed and effect")
     args = ap.parse_args()
     registry = {e["name"]: e for e in sim.effects()}
     names = args.effects.split(",") if args.effects else [
@@ -78,7 +98,7 @@ def main():
     rows = json.load(open(result_path))["rows"] if os.path.isfile(result_path) else []
     done = {(r["case"], r["seed"]) for r in rows}
     for seed in [int(s) for s in args.seeds.split(",")]:
-        for case, effects in cases(names, registry):
+        for case, effects in cases(names, registry, args.strength_factor, seed):
             if (case, seed) in done:
                 continue
             folder = os.path.join(args.out, f"seed{seed}", case)
@@ -92,7 +112,7 @@ def main():
             tested = [e for e in d["ranking"] if e.get("p_value") is not None]
             first = min(tested, key=lambda e: (e["p_value"], -(e["statistic"] or 0))) if tested else None
             rec = next((e for e in d["ranking"] if e["effect"] == d["recommended"]), None)
-            row = {"case": case, "seed": seed, "first": first["effect"] if first else None,
+            row = {"case": case, "seed": seed, "truth": effects, "first": first["effect"] if first else None,
                    "first_p": first["p_value"] if first else None, "recommended": d["recommended"],
                    "ranked_first": d["ranking"][0]["effect"] if d["ranking"] else None,
                    "threshold": d["threshold"], "base_mse": d["base"]["mse"],
