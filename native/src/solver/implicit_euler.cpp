@@ -37,7 +37,8 @@ void factorize_step(CholmodSolver& solver, const Eigen::VectorXd& A, int step) {
     std::ostringstream s;
     s << "rollout: step " << step << " matrix is not positive definite (";
     if (solver.failed_dof() >= 0) s << "at vertex " << solver.failed_dof() / 3 << "; ";
-    s << "stiffness tables invalid?)";
+    s << "some term's Hessian made it indefinite: check the material's stiffness tables, the mesh for degenerate "
+         "triangles, or reduce the time step)";
     throw SolverError(s.str());
   }
 }

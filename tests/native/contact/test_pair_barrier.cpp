@@ -46,6 +46,18 @@ void random_pair(PairKind kind, int variant, std::mt19937& rng, double dhat, dou
   }
 }
 
+// phi = l^T K w for the Gauss-Newton matrix K = s r r^T at kappa = c dh (what ..._derivatives differentiates).
+double gauss_newton_form(PairKind kind, int type, const double* x, double dh, double c, const double* l,
+                         const double* w, double eps = 0) {
+  double r[12], s, lr = 0, wr = 0;
+  pair_barrier_gauss_newton(kind, type, x, dh, c * dh, r, s, eps);
+  for (int i = 0; i < 12; ++i) {
+    lr += l[i] * r[i];
+    wr += w[i] * r[i];
+  }
+  return s * lr * wr;
+}
+
 TEST(PairBarrier, DerivativesMatchCentralDifferences) {
   std::mt19937 rng(3);
   std::normal_distribution<double> n01(0, 1);
@@ -170,13 +182,7 @@ TEST(PairBarrier, GaussNewtonMatrixDerivativesMatchCentralDifferences) {
   std::normal_distribution<double> n01(0, 1);
   const double dhat = 1e-3, c = 0.7;
   auto phi = [&](PairKind kind, int type, const double* x, double dh, const double* l, const double* w, double eps) {
-    double r[12], s, lr = 0, wr = 0;
-    pair_barrier_gauss_newton(kind, type, x, dh, c * dh, r, s, eps);
-    for (int i = 0; i < 12; ++i) {
-      lr += l[i] * r[i];
-      wr += w[i] * r[i];
-    }
-    return s * lr * wr;
+    return gauss_newton_form(kind, type, x, dh, c, l, w, eps);
   };
   int tested = 0;
   for (int trial = 0; trial < 80; ++trial) {
@@ -238,13 +244,7 @@ TEST(PairBarrier, GaussNewtonCurvatureFloorBelowTheFloorMatchesCentralDifference
   double b, db, d2b_floor;
   barrier_derivatives(floor_d, dhat, b, db, d2b_floor);
   auto phi = [&](PairKind kind, int type, const double* x, double dh, const double* l, const double* w) {
-    double r[12], s, lr = 0, wr = 0;
-    pair_barrier_gauss_newton(kind, type, x, dh, c * dh, r, s);
-    for (int i = 0; i < 12; ++i) {
-      lr += l[i] * r[i];
-      wr += w[i] * r[i];
-    }
-    return s * lr * wr;
+    return gauss_newton_form(kind, type, x, dh, c, l, w);
   };
   int tested = 0;
   for (int trial = 0; trial < 72; ++trial) {
