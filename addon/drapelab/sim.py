@@ -96,8 +96,9 @@ def parse_effects_arg(text, bare="moderate", registry=None):
     bare: what a named effect's primary parameter is when the text does not set it: "moderate" (the registry's
     moderate strength: ``synth``) or "off" (its off value: ``fit``, which fits it from there); the effect's
     other parameters not set take their off values, so every named effect comes back with its whole block.
-    bare=None returns only what the text sets (a bare NAME gives {}), for callers that must tell a value
-    given from one filled in (``fit``: fit_effects.EffectPlan fixes the given values, fits the parameters given
+    bare=None returns only what the text sets (a bare NAME gives {}; beside some of its parameters set, its other
+    parameters come back as None: ``tilt,tilt.azimuth_rad=1`` fits the angle at that azimuth), for callers that
+    must tell a value given from one filled in (``fit``: fit_effects.EffectPlan fixes the given values, fits the parameters given
     as None and every parameter of an effect given as {}, and holds the rest of a named effect off).
     registry: the effect list (default ``effects()``). Errors (InputError naming the item): an unknown effect
     or parameter (listing the known ones), a value that is not a finite number, a parameter set (or fitted)
@@ -113,6 +114,7 @@ def parse_effects_arg(text, bare="moderate", registry=None):
         raise InputError(f"effects: expected text NAME[=VALUE][,NAME.PARAM=VALUE...], got {type(text).__name__}")
     blocks = {e["name"]: e["parameters"] for e in (effects() if registry is None else registry)}
     given = {}
+    switched = set()  # effects named bare (NAME alone)
     for item in (s.strip() for s in text.split(",")):
         if not item:
             if text.strip():
@@ -136,6 +138,7 @@ def parse_effects_arg(text, bare="moderate", registry=None):
                                  f"write {name}.{param}=VALUE")
         values = given.setdefault(name, {})
         if not has_value and not has_param:
+            switched.add(name)
             continue
         param = param if has_param else names[0]
         if param in values:
@@ -151,6 +154,11 @@ def parse_effects_arg(text, bare="moderate", registry=None):
             raise InputError(f"effects: {name}.{param}: must be finite, got {value!r}")
         values[param] = number
     if bare is None:
+        # a bare NAME beside some of its parameters set (tilt,tilt.azimuth_rad=1): those are held, the rest fitted
+        for name in switched:
+            if given[name]:
+                for q in blocks[name]:
+                    given[name].setdefault(q["name"], None)
         return given
     out = {}
     for name, values in given.items():

@@ -39,6 +39,9 @@ def test_name_value_sets_the_primary_and_name_param_value_any_one():
     assert parse("tilt.azimuth_rad=1") == {"tilt": {"angle_rad": 0.15, "azimuth_rad": 1.0}}
     assert parse("tilt.azimuth_rad=1", bare="off") == {"tilt": {"angle_rad": 0.0, "azimuth_rad": 1.0}}
     assert parse("tilt.azimuth_rad=1,prestrain", bare=None) == {"tilt": {"azimuth_rad": 1.0}, "prestrain": {}}
+    # a bare NAME beside one of its parameters set: that one is held, the others are fitted (they used to stay off)
+    assert parse("tilt,tilt.azimuth_rad=1", bare=None) == {"tilt": {"azimuth_rad": 1.0, "angle_rad": None}}
+    assert parse("tilt.azimuth_rad=1,tilt", bare=None) == {"tilt": {"azimuth_rad": 1.0, "angle_rad": None}}
 
 
 def test_bare_name_param_fits_that_parameter_only_in_fit():
@@ -48,8 +51,8 @@ def test_bare_name_param_fits_that_parameter_only_in_fit():
     assert parse(" tilt.azimuth_rad , tilt=0.07,prestrain.warp_minus_weft ", bare=None) == {
         "tilt": {"azimuth_rad": None, "angle_rad": 0.07}, "prestrain": {"warp_minus_weft": None}}
     assert parse("tilt.angle_rad,tilt.azimuth_rad", bare=None) == {"tilt": {"angle_rad": None, "azimuth_rad": None}}
-    # A bare NAME next to it adds nothing, as it adds nothing next to NAME.PARAM=VALUE.
-    assert parse("tilt,tilt.angle_rad", bare=None) == {"tilt": {"angle_rad": None}}
+    # A bare NAME fits the whole effect: next to NAME.PARAM its other parameters are fitted too.
+    assert parse("tilt,tilt.angle_rad", bare=None) == {"tilt": {"angle_rad": None, "azimuth_rad": None}}
 
 
 @pytest.mark.parametrize("text, bare, message", [
