@@ -120,7 +120,8 @@ PSEUDO_MIN = 4            # predictive silhouettes drawn as the null reference (
 PSEUDO_SEED_OFFSET = 100000  # their placement seeds: [seed, offset + j, 1], apart from the scored draws' [seed, i, 1]
 STEP_REFERENCES_MIN = 12  # predictive silhouettes the step test compares with (at least; 2 per image beyond six)
 STEP_FORWARD_SHARE = 0.4  # a forward drape's share of a draw with backward (measured; as the refits' evaluation)
-STEP_BUDGET_SHARE = 0.4   # at most this share of the budget left after the score tests goes to the step drapes
+STEP_BUDGET_SHARE = 0.4   # at most this share of the budget left after the score tests goes to the step drapes,
+STEP_BUDGET_SHARE_MAX = 0.7  # ... or up to this share when the first leaves fewer than MIN_SAMPLES draws per step
 STEP_PERMUTATIONS_MAX = 20000  # labellings enumerated up to this count (six images, 12 references: 18564), else drawn
 
 
@@ -380,6 +381,19 @@ def effect_steps(reg, names, second=None):
         out[n] = [(f"{primary['name']}={v:+.3g}{tag}", {**off, **turn, primary["name"]: v})
                   for turn, tag in turns for v in values]
     return out
+
+
+def step_draws(k, left, forward, references, n_steps):
+    """How many of the k draws the step test drapes per step, with `left` seconds of the budget, `forward` seconds
+    per forward drape and lane, `references` extra reference drapes and n_steps steps: what STEP_BUDGET_SHARE of
+    `left` pays for; when that is fewer than MIN_SAMPLES, MIN_SAMPLES if STEP_BUDGET_SHARE_MAX of it pays for them
+    (on a fine mesh or a busy machine the usual share may leave the step test too few draws, and then nothing only
+    it sees can become significant, and without significance no refit runs); else what that pays for (below
+    MIN_SAMPLES: the caller does not run the test)."""
+    per_draw = max(forward * n_steps, 1e-9)
+    usual, most = (int((share * left - references * forward) / per_draw)
+                   for share in (STEP_BUDGET_SHARE, STEP_BUDGET_SHARE_MAX))
+    return max(0, min(k, usual if usual >= MIN_SAMPLES else min(MIN_SAMPLES, most)))
 
 
 def step_permutation_test(deltas, n, max_permutations=None, seed=0):
@@ -902,8 +916,7 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
         if time_budget is not None and n_steps:  # the extra references and the step drapes within a share
             left = float(time_budget) - (time.monotonic() - t0)
             forward = per_draw * STEP_FORWARD_SHARE / lanes  # a forward drape, per lane
-            spare = STEP_BUDGET_SHARE * left - max(0, j_step - len(pseudo)) * forward
-            k_step = min(k_step, int(spare / max(forward * n_steps, 1e-9)))
+            k_step = step_draws(k_step, left, forward, max(0, j_step - len(pseudo)), n_steps)
         tests = {}
         # with few images the relabelling cannot reach the threshold (one image: 1 in 13), and the combined p would
         # only halve the score test's power: then the step test is not run

@@ -324,3 +324,17 @@ def test_refit_with_effect_fits_the_given_parameters_with_the_given_likelihood(i
     block = refit["active_effects"]["prestrain"]
     assert block["strain"]["fitted"] and not block["warp_minus_weft"]["fitted"]
     assert block["warp_minus_weft"]["value"] == 0.0 and np.isfinite(block["strain"]["value"])
+
+
+def test_step_draws_take_a_larger_share_only_to_reach_the_minimum():
+    # 13 steps, 6 extra references, 455 s left after the score tests (fabric 1's circle3 diagnosis, 2026-11-24,
+    # where the usual 40 % paid for 2 draws per step and no step test ran), 4.5 s per forward drape and lane
+    k = diagnose.step_draws(16, 455.0, 4.5, 6, 13)
+    usual = int((diagnose.STEP_BUDGET_SHARE * 455.0 - 6 * 4.5) / (4.5 * 13))
+    assert usual < diagnose.MIN_SAMPLES and k == diagnose.MIN_SAMPLES
+    # plenty of time: the usual share, capped at the draws there are
+    assert diagnose.step_draws(16, 1e5, 3.3, 6, 13) == 16
+    assert diagnose.step_draws(16, 300.0, 1.0, 6, 13) == int((diagnose.STEP_BUDGET_SHARE * 300.0 - 6) / 13)
+    # not even the larger share pays for the minimum: what it pays for, which the caller refuses
+    assert diagnose.step_draws(16, 50.0, 3.3, 6, 13) < diagnose.MIN_SAMPLES
+    assert diagnose.step_draws(16, 0.0, 3.3, 6, 13) == 0
