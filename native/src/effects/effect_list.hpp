@@ -9,4 +9,5 @@ DRAPELAB_EFFECT(self_contact)
 DRAPELAB_EFFECT(rest_curvature)
 DRAPELAB_EFFECT(damping)
 DRAPELAB_EFFECT(offset)  // before camera: observations compose in registry order (tester's frame, then image)
+DRAPELAB_EFFECT(orientation)  // the tester's frame turned about its axis: after offset's shift, before the camera
 DRAPELAB_EFFECT(camera)
