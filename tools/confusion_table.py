@@ -152,7 +152,9 @@ def report(rows, names):
             else:
                 closed.append(f"{(r['base_mse'] - r['refit_mse']) / (r['base_mse'] - c):.2f}")
         ranked = ", ".join(str(r.get("ranked_first")) for r in rs)
-        print(f"| {case} | {len(rs)} | {ranked} | {firsts} | {recs} | {', '.join(closed)} |")
+        truths = ", ".join(", ".join(f"{k} {v:.3g}" for vals in (r.get("truth") or {}).values()
+                                     for k, v in vals.items()) or "-" for r in rs)
+        print(f"| {case} ({truths}) | {len(rs)} | {ranked} | {firsts} | {recs} | {', '.join(closed)} |")
     eff = [r for r in rows if r["case"] in names]
     null = [r for r in rows if r["case"] in ("control", "weak")]
     if eff:
