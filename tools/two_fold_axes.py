@@ -6,7 +6,6 @@ model's material axes put it (0 or 90 degrees). docs/lab/orientation.md.
 Usage (from the repository root):
     PYTHONPATH=addon:build/python /usr/bin/python3 tools/two_fold_axes.py [DATA_DIR (default ../shared/data/cusick)]
 """
-import csv
 import os
 import sys
 
@@ -19,7 +18,8 @@ from drapelab import measure  # noqa: E402
 
 
 def two_fold(mask):
-    """(amplitude m, axis degrees mod 180) of the k = 2 harmonic of the silhouette's r(theta)."""
+    """(amplitude m, axis degrees mod 180) of the k = 2 harmonic of the silhouette's r(theta) (measure.harmonics
+    gives amplitudes only; the axis needs the phase)."""
     rt = np.asarray(measure.r_theta(np.asarray(mask)))
     th = np.arange(rt.size) * 2 * np.pi / rt.size
     c = np.exp(-2j * th) @ rt * 2 / rt.size
@@ -28,12 +28,12 @@ def two_fold(mask):
 
 def main():
     data = sys.argv[1] if len(sys.argv) > 1 else os.path.join(ROOT, "..", "shared", "data", "cusick")
-    rows = list(csv.DictReader(open(os.path.join(data, "manifest.csv"))))
-    for fab in ("1", "2", "3", "4", "5"):
+    rows = measure.load_manifest(os.path.join(data, "manifest.csv"))
+    for fab in (1, 2, 3, 4, 5):
         out = []
         for r in rows:
             if r["fabric"] == fab:
-                amp, ax = two_fold(measure.load_silhouette(os.path.join(data, r["silhouette"])).mask)
+                amp, ax = two_fold(measure.load_silhouette(r["silhouette"]).mask)
                 out.append((int(r["sample"]), int(r["capture"]), amp * 1e3, ax))
         a = np.array(out)
         print(f"fabric {fab}: {len(a)} photos; 2-fold amplitude median {np.median(a[:, 2]):.1f} mm "
