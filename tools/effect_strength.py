@@ -6,7 +6,8 @@
 For each value, one drape of the Cotton Blue material (density 0.192 kg/m^2, the config's dynamic protocol:
 100 x 0.05 s from flat, no placement noise) with that one parameter set (the effect's others off), against the
 base model's drape of the same mesh: the change of the drape coefficient (DC), the pixel MSE between the hard
-orthographic silhouettes (the dataset's 720 px/m, 256 x 256) and the node count. The re-drape noise floor to
+orthographic silhouettes (the dataset's 720 px/m, 256 x 256), the node count and the 2-fold harmonic of r(theta)
+(amplitude, axis in degrees mod 180: an anisotropy's signature, tools/two_fold_axes.py). The re-drape noise floor to
 compare with (../shared/data/cusick/README.md): 0.031 in DC, 0.042 in pixel MSE.
 Run from the repository root: `PYTHONPATH=addon:build/python OPENBLAS_NUM_THREADS=1 /usr/bin/python3
 tools/effect_strength.py rest_curvature.crease_rad=0.25,0.5`.
@@ -41,8 +42,16 @@ def drape(mesh, effects, mode, dynamic, camera):
     x = model.simulate(p, mode=mode, record=False, **(dynamic if mode == "dynamic" else {}))
     mask = np.asarray(render.hard_silhouette(camera, x, model.faces), dtype=np.float64)
     dc = float(measure.drape_coefficient(mask, measure.DATASET_PX_PER_M, support_radius=model.support_radius))
-    nodes = int(measure.node_count(measure.r_theta(mask, measure.calibration(measure.DATASET_PX_PER_M))))
-    return mask, dc, nodes, time.monotonic() - t0
+    rt = measure.r_theta(mask, measure.calibration(measure.DATASET_PX_PER_M))
+    nodes = int(measure.node_count(rt))
+    return mask, dc, nodes, time.monotonic() - t0, two_fold(rt)
+
+
+def two_fold(rt):
+    """(amplitude mm, axis degrees mod 180) of r(theta)'s k = 2 harmonic."""
+    rt = np.asarray(rt, dtype=np.float64)
+    c = np.exp(-2j * np.arange(rt.size) * 2 * np.pi / rt.size) @ rt * 2 / rt.size
+    return abs(c) * 1e3, np.degrees(np.angle(c)) / 2 % 180
 
 
 def main():
@@ -54,20 +63,21 @@ def main():
     mesh = sim.cusick_template_path(args.mesh_level)
     dynamic = dict(infer.load_config()["dynamic"])
     camera = render.orthographic_camera(measure.DATASET_PX_PER_M, centre=(128, 128), size=(256, 256))
-    base, dc0, n0, s0 = drape(mesh, None, args.mode, dynamic, camera)
-    print(f"base (circle{args.mesh_level}, {args.mode}): DC {dc0:.4f}, {n0} nodes ({s0:.0f} s)", flush=True)
-    print("| parameter | value | DC | dDC | pixel MSE vs base | nodes |")
-    print("|---|---|---|---|---|---|")
+    base, dc0, n0, s0, (a0, ax0) = drape(mesh, None, args.mode, dynamic, camera)
+    print(f"base (circle{args.mesh_level}, {args.mode}): DC {dc0:.4f}, {n0} nodes, 2-fold {a0:.1f} mm at "
+          f"{ax0:.0f} deg ({s0:.0f} s)", flush=True)
+    print("| parameter | value | DC | dDC | pixel MSE vs base | nodes | 2-fold mm (axis deg) |")
+    print("|---|---|---|---|---|---|---|")
     for spec in args.specs:
         effect, param, values = parse(spec)
         for v in values:
             try:
-                mask, dc, n, _ = drape(mesh, {effect: {param: v}}, args.mode, dynamic, camera)
+                mask, dc, n, _, (a2, ax2) = drape(mesh, {effect: {param: v}}, args.mode, dynamic, camera)
             except Exception as e:  # a diverged rollout is a measurement too
-                print(f"| {effect}.{param} | {v:g} | failed: {e} | | | |", flush=True)
+                print(f"| {effect}.{param} | {v:g} | failed: {e} | | | | |", flush=True)
                 continue
             print(f"| {effect}.{param} | {v:g} | {dc:.4f} | {dc - dc0:+.4f} | {measure.pixel_mse(mask, base):.4f} "
-                  f"| {n} |", flush=True)
+                  f"| {n} | {a2:.1f} ({ax2:.0f}) |", flush=True)
 
 
 if __name__ == "__main__":

@@ -4,6 +4,7 @@ DRAPELAB_EFFECT(tilt)
 DRAPELAB_EFFECT(density_variation)
 DRAPELAB_EFFECT(prestrain)
 DRAPELAB_EFFECT(heterogeneity_map)
+DRAPELAB_EFFECT(bending_anisotropy)  // a bend change like heterogeneity_map: over edge directions, not positions
 DRAPELAB_EFFECT(disk_contact)
 DRAPELAB_EFFECT(self_contact)
 DRAPELAB_EFFECT(rest_curvature)
