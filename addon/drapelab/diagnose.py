@@ -350,6 +350,36 @@ def _summary(shapes, observations, camera_cal, sigma_obs, sigma_dc):
     return base, per_image, ok
 
 
+def redrape_change(pseudo):
+    """The median pixel MSE between two of P's mean-material re-drapes (placement noise only): how much re-draping
+    alone changes a drape; None with fewer than two."""
+    pairs = [measure.pixel_mse(a, b) for i, a in enumerate(pseudo or []) for b in pseudo[i + 1:]]
+    return float(np.median(pairs)) if pairs else None
+
+
+def effect_change(shapes, refit_shapes):
+    """The median over draws of the pixel MSE between a base draw and the refit's draw of the same index: the same
+    material draw and placement noise (both seeded alike), with the fitted effect added, i.e. how much the fitted
+    effect changes a drape; None when no pair draped."""
+    pairs = [measure.pixel_mse(a["image"], b["image"]) for a, b in zip(shapes, refit_shapes)
+             if a is not None and b is not None and "error" not in a and "error" not in b]
+    return float(np.median(pairs)) if pairs else None
+
+
+def strength_of_moderate(entry, values, second=None):
+    """The fitted effect's strength in units of its registry moderate strength: the root sum of squares over its
+    parameters of (value - off) / moderate, direction parameters (the registry's `second_direction`: a tilt's
+    azimuth) left out. A moderate strength changes a drape about 2-3 times as much as re-draping does
+    (docs/physics.md)."""
+    skip = set((second or {}).get(entry["name"], {}))
+    total = 0.0
+    for q in entry["parameters"]:
+        if q["name"] in skip or q["name"] not in values or not q.get("moderate"):
+            continue
+        total += ((float(values[q["name"]]) - float(q["off"])) / float(q["moderate"])) ** 2
+    return float(np.sqrt(total))
+
+
 def _redrape_floor(shapes, pseudo):
     """(mean, sd) over P's own predictive silhouettes of the draws' best-of-K MSE against each: the base MSE the
     measurements would get if P were right (module doc, 3.); None without references."""
@@ -860,6 +890,7 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
         floor = _redrape_floor([shapes[i] for i in done], redrapes)
         if floor is not None:
             base["redrape_mse"], base["redrape_mse_sd"] = floor
+        base["redrape_change_mse"] = redrape_change(redrapes)
         result["base"] = base
         for o, e in zip(observations, per_image):
             sig, curves = _signature(o, ok, e["best_draw"], pred.calibration)
@@ -1004,11 +1035,13 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                 continue
             rbase, rper, _ = _summary(rshapes, observations, rp.calibration, float(config["sigma_obs"]),
                                       SCORE_SIGMA_DC)
+            values = {key: e["value"] for key, e in refit["active_effects"][entry["effect"]].items()}
             entry["refit"] = {"mse": rbase["mse"], "iou": rbase["iou"], "loss": rbase["loss"],
                               "dc_error": rbase["dc_error"], "node_error": rbase["node_error"],
                               "amplitude_error": rbase["amplitude_error"], "epochs": job.epoch,
-                              "seconds": time.monotonic() - ts,
-                              "values": {key: e["value"] for key, e in refit["active_effects"][entry["effect"]].items()}}
+                              "seconds": time.monotonic() - ts, "values": values,
+                              "strength_of_moderate": strength_of_moderate(reg[entry["effect"]], values, second),
+                              "effect_change_mse": effect_change(shapes, rshapes)}
             entry["gain"] = (base["loss"] - rbase["loss"]) / len(reg[entry["effect"]]["parameters"])
             entry["explanation"] += (f" Refit ({job.epoch} epochs): loss {base['loss']:.4g} -> {rbase['loss']:.4g}, "
                                      f"best-of-{k} MSE {base['mse']:.4f} -> {rbase['mse']:.4f}.")

@@ -14,7 +14,8 @@ from drapelab import cli, diagnose, fit_effects, infer, measure, render, sim
 from fit_support import ROOT, SHIPPED_PRESET as PRESET, small_config
 
 SCHEMA = os.path.join(ROOT, "addon", "drapelab", "schemas", "diagnosis.schema.json")
-BASE_KEYS = {"mse", "iou", "dc_error", "node_error", "amplitude_error", "loss", "redrape_mse", "redrape_mse_sd"}
+BASE_KEYS = {"mse", "iou", "dc_error", "node_error", "amplitude_error", "loss", "redrape_mse", "redrape_mse_sd",
+             "redrape_change_mse"}
 RANKING_KEYS = {"effect", "statistic", "p_value", "refit", "gain", "explanation"}
 
 
@@ -150,6 +151,32 @@ def test_tilted_drape_finds_the_shift_family_and_the_control_is_clean(images, tm
           control["seconds"])
 
 
+def test_redrape_change_is_the_median_pair_and_effect_change_pairs_the_draws():
+    rng = np.random.default_rng(4)
+    refs = [(rng.random((8, 8)) > 0.5).astype(float) for _ in range(4)]
+    pairs = [float(np.mean((refs[i] - refs[j]) ** 2)) for i in range(4) for j in range(i + 1, 4)]
+    assert diagnose.redrape_change(refs) == pytest.approx(np.median(pairs))
+    assert diagnose.redrape_change(refs[:1]) is None
+    base = [{"image": r} for r in refs[:3]] + [{"error": "diverged"}]
+    refit = [{"image": refs[1]}, {"error": "diverged"}, {"image": refs[3]}, {"image": refs[0]}]
+    # draw 0 against refit draw 0, draw 2 against refit draw 2; the failed ones left out
+    assert diagnose.effect_change(base, refit) == pytest.approx(
+        np.median([np.mean((refs[0] - refs[1]) ** 2), np.mean((refs[2] - refs[3]) ** 2)]))
+    assert diagnose.effect_change(base[3:], refit[3:]) is None
+
+
+def test_strength_of_moderate_leaves_direction_parameters_out():
+    reg = fit_effects.registry()
+    second = diagnose.second_directions(reg)
+    tilt = reg["tilt"]["parameters"]
+    assert diagnose.strength_of_moderate(reg["tilt"], {"angle_rad": 0.5 * tilt[0]["moderate"], "azimuth_rad": 3.0},
+                                         second) == pytest.approx(0.5)
+    dx = {q["name"]: q for q in reg["offset"]["parameters"]}
+    v = {"dx_m": 0.3 * dx["dx_m"]["moderate"], "dy_m": 0.4 * dx["dy_m"]["moderate"]}
+    assert diagnose.strength_of_moderate(reg["offset"], v, second) == pytest.approx(0.5)
+    assert diagnose.strength_of_moderate(reg["offset"], {"dx_m": 0.0, "dy_m": 0.0}, second) == 0.0
+
+
 def test_cli_writes_the_report_the_contract_and_a_refit(images, tmp_path, capsys):
     # --alpha 1: the tilt is "significant" whatever 4 draws say, so that its refit runs (the budget leaves it time
     # on a loaded machine too: at 20 s, with draws at 10-14 s under load, the refit had none).
@@ -170,6 +197,10 @@ def test_cli_writes_the_report_the_contract_and_a_refit(images, tmp_path, capsys
     assert entry["parameters"] == ["tilt.angle_rad", "tilt.azimuth_rad", "tilt.angle_rad@azimuth_rad"]
     assert entry["rank"] == 2  # the azimuth has no gradient at zero angle; the turned angle has
     assert set(entry["refit"]) >= {"mse", "iou", "loss"} and np.isfinite(entry["gain"])
+    reg = fit_effects.registry()
+    assert entry["refit"]["strength_of_moderate"] == pytest.approx(
+        abs(entry["refit"]["values"]["angle_rad"]) / reg["tilt"]["parameters"][0]["moderate"])
+    assert entry["refit"]["effect_change_mse"] >= 0 and d["base"]["redrape_change_mse"] > 0
     assert entry["mse_fall"] == pytest.approx((d["base"]["mse"] - entry["refit"]["mse"]) / d["base"]["mse"])
     removed = d["base"]["mse"] - entry["refit"]["mse"]
     assert entry["fall_of_redrape"] == pytest.approx(removed / d["base"]["redrape_mse"])
