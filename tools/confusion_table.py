@@ -120,6 +120,10 @@ def main():
                    "redrape_mse": d["base"].get("redrape_mse"),
                    "falls_of_redrape": {e["effect"]: e.get("fall_of_redrape") for e in d["ranking"]
                                         if e.get("fall_of_redrape") is not None},
+                   "redrape_change_mse": d["base"].get("redrape_change_mse"),
+                   "refits": {e["effect"]: {k: e["refit"].get(k) for k in ("mse", "epochs", "values",
+                                                                           "strength_of_moderate", "effect_change_mse")}
+                              for e in d["ranking"] if e.get("refit")},
                    "p_values": {e["effect"]: e["p_value"] for e in tested},
                    "p_values_score": {e["effect"]: e.get("p_value_score", e["p_value"]) for e in tested},
                    "p_values_step": {e["effect"]: e["step"]["p_value"] for e in tested if e.get("step")},
