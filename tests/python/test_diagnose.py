@@ -355,6 +355,11 @@ def test_refit_with_effect_fits_the_given_parameters_with_the_given_likelihood(i
     block = refit["active_effects"]["prestrain"]
     assert block["strain"]["fitted"] and not block["warp_minus_weft"]["fitted"]
     assert block["warp_minus_weft"]["value"] == 0.0 and np.isfinite(block["strain"]["value"])
+    # start (the step test's best step): the fit begins there, without its own start search
+    refit, job = diagnose.refit_with_effect(preset, [images["control"]], "prestrain", 1, 5, cfg,
+                                            start={"strain": 0.02, "warp_minus_weft": 0.0})
+    assert job.effect_start["chosen"] == [0.02, 0.0] and job.effect_start["from"] == "the diagnosis's step test"
+    assert job.history[0]["effects"]["prestrain.strain"] == pytest.approx(0.02, abs=0.01)  # one step from there
 
 
 def test_step_draws_take_a_larger_share_only_to_reach_the_minimum():
