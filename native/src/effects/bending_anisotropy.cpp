@@ -43,14 +43,7 @@ EffectSpec make_bending_anisotropy_effect() {
     phi_c.reserve(c.bending_edges.size());
     phi_s.reserve(c.bending_edges.size());
     for (const BendingEdge& be : c.bending_edges) {
-      // The edge in the pattern as the bend term reads it (face0's corners on a welded seam).
-      Eigen::Vector2d ua = c.mesh.uv.row(be.a).transpose(), ub = c.mesh.uv.row(be.b).transpose();
-      if (c.mesh.corner_uv.rows())
-        for (int k = 0; k < 3; ++k) {
-          if (c.mesh.faces(be.face0, k) == be.a) ua = c.mesh.face_uv(be.face0, k);
-          if (c.mesh.faces(be.face0, k) == be.b) ub = c.mesh.face_uv(be.face0, k);
-        }
-      const Eigen::Vector2d du = ub - ua;
+      const Eigen::Vector2d du = pattern_edge(c.mesh, be);  // as the bend term reads it
       const double L2 = du.squaredNorm();
       // cos(2 beta) = (du_x^2 - du_y^2) / L^2, sin(2 beta) = 2 du_x du_y / L^2: no angle, no branch.
       phi_c.push_back(L2 > 0 ? (du.x() * du.x() - du.y() * du.y()) / L2 : 0.0);

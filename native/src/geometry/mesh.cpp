@@ -67,6 +67,16 @@ void validate_mesh(const TriangleMesh& mesh, double min_area) {
     }
 }
 
+Eigen::Vector2d pattern_edge(const TriangleMesh& mesh, const BendingEdge& be) {
+  Eigen::Vector2d ua = mesh.uv.row(be.a).transpose(), ub = mesh.uv.row(be.b).transpose();
+  if (mesh.corner_uv.rows())
+    for (int k = 0; k < 3; ++k) {
+      if (mesh.faces(be.face0, k) == be.a) ua = mesh.face_uv(be.face0, k);
+      if (mesh.faces(be.face0, k) == be.b) ub = mesh.face_uv(be.face0, k);
+    }
+  return ub - ua;
+}
+
 std::vector<BendingEdge> bending_edges(const TriangleMesh& mesh) {
   // key (min, max) -> list of (face, opposite vertex)
   std::map<std::pair<Index, Index>, std::vector<std::pair<Index, Index>>> adj;

@@ -46,6 +46,10 @@ void validate_mesh(const TriangleMesh& mesh, double min_area = 1e-14);
 // Interior edges with their two opposite vertices, in a deterministic order.
 std::vector<BendingEdge> bending_edges(const TriangleMesh& mesh);
 
+// The bending edge a -> b in the rest pattern as face0 has it (with per-corner uv, a welded seam edge lies on two
+// pattern pieces; face0's corners decide), metres.
+Eigen::Vector2d pattern_edge(const TriangleMesh& mesh, const BendingEdge& be);
+
 // Rest areas of faces in the (u,v) pattern (m^2), signed: positive for counter-clockwise faces.
 Eigen::VectorXd rest_areas(const TriangleMesh& mesh);
 

@@ -18,14 +18,7 @@ BendTerm::BendTerm(const TriangleMesh& mesh, const std::vector<BendingEdge>& edg
   for (size_t i = 0; i < edges.size(); ++i) {
     const BendingEdge& be = edges[i];
     verts_.push_back({be.a, be.b, be.c, be.d});
-    // The edge in the pattern as face0 has it (with per-corner uv, a welded seam edge lies on two pieces).
-    Eigen::Vector2d ua = mesh.uv.row(be.a).transpose(), ub = mesh.uv.row(be.b).transpose();
-    if (mesh.corner_uv.rows())
-      for (int k = 0; k < 3; ++k) {
-        if (mesh.faces(be.face0, k) == be.a) ua = mesh.face_uv(be.face0, k);
-        if (mesh.faces(be.face0, k) == be.b) ub = mesh.face_uv(be.face0, k);
-      }
-    const Eigen::Vector2d du = ub - ua;
+    const Eigen::Vector2d du = pattern_edge(mesh, be);
     const double L = du.norm();
     if (!(L > 0)) throw InputError("bend: edge " + std::to_string(i) + " has zero rest length");
     rest_length_.push_back(L);
