@@ -44,14 +44,8 @@ def drape(mesh, effects, mode, dynamic, camera):
     dc = float(measure.drape_coefficient(mask, measure.DATASET_PX_PER_M, support_radius=model.support_radius))
     rt = measure.r_theta(mask, measure.calibration(measure.DATASET_PX_PER_M))
     nodes = int(measure.node_count(rt))
-    return mask, dc, nodes, time.monotonic() - t0, two_fold(rt)
-
-
-def two_fold(rt):
-    """(amplitude mm, axis degrees mod 180) of r(theta)'s k = 2 harmonic."""
-    rt = np.asarray(rt, dtype=np.float64)
-    c = np.exp(-2j * np.arange(rt.size) * 2 * np.pi / rt.size) @ rt * 2 / rt.size
-    return abs(c) * 1e3, np.degrees(np.angle(c)) / 2 % 180
+    amplitude, axis = measure.two_fold(rt)  # the axis mirrored (clockwise), as tools/two_fold_axes.py prints it
+    return mask, dc, nodes, time.monotonic() - t0, (amplitude * 1e3, -axis % 180)
 
 
 def main():

@@ -41,7 +41,7 @@ __all__ = [
     "DATASET_PX_PER_M", "Calibration", "InputError", "calibration", "read_image", "write_image", "to_luminance",
     "extract_silhouette", "load_silhouette", "automatic_threshold", "calibrate_from_disk", "calibrate_from_mesh",
     "check_cusick_calibration", "pixel_mse", "iou", "shadow_area", "drape_coefficient", "r_theta",
-    "analyse_nodes", "node_count", "node_amplitude", "harmonics", "r_theta_rmse", "hausdorff_distance",
+    "analyse_nodes", "node_count", "node_amplitude", "harmonics", "two_fold", "r_theta_rmse", "hausdorff_distance",
     "measure_silhouette", "measure_image", "compare_mesh_image", "load_manifest", "check_output_path", "write_json",
     "write_overlay",
 ]
@@ -260,6 +260,15 @@ def node_amplitude(r, **options):
 def harmonics(r, count=20):
     """Harmonic amplitudes a_0..a_{count-1} (m) of r(theta)."""
     return native.harmonic_spectrum(_curve(r, "harmonics"), int(count))
+
+
+def two_fold(r):
+    """(amplitude m, axis degrees mod 180) of the k = 2 harmonic of r(theta): how much longer the drape is along one
+    axis, and that axis, in r_theta's angle (harmonics gives amplitudes only; the axis needs the phase)."""
+    rt = _curve(r, "two_fold")
+    c = np.exp(-2j * np.arange(rt.size) * 2 * np.pi / rt.size) @ rt * 2 / rt.size  # = amplitude e^(-2i axis)
+    axis = float(-np.degrees(np.angle(c)) / 2 % 180)
+    return float(abs(c)), (0.0 if axis >= 180 else axis)  # -1e-15 % 180 rounds to 180
 
 
 def r_theta_rmse(measured, model):

@@ -95,6 +95,17 @@ def test_disk_has_no_nodes_and_constant_r_theta():
     assert M.node_count(r) == 0
 
 
+def test_two_fold_gives_the_long_axis_and_its_amplitude():
+    theta = np.arange(360) * 2 * np.pi / 360
+    for axis_deg in (0.0, 30.0, 110.0, 170.0):
+        r = 0.13 + 0.004 * np.cos(2 * (theta - np.radians(axis_deg))) + 0.002 * np.cos(6 * theta)
+        amplitude, axis = M.two_fold(r)
+        assert amplitude == pytest.approx(0.004) and 0 <= axis < 180
+        assert (axis - axis_deg + 90) % 180 - 90 == pytest.approx(0.0, abs=1e-9)  # mod 180: 0 and 179.999... alike
+    with pytest.raises(M.InputError, match="two_fold"):
+        M.two_fold([0.1, 0.1])
+
+
 def test_r_theta_rmse_after_best_rotation():
     a = M.r_theta(folds(7))
     b = np.roll(a, 25)
