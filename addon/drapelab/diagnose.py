@@ -46,7 +46,8 @@
    that change the fold pattern (prestrain, a stiffness map, a plastic set) move the drape little to first order and
    a lot at a finite strength. So the same draws (material, P's effect draws, placement noise) are draped once more
    with each candidate's primary parameter at its registry moderate strength (and at minus it where the bounds
-   allow; a tilt also turned), forward only, and the change of each draw's pixel MSE is measured against every
+   allow; a tilt also turned; an effect whose axis is set by several parameters, bending_anisotropy, steps each of
+   the registry's `step_parameters` in turn), forward only, and the change of each draw's pixel MSE is measured against every
    measured image and against P's own predictive silhouettes (STEP_REFERENCES_MIN of them, the score's and more).
    The statistic is the change's mean over the measured images minus its mean over the references (negative: the
    step brings the draws closer to the measurements than to what P itself drapes), the smallest over the
@@ -395,24 +396,28 @@ def _redrape_floor(shapes, pseudo):
 
 def effect_steps(reg, names, second=None):
     """{effect: [(label, {parameter: value})]}: the finite steps of the step test (module doc, 2b) for the
-    candidates that are not switches: the primary parameter at its registry moderate strength, and at minus it when
-    its bounds allow; for an effect with a second direction (the tilt's azimuth) the same again with the direction
-    parameter turned. The effect's other parameters stay off."""
+    candidates that are not switches: each stepped parameter (the registry's `step_parameters`, else the primary)
+    at its registry moderate strength, and at minus it when its bounds allow, the effect's other parameters off;
+    for an effect with a second direction (the tilt's azimuth) the same again with the direction parameter turned.
+    bending_anisotropy steps cos2 and sin2: its 2-fold axis at 0, 90, 45 and 135 degrees."""
     second = second_directions(reg) if second is None else second
     out = {}
     for n in names:
         entry = reg[n]
         if _is_switch(entry):
             continue
-        primary = entry["parameters"][0]
+        by_name = {q["name"]: q for q in entry["parameters"]}
+        stepped = [by_name[q] for q in (entry.get("step_parameters") or [entry["parameters"][0]["name"]])]
         off = {q["name"]: q["off"] for q in entry["parameters"]}
-        values = [primary["moderate"]]
-        if primary["lower"] <= -abs(primary["moderate"]):
-            values.append(-primary["moderate"])
         turns = [({}, "")] + ([(dict(second[n]), "@" + ",".join(f"{q}={v:.3g}" for q, v in second[n].items()))]
                               if n in second else [])
-        out[n] = [(f"{primary['name']}={v:+.3g}{tag}", {**off, **turn, primary["name"]: v})
-                  for turn, tag in turns for v in values]
+        out[n] = []
+        for q in stepped:
+            values = [q["moderate"]]
+            if q["lower"] <= -abs(q["moderate"]):
+                values.append(-q["moderate"])
+            out[n] += [(f"{q['name']}={v:+.3g}{tag}", {**off, **turn, q["name"]: v})
+                       for turn, tag in turns for v in values]
     return out
 
 
@@ -800,10 +805,9 @@ def refit_with_effect(preset, images, name, level, seed, config, threads=None, t
                        init_stretch=np.asarray(preset["stretch_N_m"]), effects=effects)
     if start is not None:
         vector = np.asarray(job.theta["effect_mu"], dtype=float).copy()
-        for i, key in enumerate(job.plan.names):
-            effect, _, param = key.partition(".")
-            if effect == name and param in start:
-                vector[i] = float(start[param])
+        for i, (effect, q) in enumerate(job.plan.free):
+            if effect == name and q["name"] in start:
+                vector[i] = float(start[q["name"]])
         job.theta["effect_mu"] = vector
         job.effect_start = {"parameters": job.plan.names, "candidates": [vector.tolist()],
                             "chosen": vector.tolist(), "from": "the diagnosis's step test"}

@@ -61,7 +61,8 @@ def effects():
     [{name, unit, off, lower, upper, prior_scale, moderate, structural, description}]} (the first parameter is the
     primary one; dynamic_only: the effect acts only over a dynamic rollout's time steps, e.g. damping, and a static
     drape ignores it; second_direction: {parameter: value} under which the diagnosis scores the primary again,
-    e.g. a tilt's azimuth turned by 90 degrees)."""
+    e.g. a tilt's azimuth turned by 90 degrees; step_parameters: the parameters the diagnosis's step test steps,
+    empty for the primary alone)."""
     return [dict(e) for e in native.effects()]
 
 

@@ -124,6 +124,9 @@ py::list effect_list() {
     py::dict second;
     for (const auto& [name, value] : e.second_direction) second[py::str(name)] = value;
     d["second_direction"] = second;
+    py::list steps;
+    for (const auto& name : e.step_parameters) steps.append(py::str(name));
+    d["step_parameters"] = steps;
     out.append(d);
   }
   return out;

@@ -323,22 +323,27 @@ def test_step_permutation_test_finds_the_step_that_brings_the_draws_closer():
         diagnose.step_permutation_test(shifted, 0)
 
 
-def test_effect_steps_are_the_primary_at_its_moderate_strength():
+def test_effect_steps_are_the_stepped_parameters_at_their_moderate_strength():
     reg = fit_effects.registry()
     steps = diagnose.effect_steps(reg, list(reg))
     assert set(steps) == {n for n, e in reg.items() if not e["parameters"][0].get("structural")}
     for n, st in steps.items():
         primary = reg[n]["parameters"][0]
+        stepped = reg[n].get("step_parameters") or [primary["name"]]
         assert st[0][1][primary["name"]] == primary["moderate"]
-        for _, values in st:  # the other parameters off, unless turned
+        turned = diagnose.second_directions(reg).get(n, {})
+        for _, values in st:  # exactly one stepped parameter on, at +- its moderate; the others off, unless turned
             assert set(values) == {q["name"] for q in reg[n]["parameters"]}
-            turned = diagnose.second_directions(reg).get(n, {})
-            for q in reg[n]["parameters"][1:]:
-                assert values[q["name"]] in (q["off"], turned.get(q["name"]))
-            assert primary["lower"] <= values[primary["name"]] <= primary["upper"]
+            on = [q for q in reg[n]["parameters"] if values[q["name"]] not in (q["off"], turned.get(q["name"]))]
+            assert len(on) == 1 and on[0]["name"] in stepped
+            assert abs(values[on[0]["name"]]) == pytest.approx(abs(on[0]["moderate"]))
+            assert on[0]["lower"] <= values[on[0]["name"]] <= on[0]["upper"]
     tilt = steps["tilt"]
     assert [v["angle_rad"] for _, v in tilt] == pytest.approx([0.15, -0.15, 0.15, -0.15])
     assert [v["azimuth_rad"] for _, v in tilt] == pytest.approx([0.0, 0.0, math.pi / 2, math.pi / 2])
+    # bending_anisotropy's 2-fold axis at 0, 90, 45 and 135 degrees: cos2 = +-m, then sin2 = +-m
+    aniso = [(v["cos2"], v["sin2"]) for _, v in steps["bending_anisotropy"]]
+    assert aniso == pytest.approx([(0.75, 0.0), (-0.75, 0.0), (0.0, 0.75), (0.0, -0.75)])
 
 
 def test_refit_with_effect_fits_the_given_parameters_with_the_given_likelihood(images):

@@ -88,6 +88,11 @@ struct EffectSpec {
   // angle: scored at azimuth 0 and again at pi/2, so that every direction is seen). Still the base model, the
   // primary being off. Each value lies inside its parameter's bounds (tests/native/physics/test_effects.cpp).
   std::map<std::string, double> second_direction;
+  // Optional: the parameters the diagnosis's step test steps (each at +- its moderate strength, the others off);
+  // empty: the primary alone. An effect whose finite-strength signature has a direction set by several parameters
+  // and none at the off values (bending_anisotropy's 2-fold axis) names them all, so that the step test, and the
+  // refit that starts at its best step, sees each axis (docs/diagnose.md, "Steps along several parameters").
+  std::vector<std::string> step_parameters;
 };
 
 // Effect name -> parameter name -> value; an effect present here is active (missing parameters take their

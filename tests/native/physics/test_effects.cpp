@@ -4,6 +4,7 @@
 // differences on a small mesh.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <random>
 
 #include "../test_support.hpp"
@@ -342,6 +343,12 @@ TEST(EffectRegistry, SpecsAreComplete) {
     for (const auto& [name, value] : e.second_direction) {  // a non-primary parameter, inside its bounds
       EXPECT_NE(name, e.parameters.front().name);
       EXPECT_NO_THROW(check_effect_value(e, name, value)) << name;
+    }
+    for (const auto& name : e.step_parameters) {  // the step test's parameters: the effect's own, with a moderate
+      const auto it = std::find_if(e.parameters.begin(), e.parameters.end(),
+                                   [&](const EffectParameter& q) { return q.name == name; });
+      ASSERT_NE(it, e.parameters.end()) << name;
+      EXPECT_NE(it->moderate, it->off) << name;
     }
   }
 }
