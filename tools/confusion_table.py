@@ -3,7 +3,8 @@
 "Diagnosing against a reference" prescribes: a reference preset is fitted on control drapes (synthetic, no
 effect, placement seed --reference-seed); then, for every seed of --seeds (seeds not used in any tuning run),
 6 drapes of the same material are made per case and diagnosed with the reference:
-    each registered effect whose primary parameter is not structural, at its registry moderate strength (times --strength-factor),
+    each registered effect whose primary parameter is not structural, at its registry moderate strength (times --strength-factor;
+    an effect whose axis is set by two step_parameters, bending_anisotropy, along a random axis from the seed),
     `control` (no effect) and `weak` (a 4 degree tilt, 0.07 rad: below the re-drape noise),
 recording what the diagnosis ranks first (smallest p), what it recommends (or null), and, where a refit ran,
 how much of the gap between the reference on these drapes and the reference on control drapes of the same seed
@@ -58,7 +59,18 @@ def cases(names, registry, factor="1", seed=0):
     out = []
     for name in names:
         primary = registry[name]["parameters"][0]
-        value = primary["moderate"] * strength_factor(factor, seed, name)
+        scale = strength_factor(factor, seed, name)
+        stepped = registry[name].get("step_parameters") or []
+        if len(stepped) == 2:  # an axis set by two parameters (bending_anisotropy): a random one, from the seed
+            by_name = {q["name"]: q for q in registry[name]["parameters"]}
+            angle = np.random.default_rng([seed, sum(ord(c) for c in name), 11]).uniform(0.0, 2.0 * np.pi)
+            values = {}
+            for q, c in zip(stepped, (np.cos(angle), np.sin(angle))):
+                entry = by_name[q]
+                values[q] = float(np.clip(entry["moderate"] * scale * c, entry["lower"], entry["upper"]))
+            out.append((name, {name: values}))
+            continue
+        value = primary["moderate"] * scale
         out.append((name, {name: {primary["name"]: float(np.clip(value, primary["lower"], primary["upper"]))}}))
     return out + [("control", None), ("weak", {"tilt": {"angle_rad": WEAK_TILT_RAD}})]
 
