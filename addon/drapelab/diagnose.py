@@ -69,6 +69,11 @@
    closer to the measurements (statistic < 0): that choice is made on K drapes with placement noise, where the
    fit's own start search judges its candidates by one drape without it (measured on fabric 1, whose photos are
    2-fold: started at zero, bending_anisotropy's refit went the wrong way, best-of-16 MSE 0.058 -> 0.062).
+   Such a refit is also evaluated at its start, on the same draws, and when its end is worse the start is kept
+   (refit.kept_start): a few epochs of Adam's sign-sized first steps on one noisy batch each can undo a good step
+   (measured on fabric 1: from cos2 = +0.75, whose step brought the draws 0.009 closer, 4 epochs went to
+   (1.19, 0.43) and a best-of-16 MSE above the base's). This picks the better of two on the measured images,
+   as the refit itself does; one more evaluation (K forward drapes) per warm-started refit.
    Each refit is evaluated like the base (same seed, K draws, P's camera and P's global log sd) and written as
    DIR/presets/<effect>.json. mse_fall = (base best-of-K MSE - refit's) / base's: the same draws' noise on both
    sides, so the comparison is paired. The final ranking puts the refits that lower the error first (largest
@@ -771,6 +776,19 @@ def _joint_drapes(preset, observations, names, k, seed, config, threads, templat
     return pred, models, shapes, grads, time.monotonic() - t0, lanes, pseudo, drawn
 
 
+def with_effect_values(preset, name, values):
+    """A copy of `preset` with effect `name`'s values set to `values` ({parameter: value}; the others kept), each
+    fitted parameter's interval moved with its value and its sd kept: a refit preset taken back to its start."""
+    out = copy.deepcopy(preset)
+    for param, v in values.items():
+        e = out["active_effects"][name][param]
+        shift = float(v) - float(e["value"])
+        e["value"] = float(v)
+        if e.get("interval90"):
+            e["interval90"] = [float(b) + shift for b in e["interval90"]]
+    return infer.validate_preset(out)
+
+
 def refit_with_effect(preset, images, name, level, seed, config, threads=None, template_dir=None, budget=None,
                       cancel_event=None, progress=None, spec=None, sigma_dc=None, start=None):
     """Short refit with `name` fitted from P's material (see the module doc); returns the refit preset and its
@@ -1032,12 +1050,29 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
             result["material_prior"] = ("the preset's posterior (log_mean, per-entry log_std, global_log_std), held "
                                         "fixed in the refit (material learning rates x "
                                         f"{MATERIAL_LEARNING_RATE_FACTOR:g}); only the effect is fitted")
+        def start_of(e):
+            st = e.get("step")
+            return st["values"] if st is not None and st["statistic"] < 0 else None
+
+        def evaluate(candidate):
+            """(shapes, summary) of K draws of `candidate` (the base's seed and draws), or None when all fail."""
+            rp = infer._Predictive(candidate, observations[0].mask.shape, lanes, config, template_dir, pred.level,
+                                   "dynamic")
+            draws = infer.preset_bend_samples(candidate, rp.num_edges, np.random.default_rng(seed), k)
+            rshapes = rp.drape(draws, seed, cancel_event=cancel_event)
+            if not any("error" not in r for r in rshapes):
+                return None
+            rbase, _, _ = _summary(rshapes, observations, rp.calibration, float(config["sigma_obs"]), SCORE_SIGMA_DC)
+            return rshapes, rbase
+
         for idx, entry in enumerate(promising):
             budget = None
+            start = start_of(entry)
             if time_budget is not None:
                 left = float(time_budget) - (time.monotonic() - t0)
                 evaluation = per_draw * 0.4 * k / lanes  # forward only: ~40 % of a draw with backward (measured)
-                budget = (left - REPORT_RESERVE_S - (len(promising) - idx) * evaluation) / (len(promising) - idx)
+                evaluations = sum(2 if start_of(e) is not None else 1 for e in promising[idx:])
+                budget = (left - REPORT_RESERVE_S - evaluations * evaluation) / (len(promising) - idx)
                 if budget <= 0:
                     entry["explanation"] += " Not refitted: the time budget was spent."
                     continue
@@ -1045,25 +1080,29 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
             _progress(progress, "refit", f"refit with {entry['effect']} "
                                          f"({'default epochs' if budget is None else f'{budget:.0f} s'})",
                       effect=entry["effect"])
-            st = entry.get("step")
-            start = st["values"] if st is not None and st["statistic"] < 0 else None
             refit, job = refit_with_effect(p, images, entry["effect"], pred.level, seed, config, threads, template_dir,
                                            budget, cancel_event, progress, start=start)
-            rp = infer._Predictive(refit, observations[0].mask.shape, lanes, config, template_dir, pred.level, "dynamic")
-            draws = infer.preset_bend_samples(refit, rp.num_edges, np.random.default_rng(seed), k)
-            rshapes = rp.drape(draws, seed, cancel_event=cancel_event)
-            if not any("error" not in r for r in rshapes):
+            evaluated = evaluate(refit)
+            kept_start = False
+            if start is not None:  # the refit's start, on the same draws: kept when the refit's end is worse
+                started = with_effect_values(refit, entry["effect"], start)
+                at_start = evaluate(started)
+                if at_start is not None and (evaluated is None or at_start[1]["mse"] < evaluated[1]["mse"]):
+                    entry["explanation"] += (f" The refit's end (best-of-{k} MSE "
+                                             + (f"{evaluated[1]['mse']:.4f}" if evaluated else "failed")
+                                             + f") was worse than its start, the step, which is kept.")
+                    refit, evaluated, kept_start = started, at_start, True
+            if evaluated is None:
                 entry["explanation"] += f" Refit: every one of its {k} draws failed to drape."
                 continue
-            rbase, rper, _ = _summary(rshapes, observations, rp.calibration, float(config["sigma_obs"]),
-                                      SCORE_SIGMA_DC)
+            rshapes, rbase = evaluated
             values = {key: e["value"] for key, e in refit["active_effects"][entry["effect"]].items()}
             entry["refit"] = {"mse": rbase["mse"], "iou": rbase["iou"], "loss": rbase["loss"],
                               "dc_error": rbase["dc_error"], "node_error": rbase["node_error"],
                               "amplitude_error": rbase["amplitude_error"], "epochs": job.epoch,
                               "seconds": time.monotonic() - ts, "values": values,
                               "strength_of_moderate": strength_of_moderate(reg[entry["effect"]], values, second),
-                              "effect_change_mse": effect_change(shapes, rshapes)}
+                              "effect_change_mse": effect_change(shapes, rshapes), "kept_start": kept_start}
             entry["gain"] = (base["loss"] - rbase["loss"]) / len(reg[entry["effect"]]["parameters"])
             entry["explanation"] += (f" Refit ({job.epoch} epochs): loss {base['loss']:.4g} -> {rbase['loss']:.4g}, "
                                      f"best-of-{k} MSE {base['mse']:.4f} -> {rbase['mse']:.4f}.")

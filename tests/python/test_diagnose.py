@@ -365,6 +365,14 @@ def test_refit_with_effect_fits_the_given_parameters_with_the_given_likelihood(i
                                             start={"strain": 0.02, "warp_minus_weft": 0.0})
     assert job.effect_start["chosen"] == [0.02, 0.0] and job.effect_start["from"] == "the diagnosis's step test"
     assert job.history[0]["effects"]["prestrain.strain"] == pytest.approx(0.02, abs=0.01)  # one step from there
+    # taken back to its start (diagnose keeps the start when the refit's end is worse on the same draws)
+    before = copy.deepcopy(refit)
+    back = diagnose.with_effect_values(refit, "prestrain", {"strain": 0.02, "warp_minus_weft": 0.0})
+    assert refit == before  # a copy
+    fitted, started = refit["active_effects"]["prestrain"]["strain"], back["active_effects"]["prestrain"]["strain"]
+    assert started["value"] == 0.02 and started["std"] == fitted["std"]
+    assert np.subtract(started["interval90"], 0.02) == pytest.approx(np.subtract(fitted["interval90"], fitted["value"]))
+    assert back["posterior"] == refit["posterior"]
 
 
 def test_step_draws_take_a_larger_share_only_to_reach_the_minimum():
