@@ -44,8 +44,8 @@ def drape(mesh, effects, mode, dynamic, camera):
     dc = float(measure.drape_coefficient(mask, measure.DATASET_PX_PER_M, support_radius=model.support_radius))
     rt = measure.r_theta(mask, measure.calibration(measure.DATASET_PX_PER_M))
     nodes = int(measure.node_count(rt))
-    amplitude, axis = measure.two_fold(rt)  # the axis mirrored (clockwise), as tools/two_fold_axes.py prints it
-    return mask, dc, nodes, time.monotonic() - t0, (amplitude * 1e3, -axis % 180)
+    amplitude, axis = measure.two_fold(rt)  # the axis counter-clockwise from +x, as tools/two_fold_axes.py prints it
+    return mask, dc, nodes, time.monotonic() - t0, (amplitude * 1e3, axis)
 
 
 def main():

@@ -18,10 +18,9 @@ from drapelab import measure  # noqa: E402
 
 
 def two_fold(mask):
-    """(amplitude m, axis degrees mod 180) of the silhouette's r(theta) 2-fold harmonic (measure.two_fold), the axis
-    mirrored (clockwise from +x): the convention of this tool's output and of the docs' tables that quote it."""
-    amplitude, axis = measure.two_fold(measure.r_theta(np.asarray(mask)))
-    return amplitude, -axis % 180
+    """(amplitude m, axis degrees mod 180, counter-clockwise from +x as measure.r_theta's angle) of the
+    silhouette's r(theta) 2-fold harmonic (measure.two_fold)."""
+    return measure.two_fold(measure.r_theta(np.asarray(mask)))
 
 
 def main():
