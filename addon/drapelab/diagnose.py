@@ -123,6 +123,8 @@ FLIP_ENUMERATE_MAX = 16  # draws up to which the sign-flip test enumerates all 2
 FLIP_SAMPLES = 65536      # random sign patterns beyond that
 RANK_TOLERANCE = 1e-9     # eigenvalues of the scaled gradient covariance below this x the largest are dropped
 MATERIAL_LEARNING_RATE_FACTOR = 0.0  # refits hold the material at P's posterior (module doc)
+REFIT_START_LEARNING_RATE_FACTOR = 0.25  # a refit from the step test's step takes steps of this x the fit's (module doc, 3.)
+REFIT_AVERAGE_SHARE = 0.5  # ... and reports the mean of this last share of its epochs' effect values
 REPORT_RESERVE_S = 5.0    # seconds kept back from the refits for the evaluation bookkeeping and the report
 SCORE_SIGMA_DC = 0.0      # the score test's data term: pixel term only (see the module doc)
 PSEUDO_MIN = 4            # predictive silhouettes drawn as the null reference (at least; as many as images)
@@ -800,6 +802,9 @@ def refit_with_effect(preset, images, name, level, seed, config, threads=None, t
     fit's start search among the off value and +- moderate strengths, which judges them by one drape without
     placement noise."""
     cfg = copy.deepcopy(config)
+    if start is not None:  # a fine-tune from a step near the answer: smaller steps (measured: docs/diagnose.md)
+        cfg["effects"] = dict(infer.effect_settings(cfg))
+        cfg["effects"]["learning_rate"] = REFIT_START_LEARNING_RATE_FACTOR * float(cfg["effects"]["learning_rate"])
     log_std = float(np.mean(preset["posterior"]["bend"]["log_std"]))
     prior_sd = max(log_std, 1e-3)
     cfg["init"]["scale_search"] = []
@@ -842,6 +847,15 @@ def refit_with_effect(preset, images, name, level, seed, config, threads=None, t
     else:
         job.run(time_budget=budget, progress=epoch, cancel_event=cancel_event)
     refit = job.preset(options={"diagnose": True, "effects": job.plan.describe(), "seed": seed})
+    job.averaged_epochs = 0
+    if start is not None:  # the iterate average of the last epochs: the noisy batches' steps cancel
+        path = [h["effects"] for h in job.history if "rejected" not in h and h.get("effects")]
+        n = int(np.ceil(REFIT_AVERAGE_SHARE * len(path)))
+        if n > 1:
+            mean = {key.split(".", 1)[1]: float(np.mean([h[key] for h in path[-n:]]))
+                    for key in path[-1] if key.split(".", 1)[0] == name}
+            refit = with_effect_values(refit, name, mean)
+            job.averaged_epochs = n
     g = preset["posterior"]["bend"].get("global_log_std")
     if g:  # the base predictive's calibrated per-draw spread, so that base and refit compare like for like
         refit["posterior"]["bend"]["global_log_std"] = float(g)
@@ -1083,6 +1097,8 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
             refit, job = refit_with_effect(p, images, entry["effect"], pred.level, seed, config, threads, template_dir,
                                            budget, cancel_event, progress, start=start)
             evaluated = evaluate(refit)
+            end = {"values": {key: e["value"] for key, e in refit["active_effects"][entry["effect"]].items()},
+                   "mse": evaluated[1]["mse"] if evaluated else None}
             kept_start = False
             if start is not None:  # the refit's start, on the same draws: kept when the refit's end is worse
                 started = with_effect_values(refit, entry["effect"], start)
@@ -1102,7 +1118,12 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                               "amplitude_error": rbase["amplitude_error"], "epochs": job.epoch,
                               "seconds": time.monotonic() - ts, "values": values,
                               "strength_of_moderate": strength_of_moderate(reg[entry["effect"]], values, second),
-                              "effect_change_mse": effect_change(shapes, rshapes), "kept_start": kept_start}
+                              "effect_change_mse": effect_change(shapes, rshapes), "kept_start": kept_start,
+                              "end": end, "averaged_epochs": job.averaged_epochs,
+                              "path": [{"epoch": h["epoch"], "loss": h.get("loss"), "mse": h.get("mse"),
+                                        "values": {n.split(".", 1)[-1]: v for n, v in h["effects"].items()
+                                                   if n.split(".", 1)[0] == entry["effect"]}}
+                                       for h in job.history if "rejected" not in h and h.get("effects")]}
             entry["gain"] = (base["loss"] - rbase["loss"]) / len(reg[entry["effect"]]["parameters"])
             entry["explanation"] += (f" Refit ({job.epoch} epochs): loss {base['loss']:.4g} -> {rbase['loss']:.4g}, "
                                      f"best-of-{k} MSE {base['mse']:.4f} -> {rbase['mse']:.4f}.")

@@ -201,6 +201,18 @@ def test_cli_writes_the_report_the_contract_and_a_refit(images, tmp_path, capsys
     assert entry["refit"]["strength_of_moderate"] == pytest.approx(
         abs(entry["refit"]["values"]["angle_rad"]) / reg["tilt"]["parameters"][0]["moderate"])
     assert entry["refit"]["effect_change_mse"] >= 0 and d["base"]["redrape_change_mse"] > 0
+    # where the refit ended and how it got there: one path entry per epoch, the last one at the end's values
+    r = entry["refit"]
+    epochs = [h["epoch"] for h in r["path"]]
+    assert epochs == list(range(1, r["epochs"] + 1))
+    n = r["averaged_epochs"]
+    if n:  # a refit from the step: the mean of its last epochs
+        assert r["end"]["values"] == pytest.approx({q: np.mean([h["values"][q] for h in r["path"][-n:]])
+                                                    for q in r["end"]["values"]})
+    else:  # the last epoch's values, or the one before when a failed drape undid the last step
+        assert any(h["values"] == pytest.approx(r["end"]["values"]) for h in r["path"][-2:])
+    if not r["kept_start"]:
+        assert r["end"]["values"] == pytest.approx(r["values"]) and r["end"]["mse"] == pytest.approx(r["mse"])
     assert entry["mse_fall"] == pytest.approx((d["base"]["mse"] - entry["refit"]["mse"]) / d["base"]["mse"])
     removed = d["base"]["mse"] - entry["refit"]["mse"]
     assert entry["fall_of_redrape"] == pytest.approx(removed / d["base"]["redrape_mse"])
@@ -365,6 +377,16 @@ def test_refit_with_effect_fits_the_given_parameters_with_the_given_likelihood(i
                                             start={"strain": 0.02, "warp_minus_weft": 0.0})
     assert job.effect_start["chosen"] == [0.02, 0.0] and job.effect_start["from"] == "the diagnosis's step test"
     assert job.history[0]["effects"]["prestrain.strain"] == pytest.approx(0.02, abs=0.01)  # one step from there
+    # ... with smaller steps than a fit's, and the iterate average of its last epochs as its values
+    moderate = {q["name"]: q["moderate"] for q in fit_effects.registry()["prestrain"]["parameters"]}
+    assert job.learning_rates["effect_mu"] == pytest.approx(
+        diagnose.REFIT_START_LEARNING_RATE_FACTOR * infer.effect_settings(cfg)["learning_rate"]
+        * np.array([moderate["strain"], moderate["warp_minus_weft"]]))
+    averaged, job3 = diagnose.refit_with_effect(preset, [images["control"]], "prestrain", 1, 5,
+                                                small_config(default_epochs=4), start={"strain": 0.02})
+    assert job3.averaged_epochs == 2
+    assert averaged["active_effects"]["prestrain"]["strain"]["value"] == pytest.approx(
+        np.mean([h["effects"]["prestrain.strain"] for h in job3.history[-2:]]))
     # taken back to its start (diagnose keeps the start when the refit's end is worse on the same draws)
     before = copy.deepcopy(refit)
     back = diagnose.with_effect_values(refit, "prestrain", {"strain": 0.02, "warp_minus_weft": 0.0})
