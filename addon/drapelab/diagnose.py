@@ -791,6 +791,13 @@ def with_effect_values(preset, name, values):
     return infer.validate_preset(out)
 
 
+def refit_path(job, name):
+    """Per accepted epoch of `job`: its loss, batch MSE and effect `name`'s values after the epoch's step."""
+    return [{"epoch": h["epoch"], "loss": h.get("loss"), "mse": h.get("mse"),
+             "values": {key.split(".", 1)[1]: v for key, v in h["effects"].items() if key.split(".", 1)[0] == name}}
+            for h in job.history if "rejected" not in h and h.get("effects")]
+
+
 def refit_with_effect(preset, images, name, level, seed, config, threads=None, template_dir=None, budget=None,
                       cancel_event=None, progress=None, spec=None, sigma_dc=None, start=None):
     """Short refit with `name` fitted from P's material (see the module doc); returns the refit preset and its
@@ -849,11 +856,10 @@ def refit_with_effect(preset, images, name, level, seed, config, threads=None, t
     refit = job.preset(options={"diagnose": True, "effects": job.plan.describe(), "seed": seed})
     job.averaged_epochs = 0
     if start is not None:  # the iterate average of the last epochs: the noisy batches' steps cancel
-        path = [h["effects"] for h in job.history if "rejected" not in h and h.get("effects")]
+        path = refit_path(job, name)
         n = int(np.ceil(REFIT_AVERAGE_SHARE * len(path)))
         if n > 1:
-            mean = {key.split(".", 1)[1]: float(np.mean([h[key] for h in path[-n:]]))
-                    for key in path[-1] if key.split(".", 1)[0] == name}
+            mean = {q: float(np.mean([h["values"][q] for h in path[-n:]])) for q in path[-1]["values"]}
             refit = with_effect_values(refit, name, mean)
             job.averaged_epochs = n
     g = preset["posterior"]["bend"].get("global_log_std")
@@ -1097,7 +1103,7 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
             refit, job = refit_with_effect(p, images, entry["effect"], pred.level, seed, config, threads, template_dir,
                                            budget, cancel_event, progress, start=start)
             evaluated = evaluate(refit)
-            end = {"values": {key: e["value"] for key, e in refit["active_effects"][entry["effect"]].items()},
+            end = {"values": fit_effects.active_effect_values(refit["active_effects"])[entry["effect"]],
                    "mse": evaluated[1]["mse"] if evaluated else None}
             kept_start = False
             if start is not None:  # the refit's start, on the same draws: kept when the refit's end is worse
@@ -1106,13 +1112,13 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                 if at_start is not None and (evaluated is None or at_start[1]["mse"] < evaluated[1]["mse"]):
                     entry["explanation"] += (f" The refit's end (best-of-{k} MSE "
                                              + (f"{evaluated[1]['mse']:.4f}" if evaluated else "failed")
-                                             + f") was worse than its start, the step, which is kept.")
+                                             + ") was worse than its start, the step, which is kept.")
                     refit, evaluated, kept_start = started, at_start, True
             if evaluated is None:
                 entry["explanation"] += f" Refit: every one of its {k} draws failed to drape."
                 continue
             rshapes, rbase = evaluated
-            values = {key: e["value"] for key, e in refit["active_effects"][entry["effect"]].items()}
+            values = fit_effects.active_effect_values(refit["active_effects"])[entry["effect"]]
             entry["refit"] = {"mse": rbase["mse"], "iou": rbase["iou"], "loss": rbase["loss"],
                               "dc_error": rbase["dc_error"], "node_error": rbase["node_error"],
                               "amplitude_error": rbase["amplitude_error"], "epochs": job.epoch,
@@ -1120,10 +1126,7 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                               "strength_of_moderate": strength_of_moderate(reg[entry["effect"]], values, second),
                               "effect_change_mse": effect_change(shapes, rshapes), "kept_start": kept_start,
                               "end": end, "averaged_epochs": job.averaged_epochs,
-                              "path": [{"epoch": h["epoch"], "loss": h.get("loss"), "mse": h.get("mse"),
-                                        "values": {n.split(".", 1)[-1]: v for n, v in h["effects"].items()
-                                                   if n.split(".", 1)[0] == entry["effect"]}}
-                                       for h in job.history if "rejected" not in h and h.get("effects")]}
+                              "path": refit_path(job, entry["effect"])}
             entry["gain"] = (base["loss"] - rbase["loss"]) / len(reg[entry["effect"]]["parameters"])
             entry["explanation"] += (f" Refit ({job.epoch} epochs): loss {base['loss']:.4g} -> {rbase['loss']:.4g}, "
                                      f"best-of-{k} MSE {base['mse']:.4f} -> {rbase['mse']:.4f}.")
