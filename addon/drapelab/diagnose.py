@@ -54,11 +54,18 @@
    effect's steps; under "P is right" measured and reference images are exchangeable, so its p-value comes from
    relabelling them (all C(n + J, n) labellings, the step chosen anew in each). A candidate's p_value is
    min(1, 2 min(score p, step p)) (Bonferroni over its two tests); both are reported.
-3. Refits. When at least one candidate is below the threshold (the data differ from P), the candidates with the
-   smallest p-values below REFIT_P_MAX (up to MAX_REFITS) are refitted under the time budget: the score test
-   says that something differs, the refits say which effect explains it. Effects with the same signature
-   compete there: a 1-fold r(theta) residual is what a tilt, a density gradient and a 1-fold stiffness map all
-   predict, and on six tilted drapes the density gradient's score was the larger (T^2 98 on 3 dof against the
+3. Refits. When at least one candidate is below the threshold (the data differ from P), the candidates with p
+   below REFIT_P_MAX are refitted, up to MAX_REFITS of them in refit_order (by the sum of their ranks by combined p
+   and by step statistic), under the time budget: the score test says that something differs, the refits say
+   which effect explains it. Neither test alone picks the refits well: the combined p saturates (the step test's
+   labellings cannot go below 2 / C(n + J, n)) while the score's p goes far lower for effects with a first-order
+   signature; the step statistic is one finite step's change, noisy where several effects move the drape alike.
+   Measured on the confusion runs of seeds 631, 641 and 651 (docs/diagnose.md): of 16 significant cases, the true
+   effect was outside the first three by p in 2 (offset and bending_anisotropy at seed 651, 5th; their step
+   statistics were the strongest), outside them by step statistic in 1 (heterogeneity_map at seed 641, 5th), and
+   within the first three by the rank sum in all 16 (chosen on these seeds; a fresh seed's check is in
+   docs/diagnose.md). Effects with the same signature compete there: a 1-fold r(theta) residual is what a tilt, a
+   density gradient and a 1-fold stiffness map all predict, and on six tilted drapes the density gradient's score was the larger (T^2 98 on 3 dof against the
    tilt's 21 on 2). Each refit is ``infer.FitJob`` with effects {name: None} (P's own effects fixed), starting
    from P's material (its mean log table, per-entry posterior sd and stretching table, no bending scale search)
    and holding it there (the material's learning rates x MATERIAL_LEARNING_RATE_FACTOR = 0): P's posterior is
@@ -80,15 +87,18 @@
    fall first), then the rest in the score tests' order. ``recommended`` = the first of them when its fall is at
    least MIN_MSE_FALL and some candidate was significant (or it is a switch named with --candidates), and the
    MSE it removes is at least MIN_FALL_OF_REDRAPE of the re-drape floor, else None. The re-drape floor
-   (base.redrape_mse) is the best-of-K MSE of the same K draws against P's mean material re-draped (placement
-   noise only): what the base MSE would be if P were right about the specimen, i.e. how much re-draping alone
-   changes a drape. (Until 2026-11-24 the references were posterior draws, whose material spread made the floor
-   twice the control drapes' base MSE: 0.031 against 0.009 in the round-trip test's setting.) An effect whose refit removes less than half of that changes the drape less than re-draping does (a
-   4 degree tilt: significant with six images, p 2.6e-6, yet its refit removed 0.0027 of a 0.0158 MSE against a
-   control MSE of 0.0105, about 0.26 of the floor; the moderate 0.15 rad tilt removed 0.0098, 0.93 of it) and is
-   reported, not recommended. gain = (base loss - refit loss) / added parameters, loss = the expected pixel data term of the
-   predictive (mean over draws and images), is reported beside it: it weighs the draws' spread, which an effect
-   may widen while its best draws come closer (measured: best-of-16 MSE 0.0288 -> 0.0189 with a higher loss).
+   (base.redrape_mse) is the mean over REDRAPE_FLOOR_MIN re-drapes of P's mean material (placement noise only) of
+   the same K draws' best-of-K MSE against each: what the base MSE would be if P were right about the specimen,
+   i.e. how much re-draping alone changes a drape. (Until 2026-11-24 the references were posterior draws, whose
+   material spread made the floor twice the control drapes' base MSE: 0.031 against 0.009 in the round-trip
+   test's setting. It was then measured on 6 re-drapes, whose sd of 0.007 gave 0.0105 at one seed and
+   0.0166 at another with the same reference.) An effect whose refit removes less than half of the floor changes
+   the drape less than re-draping does (a 4 degree tilt: significant with six images, p 2.6e-6, yet its refit
+   removed 0.0027 of a 0.0158 MSE against a control MSE of 0.0105, about 0.26 of the floor; the moderate 0.15 rad
+   tilt removed 0.0098, 0.93 of it) and is reported, not recommended. gain = (base loss - refit loss) / added
+   parameters, loss = the expected pixel data term of the predictive (mean over draws and images), is reported
+   beside it: it weighs the draws' spread, which an effect may widen while its best draws come closer (measured:
+   best-of-16 MSE 0.0288 -> 0.0189 with a higher loss).
 
 Time budget (seconds, the whole job): the draws and score tests come first (their cost is K drapes with
 backward); what remains, less the refits' evaluations (estimated from the measured drape time) and a reserve
@@ -127,6 +137,7 @@ REFIT_START_LEARNING_RATE_FACTOR = 0.25  # a refit from the step test's step tak
 REFIT_AVERAGE_SHARE = 0.5  # ... and reports the mean of this last share of its epochs' effect values
 REPORT_RESERVE_S = 5.0    # seconds kept back from the refits for the evaluation bookkeeping and the report
 SCORE_SIGMA_DC = 0.0      # the score test's data term: pixel term only (see the module doc)
+REDRAPE_FLOOR_MIN = 12    # re-drapes the re-drape floor is measured on (at least; module doc, 3.)
 PSEUDO_MIN = 4            # predictive silhouettes drawn as the null reference (at least; as many as images)
 PSEUDO_SEED_OFFSET = 100000  # their placement seeds: [seed, offset + j, 1], apart from the scored draws' [seed, i, 1]
 STEP_REFERENCES_MIN = 12  # predictive silhouettes the step test compares with (at least; 2 per image beyond six)
@@ -778,6 +789,20 @@ def _joint_drapes(preset, observations, names, k, seed, config, threads, templat
     return pred, models, shapes, grads, time.monotonic() - t0, lanes, pseudo, drawn
 
 
+def refit_order(entries):
+    """`entries` (ranking entries with p_value and, where the step test ran, step.statistic) in the order they are
+    refitted (module doc, 3.): by the sum of their ranks in the two tests (the combined p, smallest first; the step
+    statistic, most negative first), ties to the better step rank. A candidate without a step statistic ranks as
+    0 there (after every step that brought the draws closer), so without a step test this is the p order."""
+    def stat(e):
+        return float((e.get("step") or {}).get("statistic", 0.0))
+    by_p = sorted(entries, key=lambda e: (e["p_value"], stat(e)))
+    by_step = sorted(entries, key=lambda e: (stat(e), e["p_value"]))
+    rank_p = {id(e): i for i, e in enumerate(by_p)}
+    rank_step = {id(e): i for i, e in enumerate(by_step)}
+    return sorted(entries, key=lambda e: (rank_p[id(e)] + rank_step[id(e)], rank_step[id(e)]))
+
+
 def with_effect_values(preset, name, values):
     """A copy of `preset` with effect `name`'s values set to `values` ({parameter: value}; the others kept), each
     fitted parameter's interval moved with its value and its sd kept: a refit preset taken back to its start."""
@@ -943,8 +968,8 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
         base, per_image, ok = _summary([shapes[i] for i in done], observations, pred.calibration,
                                        float(config["sigma_obs"]), SCORE_SIGMA_DC)
         # the re-drape floor: the draws against P's mean material re-draped (placement noise only)
-        redrapes = _pseudo_observations(pred, p, models, drawn["offs"], max(PSEUDO_MIN, len(observations)), seed,
-                                        config, lanes, progress, cancel_event, stream=2, mean_material=True)
+        redrapes = _pseudo_observations(pred, p, models, drawn["offs"], max(REDRAPE_FLOOR_MIN, len(observations)),
+                                        seed, config, lanes, progress, cancel_event, stream=2, mean_material=True)
         floor = _redrape_floor([shapes[i] for i in done], redrapes)
         if floor is not None:
             base["redrape_mse"], base["redrape_mse_sd"] = floor
@@ -1063,8 +1088,10 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
 
         # 2. refits of the most promising candidates
         tested = [e for e in result["ranking"] if e["p_value"] is not None]
-        promising = ([e for e in tested if e["p_value"] < max(threshold, REFIT_P_MAX)][:int(max_refits)]
+        promising = (refit_order([e for e in tested if e["p_value"] < max(threshold, REFIT_P_MAX)])[:int(max_refits)]
                      if any(e["p_value"] < threshold for e in tested) else [])
+        for order, e in enumerate(promising):
+            e["refit_order"] = order + 1
         promising += [e for e in result["ranking"] if e["switch"] and explicit_switch(e["effect"])]
         if promising:
             result["material_prior"] = ("the preset's posterior (log_mean, per-entry log_std, global_log_std), held "

@@ -409,3 +409,21 @@ def test_step_draws_take_a_larger_share_only_to_reach_the_minimum():
     # not even the larger share pays for the minimum: what it pays for, which the caller refuses
     assert diagnose.step_draws(16, 50.0, 3.3, 6, 13) < diagnose.MIN_SAMPLES
     assert diagnose.step_draws(16, 0.0, 3.3, 6, 13) == 0
+
+
+def test_refit_order_sums_the_ranks_of_both_tests():
+    def entry(name, p, stat=None):
+        return {"effect": name, "p_value": p, **({"step": {"statistic": stat}} if stat is not None else {})}
+    # seed 651's offset drapes: the offset's step statistic was the strongest, its combined p only 5th, and the
+    # three refits by p alone missed it
+    offset = [entry("prestrain", 1.4e-6, -0.0193), entry("density_variation", 6.7e-6, -0.0091),
+              entry("rest_curvature", 7.1e-6, -0.0200), entry("camera", 4.2e-5, -0.0069),
+              entry("offset", 1.1e-4, -0.0588), entry("bending_anisotropy", 1.1e-4, -0.0318)]
+    order = [e["effect"] for e in diagnose.refit_order(offset)]
+    # ranks (p, step): prestrain (0, 3), offset (4, 0), rest_curvature (2, 2), density_variation (1, 4), ...
+    assert order == ["prestrain", "offset", "rest_curvature", "density_variation", "bending_anisotropy", "camera"]
+    # ties go to the better step rank; without any step statistic the order is the p order
+    assert [e["effect"] for e in diagnose.refit_order([entry("a", 0.01, -0.01), entry("b", 0.001, 0.0)])] == ["a", "b"]
+    plain = [entry("a", 0.02), entry("b", 0.001), entry("c", 0.01)]
+    assert [e["effect"] for e in diagnose.refit_order(plain)] == ["b", "c", "a"]
+    assert diagnose.refit_order([]) == []
