@@ -13,8 +13,6 @@ import copy
 import os
 import sys
 
-import numpy as np
-
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "addon"))
 
 from drapelab import diagnose, fit_effects, infer, render  # noqa: E402
@@ -36,17 +34,17 @@ def main():
     cfg["mesh_level"] = args.mesh_level
     cfg["calibration"]["enabled"] = False
     obs = diagnose._observations([args.image])
-    pred, models, _, _, _, _, _, _ = diagnose._joint_drapes(preset, obs, [args.effect], 1, args.seed, cfg, 1, None,
-                                                            args.mesh_level, None, None)
+    pred, models, _, _, _, _, _, drawn = diagnose._joint_drapes(preset, obs, [args.effect], 1, args.seed, cfg, 1,
+                                                                None, args.mesh_level, None, None)
     m = models[0]
-    draw = infer.preset_bend_samples(preset, m.num_bending_edges, np.random.default_rng(args.seed), 1)[0]
-    v0 = infer.placement_velocities(m.rest_positions, np.random.default_rng([args.seed, 0, 1]), *pred.placement)
+    draw, v0 = drawn["bend"][0], drawn["velocities"][0]  # the diagnosis's first draw and its placement noise
+    own = drawn["effects"][0] if drawn["effects"] else {}  # P's own effects, at that draw's values
     r = render.SoftRenderer(pred.camera, sigma=cfg["render_sigma_px"])
     params = fit_effects.registry()[args.effect]["parameters"]
     off = {q["name"]: q["off"] for q in params}
 
     def loss(values, grad=False):
-        p = m.parameters(stretch=pred.stretch, bend=draw, effects={args.effect: values})
+        p = m.parameters(stretch=pred.stretch, bend=draw, effects={**own, args.effect: values})
         x = m.simulate(p, mode="dynamic", record=grad, velocities0=v0, **cfg["dynamic"])
         image = r.render(infer._observed(m, x, p), m.faces)
         value, g_image = infer.data_term(image, obs[0], cfg["sigma_obs"], 0.0)

@@ -65,9 +65,9 @@
    statistics were the strongest), outside them by step statistic in 1 (heterogeneity_map at seed 641, 5th), and
    within the first three by the rank sum in all 16 (chosen on these seeds; a fresh seed's check is in
    docs/diagnose.md). Effects with the same signature compete there: a 1-fold r(theta) residual is what a tilt, a
-   density gradient and a 1-fold stiffness map all predict, and on six tilted drapes the density gradient's score was the larger (T^2 98 on 3 dof against the
-   tilt's 21 on 2). Each refit is ``infer.FitJob`` with effects {name: None} (P's own effects fixed), starting
-   from P's material (its mean log table, per-entry posterior sd and stretching table, no bending scale search)
+   density gradient and a 1-fold stiffness map all predict, and on six tilted drapes the density gradient's score
+   was the larger (T^2 98 on 3 dof against the tilt's 21 on 2). Each refit is ``infer.FitJob`` with effects
+   {name: None} (P's own effects fixed), starting from P's material (its mean log table, per-entry posterior sd and stretching table, no bending scale search)
    and holding it there (the material's learning rates x MATERIAL_LEARNING_RATE_FACTOR = 0): P's posterior is
    the material's prior and, in a refit of a few epochs, also its posterior. Measured: with the material free, a
    short refit's noisy material steps absorbed a 0.3 rad tilt (the fitted angle fell 0.15 -> 0.03 rad in 8

@@ -41,11 +41,10 @@ def _one_draw(images, names, seed=3):
     cfg = small_config()
     preset = infer.load_preset(PRESET)
     obs = diagnose._observations([images["tilt"]])
-    pred, models, shapes, grads, _, _, pseudo, _ = diagnose._joint_drapes(preset, obs, names, 1, seed, cfg, 1, None, 1,
-                                                                       None, None)
-    draw = infer.preset_bend_samples(preset, models[0].num_bending_edges, np.random.default_rng(seed), 1)[0]
-    v0 = infer.placement_velocities(models[0].rest_positions, np.random.default_rng([seed, 0, 1]), *pred.placement)
-    return cfg, preset, obs, pred, models[0], shapes[0], grads[0], draw, v0, pseudo
+    pred, models, shapes, grads, _, _, pseudo, drawn = diagnose._joint_drapes(preset, obs, names, 1, seed, cfg, 1,
+                                                                           None, 1, None, None)
+    return (cfg, preset, obs, pred, models[0], shapes[0], grads[0], drawn["bend"][0], drawn["velocities"][0],
+            pseudo)
 
 
 def test_model_with_candidates_at_off_drapes_the_base_model_bit_for_bit(images):
