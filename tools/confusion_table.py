@@ -135,7 +135,7 @@ def main():
                    "redrape_change_mse": d["base"].get("redrape_change_mse"),
                    "refits": {e["effect"]: {k: e["refit"].get(k) for k in ("mse", "epochs", "values",
                                                                            "strength_of_moderate", "effect_change_mse",
-                                                                           "kept_start", "end", "path")}
+                                                                           "kept_start", "end", "path", "search")}
                               for e in d["ranking"] if e.get("refit")},
                    "p_values": {e["effect"]: e["p_value"] for e in tested},
                    "p_values_score": {e["effect"]: e.get("p_value_score", e["p_value"]) for e in tested},

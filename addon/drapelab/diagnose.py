@@ -76,11 +76,19 @@
    closer to the measurements (statistic < 0): that choice is made on K drapes with placement noise, where the
    fit's own start search judges its candidates by one drape without it (measured on fabric 1, whose photos are
    2-fold: started at zero, bending_anisotropy's refit went the wrong way, best-of-16 MSE 0.058 -> 0.062).
-   Such a refit is also evaluated at its start, on the same draws, and when its end is worse the start is kept
-   (refit.kept_start): a few epochs of Adam's sign-sized first steps on one noisy batch each can undo a good step
-   (measured on fabric 1: from cos2 = +0.75, whose step brought the draws 0.009 closer, 4 epochs went to
-   (1.19, 0.43) and a best-of-16 MSE above the base's). This picks the better of two on the measured images,
-   as the refit itself does; one more evaluation (K forward drapes) per warm-started refit.
+   Before its epochs such a refit searches along the step (refit.search, ``line_search``): the stepped
+   parameters' distance from off times 0.5, 1, 1.5 and 2 (an effect that steps two parameters first turns its
+   step by +-45 degrees in their plane), then the parabola's vertex through the best and its neighbours (or 3x /
+   0.25x at the ends), each point scored by the best-of-K MSE of K draws with a seed of their own
+   (SEARCH_SEED_OFFSET: the choice is not made on the draws that judge the refit); the epochs start at the best
+   point. Why: the pixel loss of a folded drape is rough in rest shape, offset and strain (a gradient step
+   follows fold switches, docs/diagnose.md), and at seed 661 half of the warm-started refits ended worse than
+   their start, so the strength reported was the step's moderate one (17-36 % off the truth). Five to seven
+   forward evaluations, about 4 s each on circle1 with 16 draws. The refit is also evaluated at its start, on
+   the base's draws, and when its end is worse the start is kept (refit.kept_start): a few epochs of Adam's
+   sign-sized first steps on one noisy batch each can undo a good step (measured on fabric 1: from cos2 =
+   +0.75, whose step brought the draws 0.009 closer, 4 epochs went to (1.19, 0.43) and a best-of-16 MSE above
+   the base's). One more evaluation (K forward drapes) per warm-started refit.
    Each refit is evaluated like the base (same seed, K draws, P's camera and P's global log sd) and written as
    DIR/presets/<effect>.json. mse_fall = (base best-of-K MSE - refit's) / base's: the same draws' noise on both
    sides, so the comparison is paired. The final ranking puts the refits that lower the error first (largest
@@ -101,8 +109,9 @@
    best-of-16 MSE 0.0288 -> 0.0189 with a higher loss).
 
 Time budget (seconds, the whole job): the draws and score tests come first (their cost is K drapes with
-backward); what remains, less the refits' evaluations (estimated from the measured drape time) and a reserve
-for the report, is split equally between the refits. Without a budget each refit runs fit.json default_epochs.
+backward); what remains, less the refits' evaluations and line searches (estimated from the measured drape time)
+and a reserve for the report, is split equally between the refits (a refit whose search used up its share keeps
+the search's best point, without epochs). Without a budget each refit runs fit.json default_epochs.
 """
 import copy
 import html
@@ -135,6 +144,9 @@ RANK_TOLERANCE = 1e-9     # eigenvalues of the scaled gradient covariance below 
 MATERIAL_LEARNING_RATE_FACTOR = 0.0  # refits hold the material at P's posterior (module doc)
 REFIT_START_LEARNING_RATE_FACTOR = 0.25  # a refit from the step test's step takes steps of this x the fit's (module doc, 3.)
 REFIT_AVERAGE_SHARE = 0.5  # ... and reports the mean of this last share of its epochs' effect values
+SEARCH_FACTORS = (0.5, 1.0, 1.5, 2.0)  # the refit's line search: multiples of the step it drapes (module doc, 3.)
+SEARCH_TURN_RAD = math.pi / 4  # ... and, for an effect that steps two parameters, the step turned by this in their plane
+SEARCH_SEED_OFFSET = 200000  # the search's draws: material and placement seed apart from the base's (module doc, 3.)
 REPORT_RESERVE_S = 5.0    # seconds kept back from the refits for the evaluation bookkeeping and the report
 SCORE_SIGMA_DC = 0.0      # the score test's data term: pixel term only (see the module doc)
 REDRAPE_FLOOR_MIN = 12    # re-drapes the re-drape floor is measured on (at least; module doc, 3.)
@@ -816,6 +828,78 @@ def with_effect_values(preset, name, values):
     return infer.validate_preset(out)
 
 
+def with_effect(preset, name, values):
+    """A copy of `preset` with effect `name` on at `values` ({parameter: value}, all of its parameters), not fitted
+    (no sd: every draw has these values): a point of the refit's line search."""
+    out = copy.deepcopy(preset)
+    units = {q["name"]: q["unit"] for q in fit_effects.registry()[name]["parameters"]}
+    out["active_effects"] = dict(out.get("active_effects") or {})
+    out["active_effects"][name] = {q: {"value": float(v), "unit": units[q], "fitted": False} for q, v in values.items()}
+    return infer.validate_preset(out)
+
+
+def search_evaluations(entry):
+    """How many points line_search drapes at most for registry entry `entry`."""
+    turns = 2 if len(entry.get("step_parameters") or []) == 2 else 0
+    return len(SEARCH_FACTORS) + turns + 1
+
+
+def line_search(entry, step, mse_of):
+    """The refit's line search (module doc, 3.): from the step test's best step `step` ({parameter: value}, all
+    of registry entry `entry`'s parameters), the stepped parameters' distance from off times t in SEARCH_FACTORS
+    (the others as in the step, e.g. the tilt's turned azimuth), each scored by `mse_of(values)` (the best-of-K MSE
+    on the search's own draws, None when they all failed). An effect that steps two parameters first turns the step
+    by +- SEARCH_TURN_RAD in their plane at t = 1 (bending_anisotropy: its axis by +- 22.5 degrees) and keeps the
+    best turn. Then one more point: the vertex of the parabola through the best t and its neighbours, or t = 3 /
+    0.25 when the best is the last / first factor. Values are clipped to the registry's bounds; a point whose
+    clipped values were already scored is not draped again. Returns (best values, points [{t, turn_rad, values,
+    mse}] in the order draped)."""
+    params = {q["name"]: q for q in entry["parameters"]}
+    stepped = list(entry.get("step_parameters") or [entry["parameters"][0]["name"]])
+    d0 = np.array([float(step[q]) - float(params[q]["off"]) for q in stepped])
+    points, seen = [], {}
+
+    def at(t, turn):
+        d = d0
+        if turn:
+            c, s = math.cos(turn), math.sin(turn)
+            d = np.array([c * d0[0] - s * d0[1], s * d0[0] + c * d0[1]])
+        v = {q: float(x) for q, x in step.items()}
+        for q, x in zip(stepped, d):
+            v[q] = float(np.clip(params[q]["off"] + t * x, params[q]["lower"], params[q]["upper"]))
+        return v
+
+    def score(t, turn):
+        v = at(t, turn)
+        key = tuple(round(v[q], 12) for q in sorted(v))
+        if key not in seen:
+            mse = mse_of(v)
+            seen[key] = math.inf if mse is None else float(mse)
+            points.append({"t": float(t), "turn_rad": float(turn), "values": v,
+                           "mse": None if mse is None else float(mse)})
+        return seen[key]
+
+    turn = 0.0
+    if len(stepped) == 2:
+        turn = min((0.0, -SEARCH_TURN_RAD, SEARCH_TURN_RAD), key=lambda a: score(1.0, a))
+    ts = sorted(SEARCH_FACTORS)
+    f = {t: score(t, turn) for t in ts}
+    i = min(range(len(ts)), key=lambda j: f[ts[j]])
+    if i == len(ts) - 1:
+        score(ts[-1] + 2 * (ts[-1] - ts[-2]), turn)
+    elif i == 0:
+        score(ts[0] / 2, turn)
+    else:
+        (t0, f0), (t1, f1), (t2, f2) = [(ts[j], f[ts[j]]) for j in (i - 1, i, i + 1)]
+        # the vertex of the parabola through the three points (t1 is the lowest, so it lies between t0 and t2)
+        den = (t1 - t0) * (f1 - f2) - (t1 - t2) * (f1 - f0)
+        if den != 0 and all(math.isfinite(x) for x in (f0, f1, f2)):
+            t = t1 - 0.5 * ((t1 - t0) ** 2 * (f1 - f2) - (t1 - t2) ** 2 * (f1 - f0)) / den
+            score(float(np.clip(t, t0, t2)), turn)
+    best = min((pt for pt in points if pt["mse"] is not None), key=lambda pt: pt["mse"], default=None)
+    return (dict(step) if best is None else dict(best["values"])), points
+
+
 def refit_path(job, name):
     """Per accepted epoch of `job`: its loss, batch MSE and effect `name`'s values after the epoch's step."""
     return [{"epoch": h["epoch"], "loss": h.get("loss"), "mse": h.get("mse"),
@@ -1101,45 +1185,78 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
             st = e.get("step")
             return st["values"] if st is not None and st["statistic"] < 0 else None
 
-        def evaluate(candidate):
-            """(shapes, summary) of K draws of `candidate` (the base's seed and draws), or None when all fail."""
+        def evaluate(candidate, at_seed=seed):
+            """(shapes, summary) of K draws of `candidate` (by default the base's seed and draws), or None when all
+            fail."""
             rp = infer._Predictive(candidate, observations[0].mask.shape, lanes, config, template_dir, pred.level,
                                    "dynamic")
-            draws = infer.preset_bend_samples(candidate, rp.num_edges, np.random.default_rng(seed), k)
-            rshapes = rp.drape(draws, seed, cancel_event=cancel_event)
+            draws = infer.preset_bend_samples(candidate, rp.num_edges, np.random.default_rng(at_seed), k)
+            rshapes = rp.drape(draws, at_seed, cancel_event=cancel_event)
             if not any("error" not in r for r in rshapes):
                 return None
             rbase, _, _ = _summary(rshapes, observations, rp.calibration, float(config["sigma_obs"]), SCORE_SIGMA_DC)
             return rshapes, rbase
 
+        def refit_budget(idx, searched=False):
+            """Seconds for refit idx's epochs: what is left, less the evaluations still to come (this refit's
+            search unless `searched`) and the report's reserve, shared equally by the refits still to run."""
+            left = float(time_budget) - (time.monotonic() - t0)
+            evaluation = per_draw * 0.4 * k / lanes  # forward only: ~40 % of a draw with backward (measured)
+            evaluations = sum((2 + (0 if searched and i == idx else search_evaluations(reg[e["effect"]])))
+                              if start_of(e) is not None else 1 for i, e in enumerate(promising) if i >= idx)
+            return (left - REPORT_RESERVE_S - evaluations * evaluation) / (len(promising) - idx)
+
         for idx, entry in enumerate(promising):
             budget = None
             start = start_of(entry)
             if time_budget is not None:
-                left = float(time_budget) - (time.monotonic() - t0)
-                evaluation = per_draw * 0.4 * k / lanes  # forward only: ~40 % of a draw with backward (measured)
-                evaluations = sum(2 if start_of(e) is not None else 1 for e in promising[idx:])
-                budget = (left - REPORT_RESERVE_S - evaluations * evaluation) / (len(promising) - idx)
+                budget = refit_budget(idx)
                 if budget <= 0:
                     entry["explanation"] += " Not refitted: the time budget was spent."
                     continue
             ts = time.monotonic()
-            _progress(progress, "refit", f"refit with {entry['effect']} "
-                                         f"({'default epochs' if budget is None else f'{budget:.0f} s'})",
-                      effect=entry["effect"])
-            refit, job = refit_with_effect(p, images, entry["effect"], pred.level, seed, config, threads, template_dir,
-                                           budget, cancel_event, progress, start=start)
-            evaluated = evaluate(refit)
-            end = {"values": fit_effects.active_effect_values(refit["active_effects"])[entry["effect"]],
-                   "mse": evaluated[1]["mse"] if evaluated else None}
+            search = None
+            if start is not None:  # the line search along the step, on its own draws (module doc, 3.)
+                name = entry["effect"]
+                search_seed = seed + SEARCH_SEED_OFFSET
+
+                def mse_of(values, name=name, search_seed=search_seed):
+                    got = evaluate(with_effect(p, name, values), search_seed)
+                    _progress(progress, "refit", f"line search {name}: "
+                              + " ".join(f"{q} {v:+.4g}" for q, v in values.items())
+                              + (" failed" if got is None else f" best-of-{k} MSE {got[1]['mse']:.4f}"), effect=name)
+                    return None if got is None else got[1]["mse"]
+                best, points = line_search(reg[name], start, mse_of)
+                search = {"seed": search_seed, "step": dict(start), "points": points, "best": best,
+                          "seconds": time.monotonic() - ts}
+                start = best
+                entry["explanation"] += (f" Line search along the step ({len(points)} points on draws of their own): "
+                                         + ", ".join(f"{q} {v:+.4g}" for q, v in best.items()) + ".")
+                if time_budget is not None:
+                    budget = refit_budget(idx, searched=True)
+            job = None
+            if budget is None or budget > 0:
+                _progress(progress, "refit", f"refit with {entry['effect']} "
+                                             f"({'default epochs' if budget is None else f'{budget:.0f} s'})",
+                          effect=entry["effect"])
+                refit, job = refit_with_effect(p, images, entry["effect"], pred.level, seed, config, threads,
+                                               template_dir, budget, cancel_event, progress, start=start)
+                evaluated = evaluate(refit)
+                end = {"values": fit_effects.active_effect_values(refit["active_effects"])[entry["effect"]],
+                       "mse": evaluated[1]["mse"] if evaluated else None}
+            else:  # the search spent the refit's share: its best point is the refit
+                refit, evaluated, end = with_effect(p, entry["effect"], start), None, None
+                entry["explanation"] += " No epochs: the line search spent the refit's share of the time budget."
             kept_start = False
             if start is not None:  # the refit's start, on the same draws: kept when the refit's end is worse
                 started = with_effect_values(refit, entry["effect"], start)
                 at_start = evaluate(started)
                 if at_start is not None and (evaluated is None or at_start[1]["mse"] < evaluated[1]["mse"]):
-                    entry["explanation"] += (f" The refit's end (best-of-{k} MSE "
-                                             + (f"{evaluated[1]['mse']:.4f}" if evaluated else "failed")
-                                             + ") was worse than its start, the step, which is kept.")
+                    if job is not None:
+                        entry["explanation"] += (f" The refit's end (best-of-{k} MSE "
+                                                 + (f"{evaluated[1]['mse']:.4f}" if evaluated else "failed")
+                                                 + ") was worse than its start, the line search's best point, "
+                                                   "which is kept.")
                     refit, evaluated, kept_start = started, at_start, True
             if evaluated is None:
                 entry["explanation"] += f" Refit: every one of its {k} draws failed to drape."
@@ -1148,14 +1265,14 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
             values = fit_effects.active_effect_values(refit["active_effects"])[entry["effect"]]
             entry["refit"] = {"mse": rbase["mse"], "iou": rbase["iou"], "loss": rbase["loss"],
                               "dc_error": rbase["dc_error"], "node_error": rbase["node_error"],
-                              "amplitude_error": rbase["amplitude_error"], "epochs": job.epoch,
+                              "amplitude_error": rbase["amplitude_error"], "epochs": 0 if job is None else job.epoch,
                               "seconds": time.monotonic() - ts, "values": values,
                               "strength_of_moderate": strength_of_moderate(reg[entry["effect"]], values, second),
                               "effect_change_mse": effect_change(shapes, rshapes), "kept_start": kept_start,
-                              "end": end, "averaged_epochs": job.averaged_epochs,
-                              "path": refit_path(job, entry["effect"])}
+                              "end": end, "averaged_epochs": 0 if job is None else job.averaged_epochs,
+                              "path": [] if job is None else refit_path(job, entry["effect"]), "search": search}
             entry["gain"] = (base["loss"] - rbase["loss"]) / len(reg[entry["effect"]]["parameters"])
-            entry["explanation"] += (f" Refit ({job.epoch} epochs): loss {base['loss']:.4g} -> {rbase['loss']:.4g}, "
+            entry["explanation"] += (f" Refit ({entry['refit']['epochs']} epochs): loss {base['loss']:.4g} -> {rbase['loss']:.4g}, "
                                      f"best-of-{k} MSE {base['mse']:.4f} -> {rbase['mse']:.4f}.")
             if out_dir:
                 path = os.path.join(out_dir, "presets", f"{entry['effect']}.json")

@@ -204,14 +204,29 @@ def test_cli_writes_the_report_the_contract_and_a_refit(images, tmp_path, capsys
     r = entry["refit"]
     epochs = [h["epoch"] for h in r["path"]]
     assert epochs == list(range(1, r["epochs"] + 1))
-    n = r["averaged_epochs"]
-    if n:  # a refit from the step: the mean of its last epochs
-        assert r["end"]["values"] == pytest.approx({q: np.mean([h["values"][q] for h in r["path"][-n:]])
-                                                    for q in r["end"]["values"]})
-    else:  # the last epoch's values, or the one before when a failed drape undid the last step
-        assert any(h["values"] == pytest.approx(r["end"]["values"]) for h in r["path"][-2:])
-    if not r["kept_start"]:
-        assert r["end"]["values"] == pytest.approx(r["values"]) and r["end"]["mse"] == pytest.approx(r["mse"])
+    search = r["search"]
+    stat = (entry.get("step") or {}).get("statistic")
+    assert (search is not None) == (stat is not None and stat < 0)
+    if search is not None:  # a refit from the step: the line search on draws of their own seed, the best kept
+        assert search["seed"] == 1 + diagnose.SEARCH_SEED_OFFSET and search["step"] == entry["step"]["values"]
+        scored = [pt for pt in search["points"] if pt["mse"] is not None]
+        assert 1 <= len(search["points"]) <= diagnose.search_evaluations(reg["tilt"])
+        assert search["best"] == min(scored, key=lambda pt: pt["mse"])["values"]
+        assert {pt["values"]["azimuth_rad"] for pt in search["points"]} == {search["step"]["azimuth_rad"]}
+        if r["kept_start"]:
+            assert r["values"] == pytest.approx(search["best"])
+    if r["end"] is None:  # the search used up the refit's share of the budget: its best point, no epochs
+        assert r["epochs"] == 0 and r["path"] == [] and r["kept_start"]
+    else:
+        assert r["epochs"] >= 1
+        n = r["averaged_epochs"]
+        if n:  # a refit from the step: the mean of its last epochs
+            assert r["end"]["values"] == pytest.approx({q: np.mean([h["values"][q] for h in r["path"][-n:]])
+                                                        for q in r["end"]["values"]})
+        else:  # the last epoch's values, or the one before when a failed drape undid the last step
+            assert any(h["values"] == pytest.approx(r["end"]["values"]) for h in r["path"][-2:])
+        if not r["kept_start"]:
+            assert r["end"]["values"] == pytest.approx(r["values"]) and r["end"]["mse"] == pytest.approx(r["mse"])
     assert entry["mse_fall"] == pytest.approx((d["base"]["mse"] - entry["refit"]["mse"]) / d["base"]["mse"])
     removed = d["base"]["mse"] - entry["refit"]["mse"]
     assert entry["fall_of_redrape"] == pytest.approx(removed / d["base"]["redrape_mse"])
@@ -220,7 +235,7 @@ def test_cli_writes_the_report_the_contract_and_a_refit(images, tmp_path, capsys
     if entry["mse_fall"] >= diagnose.MIN_MSE_FALL and d["recommended"] is None:
         assert "less than re-draping does" in d["verdict"]
     refit = infer.load_preset(os.path.join(out, "presets", "tilt.json"))
-    assert refit["active_effects"]["tilt"]["angle_rad"]["fitted"]
+    assert refit["active_effects"]["tilt"]["angle_rad"]["fitted"] == (r["epochs"] > 0)
     assert refit["posterior"]["bend"]["log_mean"] == infer.load_preset(PRESET)["posterior"]["bend"]["log_mean"]
     assert [h["source"] for h in d["history"]] == ["preset training metrics", "diagnose base", "diagnose refit"]
     assert {"model", "effects", "mse", "dc_error"} <= set(d["history"][-1]) and "tilt" in d["history"][-1]["effects"]
@@ -426,3 +441,40 @@ def test_refit_order_sums_the_ranks_of_both_tests():
     plain = [entry("a", 0.02), entry("b", 0.001), entry("c", 0.01)]
     assert [e["effect"] for e in diagnose.refit_order(plain)] == ["b", "c", "a"]
     assert diagnose.refit_order([]) == []
+
+
+def test_line_search_finds_the_minimum_along_the_step_and_turns_a_two_parameter_step():
+    reg = fit_effects.registry()
+    tilt = reg["tilt"]
+    # a tilt step turned by the second direction: the azimuth is carried, only the angle is scaled
+    step = {"angle_rad": 0.15, "azimuth_rad": math.pi / 2}
+    calls = []
+
+    def mse_of(v):
+        calls.append(dict(v))
+        assert v["azimuth_rad"] == math.pi / 2
+        return 0.01 + (v["angle_rad"] - 0.2) ** 2
+    best, points = diagnose.line_search(tilt, step, mse_of)
+    # t = 0.5, 1, 1.5, 2 at 0.075 .. 0.3 rad; the parabola's vertex is exact for a quadratic: 0.2 rad
+    assert [round(p["values"]["angle_rad"], 6) for p in points] == [0.075, 0.15, 0.225, 0.3, 0.2]
+    assert best["angle_rad"] == pytest.approx(0.2, abs=1e-9) and best["azimuth_rad"] == math.pi / 2
+    assert len(points) <= diagnose.search_evaluations(tilt)
+    # the minimum beyond 2x the step: one more point at 3x, clipped to the registry's bound (0.5 rad)
+    best, points = diagnose.line_search(tilt, {"angle_rad": 0.2, "azimuth_rad": 0.0},
+                                        lambda v: (v["angle_rad"] - 0.6) ** 2)
+    assert [round(p["values"]["angle_rad"], 6) for p in points] == [0.1, 0.2, 0.3, 0.4, 0.5]
+    assert best["angle_rad"] == 0.5
+    # failed points (None) are never the best; all failed: the step itself
+    best, points = diagnose.line_search(tilt, step, lambda v: None)
+    assert best == step and all(p["mse"] is None for p in points)
+    # bending_anisotropy steps (cos2, sin2): the step (0.75, 0) turned by +-45 degrees in their plane first; the
+    # best turn, +45, is then scaled
+    aniso = reg["bending_anisotropy"]
+    target = 0.9 * np.array([math.cos(math.pi / 4), math.sin(math.pi / 4)])
+    off = {q["name"]: q["off"] for q in aniso["parameters"]}
+    best, points = diagnose.line_search(aniso, {**off, "cos2": 0.75, "sin2": 0.0},
+                                        lambda v: float(np.sum((np.array([v["cos2"], v["sin2"]]) - target) ** 2)))
+    assert [round(p["turn_rad"], 6) for p in points[:3]] == [0.0, round(-math.pi / 4, 6), round(math.pi / 4, 6)]
+    assert all(p["turn_rad"] == pytest.approx(math.pi / 4) for p in points[3:])
+    assert best["cos2"] == pytest.approx(target[0], abs=1e-6) and best["sin2"] == pytest.approx(target[1], abs=1e-6)
+    assert len(points) <= diagnose.search_evaluations(aniso)
