@@ -78,12 +78,12 @@
    2-fold: started at zero, bending_anisotropy's refit went the wrong way, best-of-16 MSE 0.058 -> 0.062).
    Before its epochs such a refit searches along the step (refit.search, ``line_search``): the stepped
    parameters' distance from off times 0.5, 1, 1.5 and 2 (an effect that steps two parameters first turns its
-   step by +-45 degrees in their plane), then the parabola's vertex through the best and its neighbours (or 3x /
-   0.25x at the ends), each point scored by the best-of-K MSE of K draws with a seed of their own
+   step by +-45 degrees in their plane; 3x / 0.25x when the best is at an end), then the parabola's vertex
+   through the best and its neighbours, each point scored by the best-of-K MSE of K draws with a seed of their own
    (SEARCH_SEED_OFFSET: the choice is not made on the draws that judge the refit); the epochs start at the best
    point. Why: the pixel loss of a folded drape is rough in rest shape, offset and strain (a gradient step
    follows fold switches, docs/diagnose.md), and at seed 661 half of the warm-started refits ended worse than
-   their start, so the strength reported was the step's moderate one (17-36 % off the truth). Five to seven
+   their start, so the strength reported was the step's moderate one (17-36 % off the truth). Five to eight
    forward evaluations, about 4 s each on circle1 with 16 draws. The refit is also evaluated at its start, on
    the base's draws, and when its end is worse the start is kept (refit.kept_start): a few epochs of Adam's
    sign-sized first steps on one noisy batch each can undo a good step (measured on fabric 1: from cos2 =
@@ -841,7 +841,7 @@ def with_effect(preset, name, values):
 def search_evaluations(entry):
     """How many points line_search drapes at most for registry entry `entry`."""
     turns = 2 if len(entry.get("step_parameters") or []) == 2 else 0
-    return len(SEARCH_FACTORS) + turns + 1
+    return len(SEARCH_FACTORS) + turns + 2
 
 
 def line_search(entry, step, mse_of):
@@ -850,10 +850,10 @@ def line_search(entry, step, mse_of):
     (the others as in the step, e.g. the tilt's turned azimuth), each scored by `mse_of(values)` (the best-of-K MSE
     on the search's own draws, None when they all failed). An effect that steps two parameters first turns the step
     by +- SEARCH_TURN_RAD in their plane at t = 1 (bending_anisotropy: its axis by +- 22.5 degrees) and keeps the
-    best turn. Then one more point: the vertex of the parabola through the best t and its neighbours, or t = 3 /
-    0.25 when the best is the last / first factor. Values are clipped to the registry's bounds; a point whose
-    clipped values were already scored is not draped again. Returns (best values, points [{t, turn_rad, values,
-    mse}] in the order draped)."""
+    best turn. When the best t is the last / first factor, t = 3 / 0.25 is draped too; then, when the best t lies
+    between two draped ones, the vertex of the parabola through it and its neighbours. Values are clipped to the
+    registry's bounds; a point whose clipped values were already scored is not draped again. Returns (best values,
+    points [{t, turn_rad, values, mse}] in the order draped)."""
     params = {q["name"]: q for q in entry["parameters"]}
     stepped = list(entry.get("step_parameters") or [entry["parameters"][0]["name"]])
     d0 = np.array([float(step[q]) - float(params[q]["off"]) for q in stepped])
@@ -885,11 +885,12 @@ def line_search(entry, step, mse_of):
     ts = sorted(SEARCH_FACTORS)
     f = {t: score(t, turn) for t in ts}
     i = min(range(len(ts)), key=lambda j: f[ts[j]])
-    if i == len(ts) - 1:
-        score(ts[-1] + 2 * (ts[-1] - ts[-2]), turn)
-    elif i == 0:
-        score(ts[0] / 2, turn)
-    else:
+    if i in (0, len(ts) - 1):
+        t = ts[0] / 2 if i == 0 else ts[-1] + 2 * (ts[-1] - ts[-2])
+        f[t] = score(t, turn)
+    ts = sorted(f)
+    i = min(range(len(ts)), key=lambda j: f[ts[j]])
+    if 0 < i < len(ts) - 1:
         (t0, f0), (t1, f1), (t2, f2) = [(ts[j], f[ts[j]]) for j in (i - 1, i, i + 1)]
         # the vertex of the parabola through the three points (t1 is the lowest, so it lies between t0 and t2)
         den = (t1 - t0) * (f1 - f2) - (t1 - t2) * (f1 - f0)

@@ -464,6 +464,11 @@ def test_line_search_finds_the_minimum_along_the_step_and_turns_a_two_parameter_
                                         lambda v: (v["angle_rad"] - 0.6) ** 2)
     assert [round(p["values"]["angle_rad"], 6) for p in points] == [0.1, 0.2, 0.3, 0.4, 0.5]
     assert best["angle_rad"] == 0.5
+    # the minimum below half the step: 0.25x, then the parabola through 0.25, 0.5 and 1 (exact: 0.4x)
+    best, points = diagnose.line_search(tilt, step, lambda v: (v["angle_rad"] - 0.06) ** 2)
+    assert [round(p["values"]["angle_rad"], 6) for p in points] == [0.075, 0.15, 0.225, 0.3, 0.0375, 0.06]
+    assert best["angle_rad"] == pytest.approx(0.06, abs=1e-9)
+    assert len(points) == diagnose.search_evaluations(tilt)
     # failed points (None) are never the best; all failed: the step itself
     best, points = diagnose.line_search(tilt, step, lambda v: None)
     assert best == step and all(p["mse"] is None for p in points)
