@@ -424,6 +424,12 @@ def _redrape_floor(shapes, pseudo):
     return float(np.mean(best)), float(np.std(best, ddof=1)) if len(best) > 1 else 0.0
 
 
+def stepped_parameters(entry):
+    """The parameter names the step test moves for registry entry `entry` (and the refit's line search scales):
+    its `step_parameters`, else its primary."""
+    return list(entry.get("step_parameters") or [entry["parameters"][0]["name"]])
+
+
 def effect_steps(reg, names, second=None):
     """{effect: [(label, {parameter: value})]}: the finite steps of the step test (module doc, 2b) for the
     candidates that are not switches: each stepped parameter (the registry's `step_parameters`, else the primary)
@@ -437,7 +443,7 @@ def effect_steps(reg, names, second=None):
         if _is_switch(entry):
             continue
         by_name = {q["name"]: q for q in entry["parameters"]}
-        stepped = [by_name[q] for q in (entry.get("step_parameters") or [entry["parameters"][0]["name"]])]
+        stepped = [by_name[q] for q in stepped_parameters(entry)]
         off = {q["name"]: q["off"] for q in entry["parameters"]}
         turns = [({}, "")] + ([(dict(second[n]), "@" + ",".join(f"{q}={v:.3g}" for q, v in second[n].items()))]
                               if n in second else [])
@@ -832,9 +838,8 @@ def with_effect(preset, name, values):
     """A copy of `preset` with effect `name` on at `values` ({parameter: value}, all of its parameters), not fitted
     (no sd: every draw has these values): a point of the refit's line search."""
     out = copy.deepcopy(preset)
-    units = {q["name"]: q["unit"] for q in fit_effects.registry()[name]["parameters"]}
-    out["active_effects"] = dict(out.get("active_effects") or {})
-    out["active_effects"][name] = {q: {"value": float(v), "unit": units[q], "fitted": False} for q, v in values.items()}
+    out["active_effects"] = {**(out.get("active_effects") or {}),
+                             **fit_effects.EffectPlan({name: values}).preset_block()}
     return infer.validate_preset(out)
 
 
@@ -855,7 +860,7 @@ def line_search(entry, step, mse_of):
     registry's bounds; a point whose clipped values were already scored is not draped again. Returns (best values,
     points [{t, turn_rad, values, mse}] in the order draped)."""
     params = {q["name"]: q for q in entry["parameters"]}
-    stepped = list(entry.get("step_parameters") or [entry["parameters"][0]["name"]])
+    stepped = stepped_parameters(entry)
     d0 = np.array([float(step[q]) - float(params[q]["off"]) for q in stepped])
     points, seen = [], {}
 

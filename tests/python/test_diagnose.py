@@ -448,10 +448,8 @@ def test_line_search_finds_the_minimum_along_the_step_and_turns_a_two_parameter_
     tilt = reg["tilt"]
     # a tilt step turned by the second direction: the azimuth is carried, only the angle is scaled
     step = {"angle_rad": 0.15, "azimuth_rad": math.pi / 2}
-    calls = []
 
     def mse_of(v):
-        calls.append(dict(v))
         assert v["azimuth_rad"] == math.pi / 2
         return 0.01 + (v["angle_rad"] - 0.2) ** 2
     best, points = diagnose.line_search(tilt, step, mse_of)
