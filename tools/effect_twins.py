@@ -31,14 +31,10 @@ DENSITY = 0.192
 def drapes(folder):
     """Hard masks, drape coefficients and node counts of the drapes in `folder`, in placement order."""
     paths = sorted(glob.glob(os.path.join(folder, "fabric_00", "silhouettes", "*.png")))
-    masks = [np.asarray(measure.load_silhouette(p).mask) > 0.5 for p in paths]
-    dc = [float(measure.drape_coefficient(m.astype(np.float64))) for m in masks]
-    nodes = [int(measure.node_count(measure.r_theta(m.astype(np.float64)))) for m in masks]
+    masks = [(np.asarray(measure.load_silhouette(p).mask) > 0.5).astype(np.float64) for p in paths]
+    dc = [float(measure.drape_coefficient(m)) for m in masks]
+    nodes = [int(measure.node_count(measure.r_theta(m))) for m in masks]
     return masks, dc, nodes
-
-
-def mse(a, b):
-    return float(np.mean(a != b))
 
 
 def main():
@@ -58,7 +54,7 @@ def main():
                         seed=args.seed, mesh_level=args.mesh_level, force=True)
         sets[spec] = drapes(folder)
     control = sets["control"][0]
-    redrape = [mse(a, b) for a, b in itertools.combinations(control, 2)]
+    redrape = [measure.pixel_mse(a, b) for a, b in itertools.combinations(control, 2)]
     out = {"seed": args.seed, "count": args.count, "mesh_level": args.mesh_level,
            "redrape_mse": float(np.mean(redrape)), "sets": {}, "pairs": {}}
     print(f"re-drape noise (control drapes of different placements): MSE {np.mean(redrape):.4f} "
@@ -71,7 +67,7 @@ def main():
     print("\n| pair | same-placement MSE mean (min .. max) |")
     print("|---|---|")
     for a, b in itertools.combinations(specs, 2):
-        m = [mse(x, y) for x, y in zip(sets[a][0], sets[b][0])]
+        m = [measure.pixel_mse(x, y) for x, y in zip(sets[a][0], sets[b][0])]
         out["pairs"][f"{a} | {b}"] = m
         print(f"| {a} vs {b} | {np.mean(m):.4f} ({min(m):.4f} .. {max(m):.4f}) |")
     with open(os.path.join(args.out, "twins.json"), "w") as f:
