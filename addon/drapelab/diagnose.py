@@ -114,7 +114,9 @@ and a reserve for the report, is split equally between the refits (a refit whose
 the search's best point, without epochs). Without a budget each refit runs fit.json default_epochs.
 """
 import copy
+import hashlib
 import html
+import json
 import itertools
 import math
 import os
@@ -1005,6 +1007,8 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
         os.makedirs(out_dir, exist_ok=True)
         measure.check_output_path(os.path.join(out_dir, "diagnosis.json"), "diagnosis")
     observations = _observations(images)
+    images_key = _images_key(observations)
+    earlier = _earlier_history(preset_path, out_dir, images_key)
     reg = fit_effects.registry()
     second = second_directions(reg)
     alpha = float(alpha)
@@ -1280,6 +1284,9 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
             entry["gain"] = (base["loss"] - rbase["loss"]) / len(reg[entry["effect"]]["parameters"])
             entry["explanation"] += (f" Refit ({entry['refit']['epochs']} epochs): loss {base['loss']:.4g} -> {rbase['loss']:.4g}, "
                                      f"best-of-{k} MSE {base['mse']:.4f} -> {rbase['mse']:.4f}.")
+            refit.setdefault("training", {})["init"] = {"preset": preset_path, "model": p["model"],
+                                                        "fabric": (p.get("fabric") or {}).get("name"),
+                                                        "by": "diagnose refit"}
             if out_dir:
                 path = os.path.join(out_dir, "presets", f"{entry['effect']}.json")
                 os.makedirs(os.path.dirname(path), exist_ok=True)
@@ -1315,7 +1322,9 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                 f"the refit that explains the significant difference best (its own p = {best['p_value']:.2g})"))
         result["verdict"] = (f"{best['effect']} is {why} and its refit lowers the best-of-{k} MSE by "
                              f"{100 * best['mse_fall']:.0f} % ({base_mse:.4f} -> {best['refit']['mse']:.4f}): "
-                             f"fit --effects {best['effect']}")
+                             + (f"fit --init {os.path.join(out_dir, best['refit']['preset'])} --effects "
+                                f"{best['effect']}" if out_dir and best["refit"].get("preset")
+                                else f"fit --effects {best['effect']}"))
     else:
         tested = [e for e in result["ranking"] if e["p_value"] is not None]
         significant = [e for e in tested if e["p_value"] < threshold]
@@ -1341,7 +1350,10 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                    f"the smallest p-value is {smallest:.2g} against the threshold {threshold:.2g} "
                    f"({result['threshold_rule']})")
             result["verdict"] = f"Nothing significant: {why}."
-    result["history"] = _history(p, label, result.get("base")) + result["history"]
+    current = [dict(h, images=images_key) for h in _history(p, label, result.get("base")) + result["history"]]
+    mine = {(h["model"], h.get("source"), h.get("mse"), h.get("dc_error")) for h in _public(current)}
+    result["history"] = [h for h in earlier if (h["model"], h.get("source"), h.get("mse"), h.get("dc_error"))
+                         not in mine] + current
     save()
     if out_dir and result.get("base") is not None:
         write_report(out_dir, result, figures, observations, pred.calibration)
@@ -1363,6 +1375,73 @@ def _history(p, label, base):
                                   "preset training metrics"))
     if base is not None:
         out.append(_history_entry(label, p, base, "diagnose base"))
+    return out
+
+
+MAX_LINEAGE = 16  # presets followed back through training.init when gathering earlier model versions
+
+
+def _images_key(observations):
+    """One fingerprint of a set of measurements: the sha256 of their sorted content hashes (the order and the
+    file names do not matter)."""
+    return hashlib.sha256("".join(sorted(o.sha256 for o in observations)).encode()).hexdigest()
+
+
+def _lineage(preset_path):
+    """The presets P was started from, nearest first: P's training.init.preset (fit --init, or the preset a
+    diagnosis refitted), its own, and so on (paths as recorded; a relative one is looked up from the working
+    folder, then from the folder of the preset that names it). Stops at a preset that is missing, unreadable or
+    already seen."""
+    out, seen, current = [], set(), preset_path
+    while current and len(out) < MAX_LINEAGE:
+        try:
+            with open(current) as f:
+                init = ((json.load(f).get("training") or {}).get("init") or {}).get("preset")
+        except (OSError, ValueError, AttributeError, RecursionError):
+            break
+        if not isinstance(init, str) or not init:
+            break
+        found = next((c for c in ([init] if os.path.isabs(init) else
+                                  [init, os.path.join(os.path.dirname(current), init)]) if os.path.isfile(c)), None)
+        if found is None or os.path.realpath(found) in seen:
+            break
+        seen.add(os.path.realpath(found))
+        out.append(found)
+        current = found
+    return out
+
+
+def _earlier_history(preset_path, out_dir, images_key):
+    """Model versions measured earlier on the same measurements (CONVENTIONS.md, model history): the history
+    entries with this run's images fingerprint from the report being rewritten (out_dir/diagnosis.json) and from
+    the report of every preset in P's lineage that is a diagnosis's refit (REPORT/presets/NAME.json), oldest
+    report first, each entry once. Each keeps its model, metrics and source, with "report" naming where it was
+    read."""
+    reports = []
+    for ancestor in reversed(_lineage(preset_path) if preset_path else []):
+        folder = os.path.dirname(os.path.abspath(ancestor))
+        if os.path.basename(folder) == "presets":
+            reports.append(os.path.join(os.path.dirname(folder), "diagnosis.json"))
+    if out_dir:
+        reports.append(os.path.join(out_dir, "diagnosis.json"))
+    out, seen_reports, seen = [], set(), set()
+    for report in reports:
+        if os.path.realpath(report) in seen_reports or not os.path.isfile(report):
+            continue
+        seen_reports.add(os.path.realpath(report))
+        try:
+            with open(report) as f:
+                history = json.load(f).get("history") or []
+        except (OSError, ValueError, AttributeError, RecursionError):
+            continue
+        for h in history if isinstance(history, list) else []:
+            if not isinstance(h, dict) or h.get("images") != images_key or not isinstance(h.get("model"), str):
+                continue
+            key = (h["model"], h.get("source"), h.get("mse"), h.get("dc_error"))
+            if key in seen:
+                continue
+            seen.add(key)
+            out.append({**h, "report": h.get("report") or os.path.relpath(report)})
     return out
 
 

@@ -56,6 +56,7 @@ calls release the GIL); the same seed gives the same result whatever the thread 
 slot keeps its own warm start). A resumed fit restarts its warm starts from the flat drape.
 """
 import concurrent.futures
+import copy
 import datetime
 import hashlib
 import json
@@ -81,6 +82,7 @@ BEND_SHAPE = tables.BEND_SHAPE
 DEFAULT_MAX_THREADS = 2  # fit.json max_threads: Monte Carlo lanes by default (the reference machine has 2 cores)
 DEFAULT_EFFECT_SETTINGS = {"learning_rate": 0.1, "eta_learning_rate": 0.05, "init_std": 0.1, "prior_weight": 1.0}
 DEFAULT_GRADIENT_CLIP = {"factor": 0.0, "window": 10, "min_epochs": 3}
+INIT_MIN_STD = 1e-4  # fit --init: a preset's posterior sd of 0 (a point estimate) starts a bdp sd here
 
 
 def load_config(path=None):
@@ -515,6 +517,35 @@ class FitJob:
                              "loss": scores, "chosen": candidates[best].tolist()}
         return self.effect_start
 
+    def start_from(self, preset):
+        """Starts the fit where a preset left off (fit --init; the material's mean table and the stretching table
+        are already the job's start, see init_options): a bdp posterior sd per table entry from a bdp preset, and
+        each fitted effect parameter the preset carries at the preset's value (and bdp sd). When every fitted
+        effect parameter comes from the preset, the effects' start search is skipped: the preset's values are the
+        start (e.g. a diagnosis's refit, chosen on K drapes with placement noise, which the search's one drape
+        without it would judge worse)."""
+        if "eta" in self.theta and preset["model"] == "bdp":
+            self.theta["eta"] = inverse_softplus(np.maximum(np.asarray(preset["posterior"]["bend"]["log_std"],
+                                                                       dtype=float), INIT_MIN_STD))
+        given = []
+        if self.plan.size:
+            block = preset.get("active_effects") or {}
+            mu = np.asarray(self.theta["effect_mu"], dtype=float).copy()
+            for i, (name, p) in enumerate(self.plan.free):
+                e = (block.get(name) or {}).get(p["name"])
+                if e is None:
+                    continue
+                mu[i] = float(np.clip(float(e["value"]), self.plan.lower[i], self.plan.upper[i]))
+                given.append(self.plan.names[i])
+                s = float(e.get("std", 0.0) or 0.0)
+                if s > 0 and "effect_eta" in self.theta:
+                    self.theta["effect_eta"][i] = inverse_softplus(max(s, INIT_MIN_STD))
+            self.theta["effect_mu"] = mu
+            if len(given) == self.plan.size:
+                self.effect_start = {"parameters": self.plan.names, "candidates": [mu.tolist()],
+                                     "chosen": mu.tolist(), "from": "the init preset"}
+        return given
+
     def estimate_dc_bias(self, cancel_event=None):
         """The soft silhouette's drape coefficient minus the hard one's, on the mean drape at the start (after the
         start searches). The soft renderer's 1 px blur puts more coverage outside the boundary than it takes
@@ -610,7 +641,7 @@ class FitJob:
                 "history": self.history, "elapsed": self.elapsed, "start_metrics": self.start_metrics,
                 "lr_scale": self.lr_scale, "prior_mu": self.prior_mu.tolist(), "log_bend0": self.log_bend0.tolist(),
                 "scale": self.scale, "effects": self.plan.describe(), "effect_start": self.effect_start,
-                "dc_bias": self.dc_bias}
+                "dc_bias": self.dc_bias, "stretch": np.asarray(self.stretch).tolist()}
 
     def save_checkpoint(self, path):
         measure.write_json(path, self.state())
@@ -626,6 +657,10 @@ class FitJob:
         if st.get("effects", {}) != self.plan.describe():
             raise InputError(f"{path}: the checkpoint's effects {st.get('effects', {})} differ from this fit's "
                              f"{self.plan.describe()}")
+        saved = np.asarray(st.get("stretch", self.stretch), dtype=float)
+        if saved.shape != np.shape(self.stretch) or not np.allclose(saved, self.stretch, rtol=1e-12, atol=0.0):
+            raise InputError(f"{path}: the checkpoint's fit started from another stretching table; resume it with "
+                             f"the arguments it was started with (the same --init preset)")
         if set(st.get("theta", {})) != set(self.theta):
             raise InputError(f"{path}: checkpoint parameters {sorted(st.get('theta', {}))} differ from this fit's "
                              f"{sorted(self.theta)}")
@@ -747,9 +782,37 @@ def _plan_time_budget(job, total, t_start, calibrating, template_dir=None):
                           sets_full, share, drape_fit, scale_drapes, epoch_drapes)
 
 
-def fit(images, density, model="bdp", epochs=None, time_budget=None, seed=0, out=None, checkpoint=None,
+def init_options(preset, options, effects=None):
+    """fit --init: the FitJob options that start a fit where `preset` (a validated preset dict) left off: its mean
+    bending table and its stretching table as the start (kept as they are: no scale search, no strain-independent
+    stretching), the prior's mean there when fit.json's prior is "start", its placement noise, its mesh level
+    unless one is given, and its active effects: an effect the fit names in `effects` is fitted (or fixed) as
+    named there, its fitted parameters starting at the preset's values (FitJob.start_from) and the parameters it
+    does not name keeping them (fixed); an effect it does not name stays fixed at the preset's values. Returns the
+    new options."""
+    out = dict(options)
+    config = copy.deepcopy(out.get("config") or load_config())
+    config["init"] = dict(config["init"], scale_search=[], stretch_strain_dependent=True)
+    if preset.get("placement_noise"):
+        config["placement_noise"] = dict(preset["placement_noise"])
+    out["config"] = config
+    if out.get("mesh_level") is None:
+        out["mesh_level"] = (preset.get("simulation") or {}).get("mesh_level")
+    out["init_bend"] = np.exp(np.asarray(preset["posterior"]["bend"]["log_mean"], dtype=float))
+    out["init_stretch"] = np.asarray(preset["stretch_N_m"], dtype=float)
+    spec = {n: (None if v is None else dict(v)) for n, v in (effects or {}).items()}
+    for name, values in fit_effects.active_effect_values(preset.get("active_effects")).items():
+        if spec.get(name):  # named with some parameters: the others keep the preset's values (fixed)
+            spec[name] = {**values, **spec[name]}
+        elif name not in spec:
+            spec[name] = dict(values)
+    out["effects"] = spec
+    return out
+
+
+def fit(images, density=None, model=None, epochs=None, time_budget=None, seed=0, out=None, checkpoint=None,
         resume=None, progress=None, cancel_event=None, fabric=None, calibration_progress=None, plan_progress=None,
-        **options):
+        init=None, **options):
     """Fits and (when `out` is given) writes a preset. Returns the preset dict. `progress` receives each epoch's
     history entry, `calibration_progress` each drape-calibration evaluation (see calibrate_preset).
 
@@ -758,14 +821,39 @@ def fit(images, density, model="bdp", epochs=None, time_budget=None, seed=0, out
     fewest sets of drapes need, up to fit.json time_budget.calibration_share of the budget or what its longest
     node search needs; the epochs the rest), refusing a budget too small for the calibration, the scale search
     and one epoch with those estimates; `plan_progress` receives the split (FitPlan.as_dict). The preset records
-    it in training.time_budget."""
+    it in training.time_budget.
+
+    `init` (a preset path or dict; fit --init) starts the fit where that preset left off (init_options,
+    FitJob.start_from), e.g. from a diagnosis's refit DIR/presets/NAME.json with `effects` {NAME: None}: the
+    material and the effect are then fitted together from there. `model` and `density` default to the preset's
+    (without it: bdp, and the density must be given). The preset records it in training.init."""
     t_start = time.monotonic()
+    init_preset, init_path = None, None
+    if init is not None:
+        if isinstance(init, (str, os.PathLike)):
+            init_path = os.fspath(init)
+            init_preset = load_preset(init_path)
+        elif isinstance(init, dict):
+            init_preset = validate_preset(copy.deepcopy(init), "init")
+        else:
+            raise InputError(f"init: expected a preset path or a preset dict, got {type(init).__name__}")
+        model = model or init_preset["model"]
+        density = init_preset["density_kg_m2"] if density is None else density
+        options = init_options(init_preset, options, options.get("effects"))
+    model = model or "bdp"
+    if density is None:
+        raise InputError("density: give the fabric's area density in kg/m^2 (--density), or a preset to start "
+                         "from (--init)")
     time_budget = budget.check_time_budget(time_budget)
     check_optional_int(seed, "seed", 0)
     check_optional_int(options.get("threads"), "threads", 1)
     if out:
         measure.check_output_path(out, "preset")
     job = FitJob(images, density, model=model, seed=seed, **options)
+    init_record = None
+    if init_preset is not None:
+        init_record = {"preset": init_path, "fabric": (init_preset.get("fabric") or {}).get("name"),
+                       "model": init_preset["model"], "effects_from_preset": job.start_from(init_preset)}
     if resume:
         job.load_checkpoint(resume)
     calibrating = job.family.stochastic and (job.config.get("calibration") or {}).get("enabled", False)
@@ -785,7 +873,10 @@ def fit(images, density, model="bdp", epochs=None, time_budget=None, seed=0, out
     preset = job.preset(fabric=fabric, options={"model": model, "epochs": epochs, "time_budget": time_budget,
                                                 "seed": seed, "effects": job.plan.describe(),
                                                 **{k: v for k, v in options.items()
-                                                   if k not in ("config", "effects", "calibration")}})
+                                                   if k not in ("config", "effects", "calibration", "init_bend",
+                                                                "init_stretch")}})
+    if init_record is not None:
+        preset["training"]["init"] = init_record
     epochs_end = time.monotonic() - t_start
     if calibrating:
         left = None if time_budget is None else time_budget - epochs_end

@@ -245,6 +245,63 @@ def test_cli_writes_the_report_the_contract_and_a_refit(images, tmp_path, capsys
     ev = infer.evaluate(PRESET, [images["tilt"]], samples=4, seed=1, threads=1, mesh_level=1, config=small_config())
     assert d["base"]["mse"] == pytest.approx(ev["mean"]["mse"], abs=1e-12)
     assert "diagnosis.json" in capsys.readouterr().out
+    # The loop goes on: the refit records what it was refitted from, fit --init continues from it with the effect
+    # and the material together, and diagnosing that preset on the same images charts the earlier versions too.
+    assert refit["training"]["init"]["preset"] == PRESET and refit["training"]["init"]["by"] == "diagnose refit"
+    if d["recommended"]:
+        assert f"fit --init {os.path.join(out, 'presets', 'tilt.json')} --effects tilt" in d["verdict"]
+    fit_cfg = small_config(samples_per_epoch=1)
+    fit_cfg["calibration"]["enabled"] = False
+    continued = str(tmp_path / "continued.json")
+    infer.fit([images["tilt"]], None, epochs=1, seed=4, threads=1, config=fit_cfg, mesh_level=1,
+              init=os.path.join(out, "presets", "tilt.json"), effects={"tilt": None}, out=continued)
+    out2 = str(tmp_path / "report2")
+    d2 = diagnose.diagnose(continued, [images["tilt"]], candidates="offset", samples=4, seed=1, config=small_config(),
+                           mesh_level=1, max_refits=0, out_dir=out2)
+    validate(d2)
+    earlier = [h for h in d2["history"] if "report" in h]
+    assert [(h["model"], h["mse"]) for h in earlier] == [(h["model"], h["mse"]) for h in d["history"]]
+    assert all(h["images"] == d2["history"][-1]["images"] for h in d2["history"])
+    assert [h["source"] for h in d2["history"][len(earlier):]] == ["preset training metrics", "diagnose base"]
+
+
+def test_earlier_versions_come_from_the_lineage_reports_with_the_same_images(tmp_path):
+    # P <- fit --init A/presets/x.json <- (diagnosis A of reference.json); B/presets/y.json is not in P's lineage
+    def write(path, obj):
+        os.makedirs(os.path.dirname(path), exist_ok=True)
+        with open(path, "w") as f:
+            json.dump(obj, f)
+    a, b = str(tmp_path / "A"), str(tmp_path / "B")
+    write(os.path.join(a, "presets", "x.json"), {"training": {"init": {"preset": str(tmp_path / "reference.json")}}})
+    write(str(tmp_path / "reference.json"), {"training": {}})
+    p = str(tmp_path / "p.json")
+    write(p, {"training": {"init": {"preset": os.path.relpath(os.path.join(a, "presets", "x.json"), str(tmp_path))}}})
+    entry = {"model": "reference", "source": "diagnose base", "mse": 0.03, "dc_error": 0.05, "images": "K"}
+    write(os.path.join(a, "diagnosis.json"), {"history": [
+        entry, dict(entry, model="reference + x", source="diagnose refit", mse=0.015),
+        dict(entry, model="other images", images="L"), "not an entry"]})
+    write(os.path.join(b, "diagnosis.json"), {"history": [dict(entry, model="not in the lineage")]})
+    cwd = os.getcwd()
+    os.chdir(str(tmp_path))  # a relative init path is looked up from the working folder first
+    try:
+        assert [os.path.abspath(x) for x in diagnose._lineage(p)] == [os.path.join(a, "presets", "x.json"),
+                                                                     str(tmp_path / "reference.json")]
+        got = diagnose._earlier_history(p, None, "K")
+        assert [(h["model"], h["mse"]) for h in got] == [("reference", 0.03), ("reference + x", 0.015)]
+        assert all(os.path.abspath(h["report"]) == os.path.join(a, "diagnosis.json") for h in got)
+        # rewriting report B: its own earlier entries come after the lineage's, each once
+        again = diagnose._earlier_history(p, b, "K")
+        assert [h["model"] for h in again] == ["reference", "reference + x", "not in the lineage"]
+        # a loop in the lineage, a missing or broken preset: stops there
+        write(str(tmp_path / "reference.json"), {"training": {"init": {"preset": p}}})
+        assert len(diagnose._lineage(p)) == 3
+        write(str(tmp_path / "reference.json"), {"training": {"init": {"preset": "missing.json"}}})
+        assert len(diagnose._lineage(p)) == 2
+        with open(p, "w") as f:
+            f.write("{broken")
+        assert diagnose._lineage(p) == [] and diagnose._earlier_history(p, None, "K") == []
+    finally:
+        os.chdir(cwd)
 
 
 @pytest.mark.parametrize("kwargs, message", [

@@ -1,5 +1,6 @@
 """`drapelab fit --images IMG... --density KG_M2 [--model homo|heter|bdp] [--epochs N | --time-budget S] [--seed S]
-[--no-calibration] --out PRESET.json`: fit a material posterior to Cusick silhouettes and write a preset.
+[--no-calibration] [--init PRESET.json] --out PRESET.json`: fit a material posterior to Cusick silhouettes and write
+a preset.
 
 Learns the bending table in log space (stretching stays at its starting table; see drapelab.infer). Settings
 (learning rates, likelihood sigma, prior, Monte Carlo samples, mesh resolution) come from
@@ -12,6 +13,12 @@ with the material, from their off values (prior: the registry's prior scale); NA
 primary parameter (its others stay off), NAME.PARAM=VALUE fixes one parameter and a bare NAME.PARAM fits that
 one parameter from its off value (the effect's others stay off unless given). The preset's
 active_effects records the values (fitted: with the posterior sd and 90 % interval for bdp).
+
+--init PRESET.json starts the fit where that preset left off: its bending table (and bdp posterior sd), its
+stretching table, placement noise and mesh level, no scale search; its active effects stay fixed at its values
+unless --effects names them, and a named one starts at the preset's values. --model and --density default to the
+preset's. The loop of `diagnose`: fit --init REPORT/presets/NAME.json --effects NAME fits the recommended effect
+together with the material, from the diagnosis's refit.
 """
 import os
 import signal
@@ -24,8 +31,14 @@ def register(subparsers):
     p = subparsers.add_parser("fit", help="fit a material posterior (HOMO/HETER/BDP) to Cusick images",
                               description=__doc__.split("\n\n", 1)[1])
     p.add_argument("--images", nargs="+", required=True, metavar="IMG", help="training silhouettes")
-    p.add_argument("--density", type=float, required=True, metavar="KG_M2", help="area density in kg/m^2")
-    p.add_argument("--model", choices=["homo", "heter", "bdp"], default="bdp")
+    p.add_argument("--density", type=float, default=None, metavar="KG_M2",
+                   help="area density in kg/m^2 (required unless --init gives it)")
+    p.add_argument("--model", choices=["homo", "heter", "bdp"], default=None,
+                   help="variational family (default: bdp, or the --init preset's)")
+    p.add_argument("--init", default=None, metavar="PRESET.json",
+                   help="start from this preset (e.g. a diagnosis's refit REPORT/presets/NAME.json): its material, "
+                        "stretching, placement noise, mesh level and effects; --effects NAME fits that effect from "
+                        "the preset's value")
     g = p.add_mutually_exclusive_group()
     g.add_argument("--epochs", type=int, default=None, metavar="N")
     g.add_argument("--time-budget", type=float, default=None, metavar="SECONDS",
@@ -104,7 +117,7 @@ def run(args):
         print(line, flush=True)
 
     try:
-        preset = infer.fit(args.images, args.density, model=args.model, epochs=args.epochs,
+        preset = infer.fit(args.images, args.density, model=args.model, epochs=args.epochs, init=args.init,
                            time_budget=args.time_budget, seed=args.seed, out=args.out, checkpoint=checkpoint,
                            resume=args.resume, progress=progress, calibration_progress=calibration_progress,
                            plan_progress=plan_progress,
@@ -117,7 +130,7 @@ def run(args):
     finally:
         signal.signal(signal.SIGINT, previous)
     t = preset["training"]
-    print(f"wrote {args.out}: {args.model}, {t['epochs']} epochs in {t['seconds']:.1f} s, "
+    print(f"wrote {args.out}: {preset['model']}, {t['epochs']} epochs in {t['seconds']:.1f} s, "
           f"training IoU {preset['metrics']['training_image']['iou']:.4f}")
     for name, params in preset["active_effects"].items():
         text = ", ".join(f"{p} {e['value']:.4g} {e['unit']}" + (f" (90 % {e['interval90'][0]:.4g} .. {e['interval90'][1]:.4g})"

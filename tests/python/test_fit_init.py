@@ -1,0 +1,139 @@
+"""fit --init PRESET: a fit that starts where a preset left off (its material, stretching, placement noise, mesh
+level and effects), e.g. from a diagnosis's refit, with the effect then fitted together with the material."""
+import copy
+import json
+
+import numpy as np
+import pytest
+
+from drapelab import cli, infer
+from drapelab._native import InputError
+
+from fit_support import ASSET_IMAGE, SHIPPED_PRESET, small_config
+
+
+def refit_like_preset():
+    """The shipped preset as a diagnosis's tilt refit would leave it: a fitted tilt with a posterior sd, a fixed
+    offset, its own placement noise."""
+    p = infer.load_preset(SHIPPED_PRESET)
+    p["active_effects"] = {
+        "tilt": {"angle_rad": {"value": 0.12, "unit": "rad", "fitted": True, "std": 0.02,
+                               "interval90": [0.087, 0.153]},
+                 "azimuth_rad": {"value": 0.4, "unit": "rad", "fitted": True, "std": 0.1,
+                                 "interval90": [0.235, 0.565]}},
+        "offset": {"dx_m": {"value": 0.004, "unit": "m", "fitted": False},
+                   "dy_m": {"value": 0.0, "unit": "m", "fitted": False}}}
+    p["placement_noise"] = {"velocity_m_s": 0.03, "angular_modes": 16}
+    return infer.validate_preset(p)
+
+
+def test_the_job_starts_at_the_preset_and_skips_the_start_searches():
+    p = refit_like_preset()
+    cfg = small_config(samples_per_epoch=1)
+    options = infer.init_options(p, {"config": cfg, "mesh_level": 1, "threads": 1}, {"tilt": None})
+    # the preset's fixed effects stay fixed at its values, the named one is fitted
+    assert options["effects"] == {"tilt": None, "offset": {"dx_m": 0.004, "dy_m": 0.0}}
+    assert options["config"]["init"]["scale_search"] == [] and cfg["init"]["scale_search"]  # caller's untouched
+    assert options["config"]["placement_noise"] == {"velocity_m_s": 0.03, "angular_modes": 16}
+    job = infer.FitJob([ASSET_IMAGE], p["density_kg_m2"], model="bdp", seed=1, **options)
+    given = job.start_from(p)
+    assert given == ["tilt.angle_rad", "tilt.azimuth_rad"]
+    np.testing.assert_allclose(job.log_bend0, p["posterior"]["bend"]["log_mean"], rtol=1e-12)
+    np.testing.assert_allclose(job.prior_mu, p["posterior"]["bend"]["log_mean"], rtol=1e-12)  # prior "start"
+    np.testing.assert_allclose(job.stretch, p["stretch_N_m"], rtol=0)  # kept strain-dependent
+    mean, sd = job.family.posterior(job.theta)
+    np.testing.assert_allclose(mean, p["posterior"]["bend"]["log_mean"], atol=1e-9)
+    np.testing.assert_allclose(sd, np.maximum(p["posterior"]["bend"]["log_std"], infer.INIT_MIN_STD), rtol=1e-6)
+    np.testing.assert_allclose(job.theta["effect_mu"], [0.12, 0.4])
+    np.testing.assert_allclose(infer.softplus(job.theta["effect_eta"]), [0.02, 0.1], rtol=1e-9)
+    assert job.effect_start["from"] == "the init preset"
+    assert job.placement == (0.03, 16) and job.mesh_level == 1
+    assert job.plan.values(job.theta["effect_mu"])["offset"] == {"dx_m": 0.004, "dy_m": 0.0}
+
+
+def test_an_effect_the_preset_lacks_is_searched_from_off_and_the_presets_values_are_the_base():
+    p = refit_like_preset()
+    cfg = small_config(samples_per_epoch=1)
+    options = infer.init_options(p, {"config": cfg, "mesh_level": 1, "threads": 1},
+                                 {"tilt": None, "prestrain": {"strain": None}})
+    job = infer.FitJob([ASSET_IMAGE], p["density_kg_m2"], model="bdp", seed=1, **options)
+    assert job.start_from(p) == ["tilt.angle_rad", "tilt.azimuth_rad"]
+    assert job.effect_start is None  # prestrain.strain has no value in the preset: the start search runs
+    assert list(job.theta["effect_mu"][:2]) == [0.12, 0.4]  # registry order: tilt before prestrain
+    assert list(job.plan.start_candidates(job.theta["effect_mu"])[0][:2]) == [0.12, 0.4]
+
+
+def test_fit_from_a_preset_records_it_and_takes_its_model_density_and_effects(tmp_path):
+    p = refit_like_preset()
+    start = tmp_path / "refit.json"
+    infer.write_preset(str(start), p)
+    cfg = small_config(samples_per_epoch=1)
+    cfg["calibration"]["enabled"] = False
+    out = tmp_path / "continued.json"
+    preset = infer.fit([ASSET_IMAGE], None, epochs=1, seed=2, out=str(out), config=cfg, threads=1,
+                       mesh_level=1, init=str(start), effects={"tilt": {"angle_rad": None}})
+    assert preset["model"] == p["model"] and preset["density_kg_m2"] == p["density_kg_m2"]
+    assert preset["training"]["init"] == {"preset": str(start), "fabric": p["fabric"].get("name"),
+                                          "model": "bdp", "effects_from_preset": ["tilt.angle_rad"]}
+    assert preset["training"]["scale_search"] is None
+    assert preset["training"]["effect_start_search"]["chosen"] == [0.12]
+    tilt = preset["active_effects"]["tilt"]
+    assert tilt["angle_rad"]["fitted"] and not tilt["azimuth_rad"]["fitted"]
+    assert tilt["azimuth_rad"] == {"value": 0.4, "unit": "rad", "fitted": False}  # not named: the preset's value
+    assert preset["active_effects"]["offset"]["dx_m"] == {"value": 0.004, "unit": "m", "fitted": False}
+    assert abs(tilt["angle_rad"]["value"] - 0.12) < 0.05  # one epoch from the preset's value
+    assert preset["placement_noise"] == {"velocity_m_s": 0.03, "angular_modes": 16}
+    assert "init_bend" not in preset["provenance"]["options"]
+    json.dumps(preset)  # nothing but JSON in it
+    assert infer.load_preset(str(out))["training"]["init"]["preset"] == str(start)
+
+
+def test_resuming_needs_the_same_start(tmp_path):
+    p = refit_like_preset()
+    cfg = small_config(samples_per_epoch=1)
+    cfg["calibration"]["enabled"] = False
+    ckpt = tmp_path / "fit.ckpt"
+    infer.fit([ASSET_IMAGE], None, epochs=1, seed=2, config=cfg, threads=1, mesh_level=1, init=p,
+              checkpoint=str(ckpt))
+    resumed = infer.fit([ASSET_IMAGE], None, epochs=2, seed=2, config=cfg, threads=1, mesh_level=1, init=p,
+                        resume=str(ckpt))
+    assert resumed["training"]["epochs"] == 2
+    # without the preset the fit would start from fit.json's stretching table: refused, naming the cause
+    with pytest.raises(InputError, match="another stretching table.*--init"):
+        infer.fit([ASSET_IMAGE], p["density_kg_m2"], model="bdp", epochs=2, seed=2, config=cfg, threads=1,
+                  mesh_level=1, resume=str(ckpt), effects=infer.init_options(p, {}, None)["effects"])
+
+
+def test_bad_init_and_a_missing_density_are_clear_errors(tmp_path):
+    cfg = small_config(samples_per_epoch=1)
+    with pytest.raises(InputError, match="density: give"):
+        infer.fit([ASSET_IMAGE], None, epochs=1, config=cfg)
+    with pytest.raises(InputError, match="cannot read preset"):
+        infer.fit([ASSET_IMAGE], None, epochs=1, config=cfg, init=str(tmp_path / "missing.json"))
+    bad = copy.deepcopy(refit_like_preset())
+    bad["active_effects"]["tilt"]["angle_rad"]["value"] = 9.0
+    path = tmp_path / "bad.json"
+    path.write_text(json.dumps(bad))
+    with pytest.raises(InputError, match="active_effects.tilt.angle_rad"):
+        infer.fit([ASSET_IMAGE], None, epochs=1, config=cfg, init=str(path))
+    with pytest.raises(InputError, match="init: expected a preset"):
+        infer.fit([ASSET_IMAGE], None, epochs=1, config=cfg, init=3)
+
+
+def test_the_command_line_fits_from_a_preset_without_density_or_model(tmp_path, capsys):
+    p = refit_like_preset()
+    start = tmp_path / "refit.json"
+    infer.write_preset(str(start), p)
+    cfg = small_config(samples_per_epoch=1)
+    cfg["calibration"]["enabled"] = False
+    config = tmp_path / "fit.json"
+    config.write_text(json.dumps(cfg))
+    out = tmp_path / "continued.json"
+    assert cli.main(["fit", "--images", ASSET_IMAGE, "--init", str(start), "--effects", "tilt", "--epochs", "1",
+                     "--mesh-level", "1", "--config", str(config), "--threads", "1", "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "wrote" in text and ": bdp," in text and "effect tilt: angle_rad" in text and "effect offset" in text
+    assert infer.load_preset(str(out))["training"]["init"]["effects_from_preset"] == ["tilt.angle_rad",
+                                                                                      "tilt.azimuth_rad"]
+    assert cli.main(["fit", "--images", ASSET_IMAGE, "--epochs", "1", "--out", str(tmp_path / "x.json")]) == 2
+    assert "density: give" in capsys.readouterr().err and not (tmp_path / "x.json").exists()
