@@ -141,7 +141,16 @@ assert os.path.isfile(os.path.join(os.path.dirname(s.diagnosis_path), "index.htm
 assert s.history_image and len(s.history()) == 2
 expect_error(lambda: bpy.ops.drapelab.add_effect(effect="gravity_waves"), "unknown effect")
 ok(bpy.ops.drapelab.add_effect(effect=d["ranking"][0]["effect"]), "add_effect")
-assert s.enabled_effects() == {d["ranking"][0]["effect"]: None}
+assert s.enabled_effects() == {d["ranking"][0]["effect"]: None} and s.init_path == ""
+# Add with the diagnosis's refit: the next fit starts from it (fit --init), and the start is then cleared
+expect_error(lambda: bpy.ops.drapelab.add_effect(effect="tilt", refit=os.path.join(tmp, "missing.json")),
+             "no such file")
+ok(bpy.ops.drapelab.add_effect(effect=d["ranking"][0]["effect"], refit=SHIPPED), "add_effect with its refit")
+assert s.init_path == SHIPPED
+ok(bpy.ops.drapelab.fit(epochs=1), "fit from the refit")
+continued = infer.load_preset(s.preset_path)
+assert continued["training"]["init"]["preset"] == SHIPPED and s.init_path == "", continued["training"].get("init")
+assert d["ranking"][0]["effect"] in continued["active_effects"]
 
 # -- cancel with nothing running is a warning, not an error
 assert bpy.ops.drapelab.cancel() == {'CANCELLED'}

@@ -257,11 +257,13 @@ class DRAPELAB_OT_fit(_JobOperator, bpy.types.Operator):
         return jobs.Task(tasks.fit_work, s.image_paths(), round(s.density, 6), cache_dir(), model=s.model.lower(), epochs=epochs,
                               time_budget=budget, seed=s.seed, fabric=fabric or None,
                               effects=s.enabled_effects() or None, calibration=s.calibration(),
-                              mesh_level=s.mesh_level or None, calibrate=s.calibrate)
+                              mesh_level=s.mesh_level or None, calibrate=s.calibrate,
+                              init=bpy.path.abspath(s.init_path) if s.init_path else None)
 
     def finish(self, context, result):
         s = settings(context)
         s.preset_path = result["preset"]
+        s.init_path = ""  # the start was used: the next fit starts afresh unless Add sets it again
         s.metrics_json = json.dumps({"metrics": result.get("metrics"), "training": result.get("training")})
         if result.get("overlay"):
             s.overlay_image = previews.load(result["overlay"], "overlay")
@@ -350,12 +352,15 @@ _diagnosis_cache = {}
 
 
 class DRAPELAB_OT_add_effect(bpy.types.Operator):
-    """Switch this effect on for the next fit (Refit fits its strength with the material)"""
+    """Switch this effect on for the next fit (Refit fits its strength with the material, starting from the
+    diagnosis's refit when there is one)"""
     bl_idname = "drapelab.add_effect"
     bl_label = "Add Effect"
     bl_options = {'REGISTER', 'UNDO'}
 
     effect: StringProperty(name="Effect")
+    refit: StringProperty(name="Refit preset", subtype='FILE_PATH',
+                          description="the diagnosis's refit with this effect: the next fit starts from it")
 
     def execute(self, context):
         s = settings(context)
@@ -364,8 +369,17 @@ class DRAPELAB_OT_add_effect(bpy.types.Operator):
         if self.effect not in names:
             self.report({'ERROR'}, f"add_effect: unknown effect {self.effect!r} (registered: {', '.join(names)})")
             return {'CANCELLED'}
+        refit = bpy.path.abspath(self.refit) if self.refit else ""
+        if refit and not os.path.isfile(refit):
+            self.report({'ERROR'}, f"add_effect: refit: {refit}: no such file")
+            return {'CANCELLED'}
         setattr(s.effects, self.effect, True)
-        self.report({'INFO'}, f"{self.effect} will be fitted by the next fit (Refit)")
+        if refit:
+            s.init_path = refit
+            self.report({'INFO'}, f"{self.effect} will be fitted by the next fit (Refit), starting from the "
+                                  f"diagnosis's refit {os.path.basename(refit)}")
+        else:
+            self.report({'INFO'}, f"{self.effect} will be fitted by the next fit (Refit)")
         return {'FINISHED'}
 
 

@@ -125,6 +125,7 @@ class DRAPELAB_PT_fit(_Panel, bpy.types.Panel):
         row.prop(s, "mesh_level")
         if s.model == 'BDP':
             layout.prop(s, "calibrate")
+        layout.prop(s, "init_path")
         running = _job_box(layout, "fit", context)
         row = layout.row()
         row.enabled = not running and jobs.current() is None
@@ -185,12 +186,14 @@ class DRAPELAB_PT_diagnose(_Panel, bpy.types.Panel):
                 p = e.get("p_value")
                 r.label(text=(f"p {p:.2g}" if p is not None else "not tested") +
                         (f", gain {e['gain']:.3g}" if e.get("gain") is not None else ""))
+                refit = (e.get("refit") or {}).get("preset")
+                refit = os.path.join(os.path.dirname(bpy.path.abspath(s.diagnosis_path)), refit) if refit else ""
                 op = r.operator("drapelab.add_effect", text="Add", icon='ADD')
                 op.effect = e["effect"]
-                refit = (e.get("refit") or {}).get("preset")
+                op.refit = refit  # the next fit starts from the diagnosis's refit (fit --init)
                 if refit:  # the diagnosis's refit with this effect, as a preset to use directly
                     op = r.operator("drapelab.load_preset", text="Use refit", icon='IMPORT')
-                    op.filepath = os.path.join(os.path.dirname(bpy.path.abspath(s.diagnosis_path)), refit)
+                    op.filepath = refit
             row = layout.row()
             row.enabled = jobs.current() is None
             row.operator("drapelab.fit", text="Refit", icon='FILE_REFRESH')

@@ -130,6 +130,10 @@ class DRAPELAB_PG_settings(bpy.types.PropertyGroup):
                             description="Cusick template mesh circleN for the fit (0: fit.json's)")
     # Results (not job state)
     preset_path: StringProperty(name="Preset", subtype='FILE_PATH', description="the current preset")
+    init_path: StringProperty(name="Start from", subtype='FILE_PATH',
+                              description="the next fit starts from this preset (fit --init): its material, "
+                                          "stretching and effects, e.g. a diagnosis's refit (set by Add); empty: "
+                                          "from fit.json's start. Cleared when that fit is done")
     overlay_image: StringProperty(name="Overlay image")
     rtheta_image: StringProperty(name="r(theta) image")
     measurement_image: StringProperty(name="Measurement image")

@@ -44,10 +44,11 @@ def _fit_config(mesh_level, calibrate):
 
 
 def fit_work(images, density, out_dir, model="bdp", epochs=None, time_budget=None, seed=0, fabric=None,
-             effects=None, calibration=None, mesh_level=None, calibrate=True):
+             effects=None, calibration=None, mesh_level=None, calibrate=True, init=None):
     """Work of a fit job: infer.fit (writes OUT_DIR/presets/<fabric>_<model>.json), then the preview drapes of the
     result (overlay and r(theta) PNGs). Returns {"preset": path, "overlay": png, "rtheta": png, "metrics": ...,
-    "training": {...}}. Arguments are checked here, before the worker starts, so bad input is an error at once."""
+    "training": {...}}. Arguments are checked here, before the worker starts, so bad input is an error at once.
+    init: a preset to start from (fit --init), e.g. a diagnosis's refit."""
     if not images:
         raise infer.InputError("images: import at least one Cusick image first")
     infer.check_density(density)
@@ -58,6 +59,8 @@ def fit_work(images, density, out_dir, model="bdp", epochs=None, time_budget=Non
     for path in images:
         if not os.path.isfile(path):
             raise infer.InputError(f"images: {path}: no such file")
+    if init:
+        infer.load_preset(init)  # a missing or broken start is an error before the worker starts
     name = safe_name((fabric or {}).get("name"), "fit")
     preset_path = os.path.join(out_dir, "presets", f"{name}_{model}.json")
     overlay = os.path.join(out_dir, "previews", f"{name}_{model}_overlay.png")
@@ -94,7 +97,7 @@ def fit_work(images, density, out_dir, model="bdp", epochs=None, time_budget=Non
         preset = infer.fit(list(images), float(density), model=model, epochs=epochs, time_budget=time_budget,
                            seed=int(seed), out=preset_path, progress=progress, cancel_event=state.cancel,
                            fabric=fabric, calibration_progress=calibration_progress, plan_progress=plan_progress,
-                           config=config, calibration=calibration, effects=effects)
+                           config=config, calibration=calibration, effects=effects, init=init or None)
         result = {"preset": preset_path, "training": {k: preset["training"].get(k) for k in ("epochs", "seconds",
                                                                                              "final_loss")}}
         state.update(0.96, "draping the fitted preset for the overlay")
