@@ -788,8 +788,8 @@ def init_options(preset, options, effects=None):
     stretching), the prior's mean there when fit.json's prior is "start", its placement noise, its mesh level
     unless one is given, and its active effects: an effect the fit names in `effects` is fitted (or fixed) as
     named there, its fitted parameters starting at the preset's values (FitJob.start_from) and the parameters it
-    does not name keeping them (fixed); an effect it does not name stays fixed at the preset's values. Returns the
-    new options."""
+    does not name keeping them (fixed); an effect it does not name stays fixed at the preset's values. A heter
+    preset's per-element tables start as their mean table. Returns the new options."""
     out = dict(options)
     config = copy.deepcopy(out.get("config") or load_config())
     config["init"] = dict(config["init"], scale_search=[], stretch_strain_dependent=True)
