@@ -8,7 +8,8 @@ to the reference on the same drapes (base) and on the control drapes of the same
     fall = (base - fitted) / (base - control)        (issue 17's target: >= 0.6, for MSE and |dDC|)
 with the recovered strength against the truth (inside the 90 % interval, or within 20 %) and the material's
 shift: the mean of the fitted log bending table minus the reference's (0: the material did not absorb anything).
-The fitted presets are written as REPORT/presets/NAME.fit.json and reused when present (the run resumes).
+The fitted presets are written as REPORT/presets/NAME.TAG.json (--tag, default fit) and reused when present (the
+run resumes).
 
 Usage (from the repository root):
     PYTHONPATH=addon:build/python OPENBLAS_NUM_THREADS=1 /usr/bin/python3 tools/fit_recovery.py DIR [DIR...] \
@@ -38,7 +39,7 @@ def evaluate(preset, images, seed, samples, config, level):
     return float(r["mean"]["mse"]), float(np.mean(dc))
 
 
-def run_rows(run, epochs):
+def run_rows(run, epochs, tag="fit"):
     settings = json.load(open(os.path.join(run, "confusion.json")))["settings"]
     level, samples = int(settings["mesh_level"]), int(settings["samples"])
     config = copy.deepcopy(infer.load_config())
@@ -55,7 +56,7 @@ def run_rows(run, epochs):
         d = json.load(open(os.path.join(folder, "report", "diagnosis.json")))
         entry = next(e for e in d["ranking"] if e["effect"] == name)
         refit_path = os.path.join(folder, "report", entry["refit"]["preset"])
-        fitted_path = os.path.join(folder, "report", "presets", f"{name}.fit.json")
+        fitted_path = os.path.join(folder, "report", "presets", f"{name}.{tag}.json")
         images = images_of(folder)
         t0 = time.monotonic()
         if not os.path.isfile(fitted_path):
@@ -115,8 +116,9 @@ def main():
     ap.add_argument("runs", nargs="+")
     ap.add_argument("--epochs", type=int, default=15)
     ap.add_argument("--json", default=None)
+    ap.add_argument("--tag", default="fit", help="the fitted presets' name: REPORT/presets/NAME.TAG.json")
     args = ap.parse_args()
-    rows = [r for run in args.runs for r in run_rows(run, args.epochs)]
+    rows = [r for run in args.runs for r in run_rows(run, args.epochs, args.tag)]
     print(markdown(rows))
     print(f"\nall targets met: {sum(r['met'] for r in rows)} of {len(rows)} refitted cases; strength: "
           f"{sum(r['strength_met'] for r in rows)}; MSE fall >= 0.6: {sum((r['mse_fall'] or 0) >= 0.6 for r in rows)}")

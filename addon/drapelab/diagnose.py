@@ -1322,8 +1322,9 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                 f"the refit that explains the significant difference best (its own p = {best['p_value']:.2g})"))
         result["verdict"] = (f"{best['effect']} is {why} and its refit lowers the best-of-{k} MSE by "
                              f"{100 * best['mse_fall']:.0f} % ({base_mse:.4f} -> {best['refit']['mse']:.4f}): "
-                             + (f"fit --init {os.path.join(out_dir, best['refit']['preset'])} --effects "
-                                f"{best['effect']}" if out_dir and best["refit"].get("preset")
+                             + (f"the refit is {os.path.join(out_dir, best['refit']['preset'])}; fit --init "
+                                f"{os.path.join(out_dir, best['refit']['preset'])} --effects {best['effect']} fits the "
+                                f"effect and the material together from it" if out_dir and best["refit"].get("preset")
                                 else f"fit --effects {best['effect']}"))
     else:
         tested = [e for e in result["ranking"] if e["p_value"] is not None]

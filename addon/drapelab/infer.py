@@ -83,6 +83,7 @@ DEFAULT_MAX_THREADS = 2  # fit.json max_threads: Monte Carlo lanes by default (t
 DEFAULT_EFFECT_SETTINGS = {"learning_rate": 0.1, "eta_learning_rate": 0.05, "init_std": 0.1, "prior_weight": 1.0}
 DEFAULT_GRADIENT_CLIP = {"factor": 0.0, "window": 10, "min_epochs": 3}
 INIT_MIN_STD = 1e-4  # fit --init: a preset's posterior sd of 0 (a point estimate) starts a bdp sd here
+DEFAULT_INIT_PRESET = {"learning_rate_factor": 1.0}  # fit.json "init_preset" when it does not set it
 
 
 def load_config(path=None):
@@ -793,6 +794,15 @@ def init_options(preset, options, effects=None):
     out = dict(options)
     config = copy.deepcopy(out.get("config") or load_config())
     config["init"] = dict(config["init"], scale_search=[], stretch_strain_dependent=True)
+    # a start near the answer: smaller Adam steps for every parameter (fit.json init_preset)
+    factor = float(dict(DEFAULT_INIT_PRESET, **(config.get("init_preset") or {}))["learning_rate_factor"])
+    if not math.isfinite(factor) or factor <= 0:
+        raise InputError(f"fit.json init_preset.learning_rate_factor: a number > 0, got {factor}")
+    config["learning_rates"] = {family: {key: factor * float(v) for key, v in rates.items()}
+                                for family, rates in config["learning_rates"].items()}
+    config["effects"] = dict(effect_settings(config))
+    for key in ("learning_rate", "eta_learning_rate"):
+        config["effects"][key] = factor * float(config["effects"][key])
     if preset.get("placement_noise"):
         config["placement_noise"] = dict(preset["placement_noise"])
     out["config"] = config

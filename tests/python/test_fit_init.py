@@ -35,6 +35,12 @@ def test_the_job_starts_at_the_preset_and_skips_the_start_searches():
     assert options["effects"] == {"tilt": None, "offset": {"dx_m": 0.004, "dy_m": 0.0}}
     assert options["config"]["init"]["scale_search"] == [] and cfg["init"]["scale_search"]  # caller's untouched
     assert options["config"]["placement_noise"] == {"velocity_m_s": 0.03, "angular_modes": 16}
+    f = cfg["init_preset"]["learning_rate_factor"]  # a start near the answer: smaller steps for everything
+    assert 0 < f <= 1 and options["config"]["learning_rates"]["bdp"] == {
+        k: f * v for k, v in cfg["learning_rates"]["bdp"].items()}
+    assert options["config"]["effects"]["learning_rate"] == f * cfg["effects"]["learning_rate"]
+    with pytest.raises(InputError, match="init_preset.learning_rate_factor"):
+        infer.init_options(p, {"config": dict(cfg, init_preset={"learning_rate_factor": 0})}, None)
     job = infer.FitJob([ASSET_IMAGE], p["density_kg_m2"], model="bdp", seed=1, **options)
     given = job.start_from(p)
     assert given == ["tilt.angle_rad", "tilt.azimuth_rad"]
