@@ -69,12 +69,18 @@ def test_an_effect_the_preset_lacks_is_searched_from_off_and_the_presets_values_
     assert list(job.plan.start_candidates(job.theta["effect_mu"])[0][:2]) == [0.12, 0.4]
 
 
-def test_fit_from_a_preset_records_it_and_takes_its_model_density_and_effects(tmp_path):
+def written_start(tmp_path):
+    """(the refit-like preset, its file, a circle1 config of one draw per epoch without the drape calibration)."""
     p = refit_like_preset()
     start = tmp_path / "refit.json"
     infer.write_preset(str(start), p)
     cfg = small_config(samples_per_epoch=1)
     cfg["calibration"]["enabled"] = False
+    return p, start, cfg
+
+
+def test_fit_from_a_preset_records_it_and_takes_its_model_density_and_effects(tmp_path):
+    p, start, cfg = written_start(tmp_path)
     out = tmp_path / "continued.json"
     preset = infer.fit([ASSET_IMAGE], None, epochs=1, seed=2, out=str(out), config=cfg, threads=1,
                        mesh_level=1, init=str(start), effects={"tilt": {"angle_rad": None}})
@@ -127,11 +133,7 @@ def test_bad_init_and_a_missing_density_are_clear_errors(tmp_path):
 
 
 def test_the_command_line_fits_from_a_preset_without_density_or_model(tmp_path, capsys):
-    p = refit_like_preset()
-    start = tmp_path / "refit.json"
-    infer.write_preset(str(start), p)
-    cfg = small_config(samples_per_epoch=1)
-    cfg["calibration"]["enabled"] = False
+    _, start, cfg = written_start(tmp_path)
     config = tmp_path / "fit.json"
     config.write_text(json.dumps(cfg))
     out = tmp_path / "continued.json"
