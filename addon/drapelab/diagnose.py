@@ -1351,7 +1351,11 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                    f"the smallest p-value is {smallest:.2g} against the threshold {threshold:.2g} "
                    f"({result['threshold_rule']})")
             result["verdict"] = f"Nothing significant: {why}."
-    current = [dict(h, images=images_key) for h in _history(p, label, result.get("base")) + result["history"]]
+    # every entry measured on these images carries their fingerprint; P's training metrics only when P was
+    # trained on exactly these images
+    trained_here = _provenance_key(p) == images_key
+    current = [h if h["source"] == TRAINING_SOURCE and not trained_here else dict(h, images=images_key)
+               for h in _history(p, label, result.get("base")) + result["history"]]
     mine = {(h["model"], h.get("source"), h.get("mse"), h.get("dc_error")) for h in _public(current)}
     result["history"] = [h for h in earlier if (h["model"], h.get("source"), h.get("mse"), h.get("dc_error"))
                          not in mine] + current
@@ -1368,12 +1372,23 @@ def _history_entry(model, preset, metrics, source):
             **{key: metrics.get(key) for key in ("mse", "iou", "dc_error", "node_error", "amplitude_error", "loss")}}
 
 
+TRAINING_SOURCE = "preset training metrics"  # history entries of a preset's own training batch (not charted)
+
+
+def _provenance_key(preset):
+    """_images_key of the images a preset was trained on (its provenance), or None when it does not say."""
+    hashes = [i.get("sha256") for i in ((preset.get("provenance") or {}).get("images") or []) if isinstance(i, dict)]
+    if not hashes or not all(isinstance(h, str) for h in hashes):
+        return None
+    return hashlib.sha256("".join(sorted(hashes)).encode()).hexdigest()
+
+
 def _history(p, label, base):
     out = []
     training = (p.get("metrics") or {}).get("training_image") or {}
     if training.get("mse") is not None:
         out.append(_history_entry(f"{label} (training image)", p, {"mse": training.get("mse"), "iou": training.get("iou")},
-                                  "preset training metrics"))
+                                  TRAINING_SOURCE))
     if base is not None:
         out.append(_history_entry(label, p, base, "diagnose base"))
     return out
@@ -1417,7 +1432,7 @@ def _earlier_history(preset_path, out_dir, images_key):
     entries with this run's images fingerprint from the report being rewritten (out_dir/diagnosis.json) and from
     the report of every preset in P's lineage that is a diagnosis's refit (REPORT/presets/NAME.json), oldest
     report first, each entry once. Each keeps its model, metrics and source, with "report" naming where it was
-    read."""
+    read (relative to out_dir, else absolute)."""
     reports = []
     for ancestor in reversed(_lineage(preset_path) if preset_path else []):
         folder = os.path.dirname(os.path.abspath(ancestor))
@@ -1442,7 +1457,8 @@ def _earlier_history(preset_path, out_dir, images_key):
             if key in seen:
                 continue
             seen.add(key)
-            out.append({**h, "report": h.get("report") or os.path.relpath(report)})
+            where = os.path.relpath(report, out_dir) if out_dir else os.path.abspath(report)
+            out.append({**h, "report": h.get("report") or where})
     return out
 
 
@@ -1563,27 +1579,51 @@ def write_report(out_dir, result, figures, observations, calibration):
                  "<table border=1 cellpadding=3><tr><th>effect</th><th>score T^2</th><th>score p</th><th>step</th>"
                  "<th>step p</th><th>p</th><th>refit MSE</th>"
                  f"<th>gain / parameter</th><th>explanation</th></tr>{rows}</table>")
-    # history
-    hist = [h for h in result["history"] if h.get("mse") is not None]
-    fig = _figure((6.4, 3.2))
+    # history: the best-of-K errors on these images, one column per model version (a diagnosed preset), its
+    # refits beside it; the versions joined by a line (the training batches' metrics are in diagnosis.json only)
+    hist = [h for h in result["history"] if h.get("mse") is not None and h["source"] != TRAINING_SOURCE]
+    columns, x = [], []
+    for h in hist:
+        if h["source"] != "diagnose refit" or not columns:
+            columns.append(h["model"])
+        x.append(len(columns) - 1 + (0.0 if h["source"] != "diagnose refit" else
+                                     0.25 + 0.1 * sum(1 for g, xx in zip(hist, x) if g["source"] == "diagnose refit"
+                                                      and int(xx) == len(columns) - 1)))
+    fig = _figure((6.4, 3.4))
     ax = fig.add_subplot(1, 1, 1)
-    x = np.arange(len(hist))
-    ax.plot(x, [h["mse"] for h in hist], "o-", label="best-of-K MSE")
-    dcs = [h.get("dc_error") for h in hist]
-    if any(d is not None for d in dcs):
+    versions = [(xx, h) for xx, h in zip(x, hist) if h["source"] != "diagnose refit"]
+    refits = [(xx, h) for xx, h in zip(x, hist) if h["source"] == "diagnose refit"]
+    ax.plot([xx for xx, _ in versions], [h["mse"] for _, h in versions], "o-", color="C0",
+            label="best-of-K MSE, model versions")
+    ax.plot([xx for xx, _ in refits], [h["mse"] for _, h in refits], "o", mfc="none", color="C0",
+            label="its refits (one effect each)")
+    for xx, h in refits:
+        ax.annotate(h["model"].rsplit(" + ", 1)[-1], (xx, h["mse"]), fontsize=6, xytext=(3, 2),
+                    textcoords="offset points")
+    if any(h.get("dc_error") is not None for h in hist):
         ax2 = ax.twinx()
-        ax2.plot(x, [np.nan if d is None else d for d in dcs], "s--", color="C1", label="|dDC|")
+        ax2.plot([xx for xx, h in versions], [np.nan if h.get("dc_error") is None else h["dc_error"]
+                                              for _, h in versions], "s--", color="C1", label="|dDC|, versions")
         ax2.set_ylabel("|dDC|")
         ax2.legend(fontsize=7, loc="upper right")
-    ax.set_xticks(x)
-    ax.set_xticklabels([h["model"] for h in hist], rotation=15, fontsize=7, ha="right")
+    ax.set_xticks(range(len(columns)))
+    ax.set_xticklabels(columns, rotation=10, fontsize=7, ha="right")
+    ax.set_xlim(-0.4, max(len(columns) - 1, 0) + 0.9)
     ax.set_ylabel("MSE")
     ax.legend(fontsize=7, loc="upper left")
     fig.tight_layout()
     _save(fig, os.path.join(out_dir, "history.png"))
-    fell = [h for h in hist if h["source"] == "diagnose refit" and b is not None and h["mse"] < b["mse"]]
-    parts.append("<h2>Model history</h2><img src='history.png'>"
-                 f"<p>{'The error fell with ' + ', '.join(h['model'] for h in fell) if fell else 'No refit lowered the best-of-K MSE.' if any(h['source'] == 'diagnose refit' for h in hist) else 'No refit was run.'}</p>")
+    fell = [h for h in hist if h["source"] == "diagnose refit" and "report" not in h and b is not None
+            and h["mse"] < b["mse"]]
+    here = [h for h in hist if "report" not in h and h["source"] == "diagnose refit"]
+    words = ("The error fell with " + ", ".join(h["model"] for h in fell) if fell else
+             "No refit lowered the best-of-K MSE." if here else "No refit was run.")
+    if len(versions) > 1:
+        first, last = versions[0][1], versions[-1][1]
+        words += (f" Across the {len(versions)} model versions diagnosed on these images the best-of-K MSE went "
+                  f"{first['mse']:.4f} ({first['model']}) -> {last['mse']:.4f} ({last['model']})"
+                  + (": it fell." if last["mse"] < first["mse"] else ": it did not fall."))
+    parts.append(f"<h2>Model history</h2><img src='history.png'><p>{html.escape(words)}</p>")
     text = "<!doctype html><meta charset='utf-8'><title>drapelab diagnosis</title><body style='font-family:sans-serif'>" \
            + "\n".join(parts) + "</body>\n"
 

@@ -260,9 +260,17 @@ def test_cli_writes_the_report_the_contract_and_a_refit(images, tmp_path, capsys
                            mesh_level=1, max_refits=0, out_dir=out2)
     validate(d2)
     earlier = [h for h in d2["history"] if "report" in h]
-    assert [(h["model"], h["mse"]) for h in earlier] == [(h["model"], h["mse"]) for h in d["history"]]
-    assert all(h["images"] == d2["history"][-1]["images"] for h in d2["history"])
-    assert [h["source"] for h in d2["history"][len(earlier):]] == ["preset training metrics", "diagnose base"]
+    # P was trained on another image: its training metrics are not a version measured on these images
+    assert [(h["model"], h["mse"]) for h in earlier] == [(h["model"], h["mse"]) for h in d["history"]
+                                                         if h["source"] != diagnose.TRAINING_SOURCE]
+    assert "images" not in d["history"][0] and d["history"][0]["source"] == diagnose.TRAINING_SOURCE
+    assert all(h["images"] == d2["history"][-1]["images"] for h in d2["history"] if "images" in h)
+    # the continued preset was fitted on exactly these images: its training metrics carry their fingerprint
+    assert [h["source"] for h in d2["history"][len(earlier):]] == [diagnose.TRAINING_SOURCE, "diagnose base"]
+    assert d2["history"][len(earlier)]["images"] == d2["history"][-1]["images"]
+    assert os.path.getsize(os.path.join(out2, "history.png")) > 0
+    with open(os.path.join(out2, "index.html")) as f:
+        assert "model versions diagnosed on these images" in f.read()
 
 
 def test_earlier_versions_come_from_the_lineage_reports_with_the_same_images(tmp_path):
