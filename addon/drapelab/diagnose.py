@@ -1605,12 +1605,12 @@ def write_report(out_dir, result, figures, observations, calibration):
         ax2.plot([xx for xx, h in versions], [np.nan if h.get("dc_error") is None else h["dc_error"]
                                               for _, h in versions], "s--", color="C1", label="|dDC|, versions")
         ax2.set_ylabel("|dDC|")
-        ax2.legend(fontsize=7, loc="upper right")
+        ax2.legend(fontsize=7, loc="lower right", bbox_to_anchor=(1.0, 1.0), frameon=False)
     ax.set_xticks(range(len(columns)))
     ax.set_xticklabels(columns, rotation=10, fontsize=7, ha="right")
     ax.set_xlim(-0.4, max(len(columns) - 1, 0) + 0.9)
     ax.set_ylabel("MSE")
-    ax.legend(fontsize=7, loc="upper left")
+    ax.legend(fontsize=7, loc="lower left", bbox_to_anchor=(0.0, 1.0), ncol=2, frameon=False)
     fig.tight_layout()
     _save(fig, os.path.join(out_dir, "history.png"))
     fell = [h for h in hist if h["source"] == "diagnose refit" and "report" not in h and b is not None
