@@ -931,8 +931,6 @@ def refit_with_effect(preset, images, name, level, seed, config, threads=None, t
         cfg["effects"]["learning_rate"] = REFIT_START_LEARNING_RATE_FACTOR * float(cfg["effects"]["learning_rate"])
     log_std = float(np.mean(preset["posterior"]["bend"]["log_std"]))
     prior_sd = max(log_std, 1e-3)
-    cfg["init"]["scale_search"] = []
-    cfg["init"]["stretch_strain_dependent"] = True  # keep P's stretching table as it is
     cfg["init"]["bdp_std"] = prior_sd
     cfg["prior"] = {"log_bend_mean": "start", "log_bend_std": prior_sd}
     cfg["calibration"]["enabled"] = False
@@ -941,15 +939,10 @@ def refit_with_effect(preset, images, name, level, seed, config, threads=None, t
     # pixel term only, as in the score test: with the soft drape coefficient's bias the drape-coefficient term
     # pulled a tilt back towards zero (measured: 0.15 -> 0.03 rad in 8 epochs on a 0.3 rad tilt)
     cfg["sigma_dc"] = SCORE_SIGMA_DC if sigma_dc is None else float(sigma_dc)
-    if preset.get("placement_noise"):
-        cfg["placement_noise"] = dict(preset["placement_noise"])
-    effects = {n: {p: v for p, v in vals.items()} for n, vals in
-               fit_effects.active_effect_values(preset.get("active_effects")).items()}
-    effects[name] = None if spec is None else dict(spec)
-    job = infer.FitJob(images, preset["density_kg_m2"], model=preset["model"], seed=seed, config=cfg,
-                       mesh_level=level, template_dir=template_dir, threads=threads,
-                       init_bend=np.exp(np.asarray(preset["posterior"]["bend"]["log_mean"])),
-                       init_stretch=np.asarray(preset["stretch_N_m"]), effects=effects)
+    # P's tables (its stretching as it is, no scale search), placement noise and effects, `name` fitted
+    options = infer.start_options(preset, {"config": cfg, "mesh_level": level}, {name: spec})
+    job = infer.FitJob(images, preset["density_kg_m2"], model=preset["model"], seed=seed,
+                       template_dir=template_dir, threads=threads, **options)
     if start is not None:
         vector = np.asarray(job.theta["effect_mu"], dtype=float).copy()
         for i, (effect, q) in enumerate(job.plan.free):
@@ -1007,7 +1000,7 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
         os.makedirs(out_dir, exist_ok=True)
         measure.check_output_path(os.path.join(out_dir, "diagnosis.json"), "diagnosis")
     observations = _observations(images)
-    images_key = _images_key(observations)
+    images_key = _images_key([o.sha256 for o in observations])
     earlier = _earlier_history(preset_path, out_dir, images_key)
     reg = fit_effects.registry()
     second = second_directions(reg)
@@ -1317,14 +1310,15 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
     if gaining:
         best = gaining[0]
         result["recommended"] = best["effect"]
+        written = out_dir and best["refit"].get("preset")
+        refit_file = os.path.join(out_dir, best["refit"]["preset"]) if written else None
         why = ("a switch judged by its refit alone" if best["switch"] else
                (f"significant (p = {best['p_value']:.2g} < {threshold:.2g})" if best["p_value"] < threshold else
                 f"the refit that explains the significant difference best (its own p = {best['p_value']:.2g})"))
         result["verdict"] = (f"{best['effect']} is {why} and its refit lowers the best-of-{k} MSE by "
                              f"{100 * best['mse_fall']:.0f} % ({base_mse:.4f} -> {best['refit']['mse']:.4f}): "
-                             + (f"the refit is {os.path.join(out_dir, best['refit']['preset'])}; fit --init "
-                                f"{os.path.join(out_dir, best['refit']['preset'])} --effects {best['effect']} fits the "
-                                f"effect and the material together from it" if out_dir and best["refit"].get("preset")
+                             + (f"the refit is {refit_file}; fit --init {refit_file} --effects {best['effect']} "
+                                f"fits the effect and the material together from it" if refit_file
                                 else f"fit --effects {best['effect']}"))
     else:
         tested = [e for e in result["ranking"] if e["p_value"] is not None]
@@ -1356,9 +1350,8 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
     trained_here = _provenance_key(p) == images_key
     current = [h if h["source"] == TRAINING_SOURCE and not trained_here else dict(h, images=images_key)
                for h in _history(p, label, result.get("base")) + result["history"]]
-    mine = {(h["model"], h.get("source"), h.get("mse"), h.get("dc_error")) for h in _public(current)}
-    result["history"] = [h for h in earlier if (h["model"], h.get("source"), h.get("mse"), h.get("dc_error"))
-                         not in mine] + current
+    mine = {_entry_key(h) for h in _public(current)}
+    result["history"] = [h for h in earlier if _entry_key(h) not in mine] + current
     save()
     if out_dir and result.get("base") is not None:
         write_report(out_dir, result, figures, observations, pred.calibration)
@@ -1380,7 +1373,7 @@ def _provenance_key(preset):
     hashes = [i.get("sha256") for i in ((preset.get("provenance") or {}).get("images") or []) if isinstance(i, dict)]
     if not hashes or not all(isinstance(h, str) for h in hashes):
         return None
-    return hashlib.sha256("".join(sorted(hashes)).encode()).hexdigest()
+    return _images_key(hashes)
 
 
 def _history(p, label, base):
@@ -1397,10 +1390,15 @@ def _history(p, label, base):
 MAX_LINEAGE = 16  # presets followed back through training.init when gathering earlier model versions
 
 
-def _images_key(observations):
-    """One fingerprint of a set of measurements: the sha256 of their sorted content hashes (the order and the
-    file names do not matter)."""
-    return hashlib.sha256("".join(sorted(o.sha256 for o in observations)).encode()).hexdigest()
+def _images_key(hashes):
+    """One fingerprint of a set of measurements from their content hashes (sha256 hex): the sha256 of the sorted
+    hashes (the order and the file names do not matter)."""
+    return hashlib.sha256("".join(sorted(hashes)).encode()).hexdigest()
+
+
+def _entry_key(h):
+    """What makes two history entries the same model version measured the same way."""
+    return h["model"], h.get("source"), h.get("mse"), h.get("dc_error")
 
 
 def _lineage(preset_path):
@@ -1453,7 +1451,7 @@ def _earlier_history(preset_path, out_dir, images_key):
         for h in history if isinstance(history, list) else []:
             if not isinstance(h, dict) or h.get("images") != images_key or not isinstance(h.get("model"), str):
                 continue
-            key = (h["model"], h.get("source"), h.get("mse"), h.get("dc_error"))
+            key = _entry_key(h)
             if key in seen:
                 continue
             seen.add(key)
@@ -1582,13 +1580,16 @@ def write_report(out_dir, result, figures, observations, calibration):
     # history: the best-of-K errors on these images, one column per model version (a diagnosed preset), its
     # refits beside it; the versions joined by a line (the training batches' metrics are in diagnosis.json only)
     hist = [h for h in result["history"] if h.get("mse") is not None and h["source"] != TRAINING_SOURCE]
-    columns, x = [], []
+    columns, x, beside = [], [], 0  # beside: refits already placed in the current column
     for h in hist:
         if h["source"] != "diagnose refit" or not columns:
             columns.append(h["model"])
-        x.append(len(columns) - 1 + (0.0 if h["source"] != "diagnose refit" else
-                                     0.25 + 0.1 * sum(1 for g, xx in zip(hist, x) if g["source"] == "diagnose refit"
-                                                      and int(xx) == len(columns) - 1)))
+            beside = 0
+        if h["source"] == "diagnose refit":
+            x.append(len(columns) - 1 + 0.25 + 0.1 * beside)
+            beside += 1
+        else:
+            x.append(len(columns) - 1)
     fig = _figure((6.4, 3.4))
     ax = fig.add_subplot(1, 1, 1)
     versions = [(xx, h) for xx, h in zip(x, hist) if h["source"] != "diagnose refit"]

@@ -783,26 +783,17 @@ def _plan_time_budget(job, total, t_start, calibrating, template_dir=None):
                           sets_full, share, drape_fit, scale_drapes, epoch_drapes)
 
 
-def init_options(preset, options, effects=None):
-    """fit --init: the FitJob options that start a fit where `preset` (a validated preset dict) left off: its mean
-    bending table and its stretching table as the start (kept as they are: no scale search, no strain-independent
-    stretching), the prior's mean there when fit.json's prior is "start", its placement noise, its mesh level
-    unless one is given, and its active effects: an effect the fit names in `effects` is fitted (or fixed) as
-    named there, its fitted parameters starting at the preset's values (FitJob.start_from) and the parameters it
-    does not name keeping them (fixed); an effect it does not name stays fixed at the preset's values. A heter
-    preset's per-element tables start as their mean table. Returns the new options."""
+def start_options(preset, options, effects=None):
+    """The FitJob options that start a fit at `preset` (a validated preset dict): its mean bending table and its
+    stretching table as the start (kept as they are: no scale search, no strain-independent stretching), the
+    prior's mean there when the config's prior is "start", its placement noise, its mesh level unless one is
+    given, and its active effects: an effect named in `effects` is fitted (or fixed) as named there, the
+    parameters it does not name keeping the preset's values (fixed); an effect it does not name stays fixed at the
+    preset's values. A heter preset's per-element tables start as their mean table. The config's step sizes are
+    left as they are. Returns the new options. Used by fit --init (init_options) and by diagnose's refits."""
     out = dict(options)
     config = copy.deepcopy(out.get("config") or load_config())
     config["init"] = dict(config["init"], scale_search=[], stretch_strain_dependent=True)
-    # a start near the answer: smaller Adam steps for every parameter (fit.json init_preset)
-    factor = float(dict(DEFAULT_INIT_PRESET, **(config.get("init_preset") or {}))["learning_rate_factor"])
-    if not math.isfinite(factor) or factor <= 0:
-        raise InputError(f"fit.json init_preset.learning_rate_factor: a number > 0, got {factor}")
-    config["learning_rates"] = {family: {key: factor * float(v) for key, v in rates.items()}
-                                for family, rates in config["learning_rates"].items()}
-    config["effects"] = dict(effect_settings(config))
-    for key in ("learning_rate", "eta_learning_rate"):
-        config["effects"][key] = factor * float(config["effects"][key])
     if preset.get("placement_noise"):
         config["placement_noise"] = dict(preset["placement_noise"])
     out["config"] = config
@@ -817,6 +808,23 @@ def init_options(preset, options, effects=None):
         elif name not in spec:
             spec[name] = dict(values)
     out["effects"] = spec
+    return out
+
+
+def init_options(preset, options, effects=None):
+    """fit --init: start_options, with every Adam step size (material, posterior sd, effects) scaled by fit.json
+    init_preset.learning_rate_factor (a start near the answer); the fitted effect parameters the preset carries
+    start at its values (FitJob.start_from). Returns the new options."""
+    out = start_options(preset, options, effects)
+    config = out["config"]
+    factor = float(dict(DEFAULT_INIT_PRESET, **(config.get("init_preset") or {}))["learning_rate_factor"])
+    if not math.isfinite(factor) or factor <= 0:
+        raise InputError(f"fit.json init_preset.learning_rate_factor: a number > 0, got {factor}")
+    config["learning_rates"] = {family: {key: factor * float(v) for key, v in rates.items()}
+                                for family, rates in config["learning_rates"].items()}
+    config["effects"] = dict(effect_settings(config))
+    for key in ("learning_rate", "eta_learning_rate"):
+        config["effects"][key] = factor * float(config["effects"][key])
     return out
 
 
