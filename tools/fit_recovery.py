@@ -64,18 +64,9 @@ def run_rows(run, epochs, tag="fit"):
                       seed=seed + FIT_SEED_OFFSET, config=config, mesh_level=level, out=fitted_path)
         fitted = infer.load_preset(fitted_path)
         mse, dc = evaluate(fitted, images, seed + DIAGNOSE_SEED_OFFSET, samples, config, level)
-        block = fitted["active_effects"][name]
-        recovered = {q: block[q]["value"] for q in block}
-        truth = row["truth"]
-        got = recovery_table.strength(truth, recovered)
-        primary = next(iter(truth))
-        interval = block[primary].get("interval90")
-        inside = (interval is not None and interval[0] <= truth[primary] <= interval[1]) if len(truth) == 1 else None
-        error = (got - row["truth_strength"]) / row["truth_strength"]
-        r = {"run": run, "effect": name, "seed": seed, "truth": truth, "truth_strength": row["truth_strength"],
-             "refit_strength": row["recovered_strength"], "recovered": recovered, "recovered_strength": got,
-             "primary": primary, "interval90": interval, "inside": inside, "relative_error": error,
-             "strength_met": bool(inside or abs(error) <= recovery_table.WITHIN),
+        r = {"run": run, "effect": name, "seed": seed, "truth": row["truth"], "truth_strength": row["truth_strength"],
+             "refit_strength": row["recovered_strength"],
+             **recovery_table.judge_strength(row["truth"], fitted["active_effects"][name], row["truth_strength"]),
              "base_mse": row["base_mse"], "refit_mse": row["refit_mse"], "fit_mse": mse,
              "control_mse": row["control_mse"], "base_dc_error": row["base_dc_error"],
              "refit_dc_error": row["refit_dc_error"], "fit_dc_error": dc, "control_dc_error": row["control_dc_error"],
@@ -84,10 +75,9 @@ def run_rows(run, epochs, tag="fit"):
                                              recovery_table.DC_GAP_MIN),
              "material_shift": float(np.mean(np.asarray(fitted["posterior"]["bend"]["log_mean"]) - ref_log)),
              "epochs": fitted["training"]["epochs"], "seconds": time.monotonic() - t0}
-        r["met"] = bool(r["strength_met"] and (r["mse_fall"] or 0) >= 0.6 and (r["dc_fall"] is None or
-                                                                                r["dc_fall"] >= 0.6))
+        r["met"] = recovery_table.targets_met(r)
         print(f"{name}@{seed}: truth {row['truth_strength']:.3g}, refit {row['recovered_strength']:.3g}, fit "
-              f"{got:.3g} ({error:+.0%}), MSE {row['base_mse']:.4f} -> {mse:.4f} (control {row['control_mse']:.4f}), "
+              f"{r['recovered_strength']:.3g} ({r['relative_error']:+.0%}), MSE {row['base_mse']:.4f} -> {mse:.4f} (control {row['control_mse']:.4f}), "
               f"material shift {r['material_shift']:+.3f} ({r['seconds']:.0f} s)", file=sys.stderr, flush=True)
         out.append(r)
     return out
