@@ -86,6 +86,25 @@ def test_a_partial_frame_after_the_counted_ones_is_never_read(tmp_path):
     assert np.allclose(pc2.read_pc2(path), x[:2], atol=1e-6)
 
 
+def test_a_frame_written_while_the_header_is_read_is_never_miscounted(tmp_path, monkeypatch):
+    """The race a mid-bake reader meets: the writer completes a frame (data, then count) while the reader opens
+    the file. The size is taken after the header, so it holds every frame the header counts."""
+    path = tmp_path / "cache.pc2"
+    x = frames(3)
+    with pc2.PC2Writer(path, 7) as w:
+        w.write_frame(x[0])
+        w.write_frame(x[1])
+        real_open = open
+
+        def open_while_a_frame_lands(*args, **kwargs):
+            if w.frames_written < 3:
+                w.write_frame(x[2])
+            return real_open(*args, **kwargs)
+        monkeypatch.setattr(pc2, "open", open_while_a_frame_lands, raising=False)
+        h = pc2.read_pc2_header(path)
+        assert h["num_samples"] == 3 and h["file_size"] == pc2.HEADER_SIZE + 3 * 7 * 12
+
+
 def test_writer_refuses_bad_frames_without_writing_them(tmp_path):
     path = tmp_path / "cache.pc2"
     with pc2.PC2Writer(path, 7) as w:

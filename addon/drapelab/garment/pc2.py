@@ -164,9 +164,11 @@ def read_pc2_header(path):
     """{num_points, start_frame, sample_rate, num_samples, file_size} of a PC2 file, checked against its size."""
     path = os.fspath(path)
     try:
-        size = os.path.getsize(path)
         with open(path, "rb") as f:
             head = f.read(HEADER_SIZE)
+            # the size after the header: a writer raises the count only after the frame's data, so a cache
+            # growing while it is read has at least the frames its header counted when read
+            size = os.fstat(f.fileno()).st_size
     except OSError as e:
         raise InputError(f"{path}: cannot read PC2 cache: {e.strerror or e}") from None
     if len(head) < HEADER_SIZE:
