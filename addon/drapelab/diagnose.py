@@ -54,6 +54,16 @@
    effect's steps; under "P is right" measured and reference images are exchangeable, so its p-value comes from
    relabelling them (all C(n + J, n) labellings, the step chosen anew in each). A candidate's p_value is
    min(1, 2 min(score p, step p)) (Bonferroni over its two tests); both are reported.
+   Screened (a fine mesh or a whole library on a budget): when the budget pays for fewer than SCREEN_BELOW of the
+   draws on every step, every candidate is screened on SCREEN_DRAWS of them, and those whose screen p is below
+   SCREEN_P_MAX are confirmed on fresh draws (the next of the K), as many as the budget left pays for at the
+   screen's measured drape time, less one evaluation per refit that may follow (the least promising dropped while
+   the confirmation would not double the draws): nothing is refitted unless something is significant, and on a
+   fine mesh only the confirmation makes the fold-pattern effects significant. A confirmed candidate's step test is the full test on all its draws,
+   exactly what it would be had every candidate been draped on them (tested); the others' step p is the screen's,
+   raised to SCREEN_P_MAX where it is below (dropped for time), so screening can only withhold significance, never
+   add it: P(reported step p < t) <= P(full test's p < t) for t < SCREEN_P_MAX. (Measured before it, on circle3 the whole library left 2-3 draws per step:
+   no step test, so the fold-pattern effects the score misses could not be found; docs/diagnose.md.)
 3. Refits. When at least one candidate is below the threshold (the data differ from P), the candidates with p
    below REFIT_P_MAX are refitted, up to MAX_REFITS of them in refit_order (by the sum of their ranks by combined p
    and by step statistic), under the time budget: the score test says that something differs, the refits say
@@ -109,9 +119,12 @@
    best-of-16 MSE 0.0288 -> 0.0189 with a higher loss).
 
 Time budget (seconds, the whole job): the draws and score tests come first (their cost is K drapes with
-backward); what remains, less the refits' evaluations and line searches (estimated from the measured drape time)
-and a reserve for the report, is split equally between the refits (a refit whose search used up its share keeps
-the search's best point, without epochs). Without a budget each refit runs fit.json default_epochs.
+backward), then the step test (2b: its share, screened when thin); what remains, less the refits' evaluations and
+line searches (EVALUATION_OVERHEAD x K re-drape floor drapes each) and a reserve for the report, is split equally
+between the refits. The least promising refits are dropped while the time left does not pay one evaluation each; a
+refit whose share does not pay for epochs keeps its search's best point when the later refits' single evaluations
+leave room for the search, else the step test's best step, evaluated once. Without a budget each refit runs
+fit.json default_epochs.
 """
 import copy
 import hashlib
@@ -155,9 +168,13 @@ REDRAPE_FLOOR_MIN = 12    # re-drapes the re-drape floor is measured on (at leas
 PSEUDO_MIN = 4            # predictive silhouettes drawn as the null reference (at least; as many as images)
 PSEUDO_SEED_OFFSET = 100000  # their placement seeds: [seed, offset + j, 1], apart from the scored draws' [seed, i, 1]
 STEP_REFERENCES_MIN = 12  # predictive silhouettes the step test compares with (at least; 2 per image beyond six)
+EVALUATION_OVERHEAD = 1.1  # an evaluation's K drapes (a fresh model each) over K re-drape floor drapes (1.06 on circle3)
 STEP_FORWARD_SHARE = 0.4  # a forward drape's share of a draw with backward (measured; as the refits' evaluation)
 STEP_BUDGET_SHARE = 0.4   # at most this share of the budget left after the score tests goes to the step drapes,
 STEP_BUDGET_SHARE_MAX = 0.7  # ... or up to this share when the first leaves fewer than MIN_SAMPLES draws per step
+SCREEN_DRAWS = 4          # with a budget that does not pay for every draw on every step: the screen's draws per step,
+SCREEN_P_MAX = 0.2        # ... the screen's p below which a candidate is confirmed on fresh draws (module doc, 2b)
+SCREEN_BELOW = 0.5        # ... screened when the budget pays for fewer than this share of the draws on every step
 STEP_PERMUTATIONS_MAX = 20000  # labellings enumerated up to this count (six images, 12 references: 18564), else drawn
 
 
@@ -470,6 +487,23 @@ def step_draws(k, left, forward, references, n_steps):
     usual, most = (int((share * left - references * forward) / per_draw)
                    for share in (STEP_BUDGET_SHARE, STEP_BUDGET_SHARE_MAX))
     return max(0, min(k, usual if usual >= MIN_SAMPLES else min(MIN_SAMPLES, most)))
+
+
+def confirmation_plan(screen, steps_of, room, forward, fresh, screened):
+    """The candidates a screened step test confirms (module doc, 2b) and the fresh draws each of their steps gets:
+    those whose screen p (`screen` {effect: {p_value, statistic}}) is below SCREEN_P_MAX, most promising first
+    (smallest p, then most negative statistic); `room` seconds at `forward` s a drape pay for the draws, at most
+    `fresh` of them; while they pay for fewer than the `screened` draws the screen had (the confirmation would
+    not double them), the least promising is dropped. `steps_of` {effect: its step count}. Returns (names, draws)."""
+    names = sorted((n for n, st in screen.items() if st["p_value"] < SCREEN_P_MAX),
+                   key=lambda n: (screen[n]["p_value"], screen[n]["statistic"]))
+    while names:
+        per_draw = max(forward, 1e-9) * sum(steps_of[n] for n in names)
+        m = min(int(fresh), int(max(0.0, room) / per_draw))
+        if m >= max(1, min(int(screened), int(fresh))):
+            return names, m
+        names = names[:-1]
+    return [], 0
 
 
 def step_permutation_test(deltas, n, max_permutations=None, seed=0):
@@ -908,6 +942,19 @@ def line_search(entry, step, mse_of):
     return (dict(step) if best is None else dict(best["values"])), points
 
 
+def refit_mode(budget, spare, evaluation, full, has_start):
+    """How a refit runs under a time budget (module doc, Time budget): "epochs" when its equal share of the time
+    left pays for epochs (`budget` > 0 s); else, for a refit with a start (a step that brought the draws closer),
+    "search" when `spare` (the time left less one evaluation per later refit) pays for its `full` evaluations (its
+    search's best point is then the refit), "step" when it pays for one (the step itself is the refit), else None
+    (not refitted)."""
+    if budget > 0:
+        return "epochs"
+    if not has_start or spare < evaluation:
+        return None
+    return "search" if spare >= full else "step"
+
+
 def refit_path(job, name):
     """Per accepted epoch of `job`: its loss, batch MSE and effect `name`'s values after the epoch's step."""
     return [{"epoch": h["epoch"], "loss": h.get("loss"), "mse": h.get("mse"),
@@ -1055,8 +1102,10 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
         base, per_image, ok = _summary([shapes[i] for i in done], observations, pred.calibration,
                                        float(config["sigma_obs"]), SCORE_SIGMA_DC)
         # the re-drape floor: the draws against P's mean material re-draped (placement noise only)
+        tr = time.monotonic()
         redrapes = _pseudo_observations(pred, p, models, drawn["offs"], max(REDRAPE_FLOOR_MIN, len(observations)),
                                         seed, config, lanes, progress, cancel_event, stream=2, mean_material=True)
+        forward_measured = (time.monotonic() - tr) / len(redrapes) if redrapes else None
         floor = _redrape_floor([shapes[i] for i in done], redrapes)
         if floor is not None:
             base["redrape_mse"], base["redrape_mse_sd"] = floor
@@ -1113,11 +1162,16 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
         steps = effect_steps(reg, names, second)
         n_steps = sum(len(v) for v in steps.values())
         k_step = len(done)
+        k_screen = None
         j_step = max(STEP_REFERENCES_MIN, 2 * len(observations))
+        # a forward drape's wall time: measured on the re-drape floor's drapes, else estimated from the draws
+        forward = forward_measured or per_draw * STEP_FORWARD_SHARE / lanes
+        left = None
         if time_budget is not None and n_steps:  # the extra references and the step drapes within a share
             left = float(time_budget) - (time.monotonic() - t0)
-            forward = per_draw * STEP_FORWARD_SHARE / lanes  # a forward drape, per lane
             k_step = step_draws(k_step, left, forward, max(0, j_step - len(pseudo)), n_steps)
+            if MIN_SAMPLES <= k_step and k_step < SCREEN_BELOW * len(done):  # thin: screen, then confirm
+                k_screen = min(k_step, SCREEN_DRAWS)
         tests = {}
         # with few images the relabelling cannot reach the threshold (one image: 1 in 13), and the combined p would
         # only halve the score test's power: then the step test is not run
@@ -1132,26 +1186,65 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                                            f"({MIN_SAMPLES} needed)"}
         if n_steps and attainable and k_step >= MIN_SAMPLES and not result["cancelled"]:
             ts = time.monotonic()
-            _progress(progress, "steps", f"step test: {n_steps} steps of {len(steps)} candidates x {k_step} draws")
+            k_first = k_screen or k_step
+            _progress(progress, "steps", f"step test{' screen' if k_screen else ''}: {n_steps} steps of {len(steps)} "
+                                         f"candidates x {k_first} draws")
             j_extra = j_step - len(pseudo)
             references = list(pseudo)
             if j_extra > 0:
                 references += _pseudo_observations(pred, p, models, drawn["offs"], j_extra, seed, config, lanes,
                                                    progress, cancel_event, stream=1)
-            used = done[:k_step]
+            used = done[:k_first]
+            tf = time.monotonic()
             images_k = _step_drapes(pred, models, drawn, steps, used, config, lanes, progress, cancel_event)
+            screen_info = None
             if cancel_event is not None and cancel_event.is_set():
                 result["cancelled"] = True
             else:
-                tests = step_tests([shapes[i]["image"] for i in used], images_k, steps,
-                                   [o.mask for o in observations], references)
+                observed = [o.mask for o in observations]
+                tests = step_tests([shapes[i]["image"] for i in used], images_k, steps, observed, references)
+                for st in tests.values():
+                    st["draws"] = len(used)
+                if k_screen is not None:  # confirm the promising on fresh draws, within the screen's share
+                    measured = (time.monotonic() - tf) / max(1, k_screen * n_steps)
+                    room = (left - (time.monotonic() - ts) - REPORT_RESERVE_S
+                            - int(max_refits) * k * measured * EVALUATION_OVERHEAD)
+                    confirmed, m = confirmation_plan(tests, {n: len(v) for n, v in steps.items()}, room, measured,
+                                                     len(done) - k_screen, k_screen)
+                    screen_info = {"draws": k_screen, "p_max": SCREEN_P_MAX, "passed": sorted(
+                        n for n, st in tests.items() if st["p_value"] < SCREEN_P_MAX), "confirmed": confirmed,
+                        "confirmation_draws": m}
+                    for st in tests.values():
+                        st["screen"] = {"draws": k_screen, "statistic": st["statistic"], "p_value": st["p_value"],
+                                        "step": st["step"]}
+                    if confirmed:
+                        _progress(progress, "steps", f"step test: confirming {', '.join(confirmed)} on {m} fresh "
+                                                     "draws")
+                        fresh = done[k_screen:k_screen + m]
+                        sub = {n: steps[n] for n in confirmed}
+                        more = _step_drapes(pred, models, drawn, sub, fresh, config, lanes, progress, cancel_event)
+                        if cancel_event is not None and cancel_event.is_set():  # the screen's tests stand
+                            result["cancelled"] = True
+                        else:
+                            both = used + fresh
+                            merged = {key: images_k[key] + more[key] for key in more}
+                            for n, st in step_tests([shapes[i]["image"] for i in both], merged, sub, observed,
+                                                    references).items():
+                                tests[n] = {**st, "draws": len(both), "screen": tests[n]["screen"]}
+                    for st in tests.values():  # unconfirmed (on the screen's draws only): at least SCREEN_P_MAX
+                        if st["draws"] == k_screen:
+                            st["p_value"] = max(st["p_value"], SCREEN_P_MAX)
             result["seconds"]["steps"] = time.monotonic() - ts
-            result["step_test"] = {"draws": len(used), "references": len(references),
+            result["step_test"] = {"draws": len(used), "references": len(references), "screen": screen_info,
                                    "rule": "per candidate the primary parameter at +- its moderate strength (and "
                                            "turned, for the tilt); the change of the draws' mean pixel MSE against "
                                            "the measured images minus against P's own predictive silhouettes; p "
                                            "from the labellings of measured and reference images (exchangeable if P "
-                                           "is right); p_value = min(1, 2 min(score p, step p))"}
+                                           "is right); p_value = min(1, 2 min(score p, step p))"
+                                           + ("" if screen_info is None else
+                                              f"; screened on {k_screen} draws, the candidates with screen p below "
+                                              f"{SCREEN_P_MAX:g} confirmed on fresh draws as the budget allows (their "
+                                              "step p from all their draws)")}
         for entry in result["ranking"]:
             st = tests.get(entry["effect"])
             if st is None:
@@ -1161,6 +1254,15 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
             entry["p_value"] = (st["p_value"] if entry["p_value"] is None
                                 else min(1.0, 2.0 * min(entry["p_value"], st["p_value"])))
             verdict = "significant" if entry["p_value"] < threshold else "not significant"
+            screened = st.get("screen")
+            if screened is not None:
+                if st["draws"] > screened["draws"]:
+                    how = f"confirmed on {st['draws'] - screened['draws']} fresh draws"
+                elif screened["p_value"] >= SCREEN_P_MAX:
+                    how = f"not confirmed: its p is above {SCREEN_P_MAX:g}"
+                else:
+                    how = f"not confirmed: no time was left for its draws (its step p counts as {SCREEN_P_MAX:g})"
+                entry["explanation"] += f" Step screen on {screened['draws']} draws: p = {screened['p_value']:.2g}, {how}."
             entry["explanation"] += (f" Step test ({st['step']}): the draws' MSE against the measurements moves "
                                      f"{st['statistic']:+.2g} relative to P's own drapes, p = {st['p_value']:.2g}; "
                                      f"combined p = {entry['p_value']:.2g} ({verdict}).")
@@ -1200,26 +1302,47 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
             rbase, _, _ = _summary(rshapes, observations, rp.calibration, float(config["sigma_obs"]), SCORE_SIGMA_DC)
             return rshapes, rbase
 
+        # an evaluation: K forward drapes, at the re-drape floor's measured drape time (else estimated from the draws)
+        evaluation = k * (forward_measured * EVALUATION_OVERHEAD if forward_measured
+                          else per_draw * STEP_FORWARD_SHARE / lanes)
+
+        def evaluations_of(e, searched=False):
+            """Evaluations refit e still needs: its search's (unless `searched`), its end's and its start's."""
+            return ((2 + (0 if searched else search_evaluations(reg[e["effect"]]))) if start_of(e) is not None
+                    else 1)
+
         def refit_budget(idx, searched=False):
             """Seconds for refit idx's epochs: what is left, less the evaluations still to come (this refit's
             search unless `searched`) and the report's reserve, shared equally by the refits still to run."""
             left = float(time_budget) - (time.monotonic() - t0)
-            evaluation = per_draw * 0.4 * k / lanes  # forward only: ~40 % of a draw with backward (measured)
-            evaluations = sum((2 + (0 if searched and i == idx else search_evaluations(reg[e["effect"]])))
-                              if start_of(e) is not None else 1 for i, e in enumerate(promising) if i >= idx)
+            evaluations = sum(evaluations_of(e, searched and i == idx) for i, e in enumerate(promising) if i >= idx)
             return (left - REPORT_RESERVE_S - evaluations * evaluation) / (len(promising) - idx)
+
+        if time_budget is not None:  # the least promising go first when the budget cannot pay one evaluation each
+            left = float(time_budget) - (time.monotonic() - t0)
+            while promising and len(promising) * evaluation + REPORT_RESERVE_S > left:
+                dropped = promising.pop()
+                dropped["explanation"] += (f" Not refitted: the time budget left ({left:.0f} s) paid for "
+                                           f"{len(promising)} refit evaluation(s) of about {evaluation:.0f} s.")
+            result["refit_evaluation_s"] = evaluation
 
         for idx, entry in enumerate(promising):
             budget = None
             start = start_of(entry)
+            step_only = False
             if time_budget is not None:
                 budget = refit_budget(idx)
-                if budget <= 0:
+                # what this refit may spend when each later one gets a single evaluation (its step, or its end)
+                spare = (float(time_budget) - (time.monotonic() - t0) - REPORT_RESERVE_S
+                         - (len(promising) - idx - 1) * evaluation)
+                mode = refit_mode(budget, spare, evaluation, evaluations_of(entry) * evaluation, start is not None)
+                if mode is None:
                     entry["explanation"] += " Not refitted: the time budget was spent."
                     continue
+                step_only = mode == "step"
             ts = time.monotonic()
             search = None
-            if start is not None:  # the line search along the step, on its own draws (module doc, 3.)
+            if start is not None and not step_only:  # the line search along the step, on its own draws (module doc, 3.)
                 name = entry["effect"]
                 search_seed = seed + SEARCH_SEED_OFFSET
 
@@ -1238,7 +1361,7 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                 if time_budget is not None:
                     budget = refit_budget(idx, searched=True)
             job = None
-            if budget is None or budget > 0:
+            if not step_only and (budget is None or budget > 0):
                 _progress(progress, "refit", f"refit with {entry['effect']} "
                                              f"({'default epochs' if budget is None else f'{budget:.0f} s'})",
                           effect=entry["effect"])
@@ -1247,19 +1370,21 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                 evaluated = evaluate(refit)
                 end = {"values": fit_effects.active_effect_values(refit["active_effects"])[entry["effect"]],
                        "mse": evaluated[1]["mse"] if evaluated else None}
-            else:  # the search spent the refit's share: its best point is the refit
-                refit, evaluated, end = with_effect(p, entry["effect"], start), None, None
-                entry["explanation"] += " No epochs: the line search spent the refit's share of the time budget."
             kept_start = False
-            if start is not None:  # the refit's start, on the same draws: kept when the refit's end is worse
+            if job is None:  # the search spent the refit's share: its best point, on the base's draws, is the refit
+                refit, end, kept_start = with_effect(p, entry["effect"], start), None, True
+                evaluated = evaluate(refit)
+                entry["explanation"] += (" No line search, no epochs: the time budget left paid for one evaluation, so "
+                                         "the refit is the step test's best step." if step_only else
+                                         " No epochs: the line search spent the refit's share of the time budget.")
+            elif start is not None:  # the refit's start, on the same draws: kept when the refit's end is worse
                 started = with_effect_values(refit, entry["effect"], start)
                 at_start = evaluate(started)
                 if at_start is not None and (evaluated is None or at_start[1]["mse"] < evaluated[1]["mse"]):
-                    if job is not None:
-                        entry["explanation"] += (f" The refit's end (best-of-{k} MSE "
-                                                 + (f"{evaluated[1]['mse']:.4f}" if evaluated else "failed")
-                                                 + ") was worse than its start, the line search's best point, "
-                                                   "which is kept.")
+                    entry["explanation"] += (f" The refit's end (best-of-{k} MSE "
+                                             + (f"{evaluated[1]['mse']:.4f}" if evaluated else "failed")
+                                             + ") was worse than its start, the line search's best point, "
+                                               "which is kept.")
                     refit, evaluated, kept_start = started, at_start, True
             if evaluated is None:
                 entry["explanation"] += f" Refit: every one of its {k} draws failed to drape."

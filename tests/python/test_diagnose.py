@@ -490,6 +490,70 @@ def test_step_draws_take_a_larger_share_only_to_reach_the_minimum():
     assert diagnose.step_draws(16, 0.0, 3.3, 6, 13) == 0
 
 
+def test_confirmation_plan_keeps_the_most_promising_the_time_pays_for():
+    screen = {"tilt": {"p_value": 0.001, "statistic": -0.01}, "offset": {"p_value": 0.05, "statistic": -0.002},
+              "camera": {"p_value": 0.05, "statistic": -0.004}, "damping": {"p_value": 0.5, "statistic": 0.01}}
+    steps_of = {"tilt": 4, "offset": 2, "camera": 2, "damping": 1}
+    # plenty of time: every candidate below SCREEN_P_MAX, most promising first (p, then statistic), all fresh draws
+    assert diagnose.confirmation_plan(screen, steps_of, 1e4, 1.0, 12, 4) == (["tilt", "camera", "offset"], 12)
+    # 8 steps x 1 s: 60 s pays for 7 draws of all three
+    assert diagnose.confirmation_plan(screen, steps_of, 60.0, 1.0, 12, 4) == (["tilt", "camera", "offset"], 7)
+    # 30 s: 3 draws of all three would not double the screen's 4; without offset (6 steps) 5 draws do
+    assert diagnose.confirmation_plan(screen, steps_of, 30.0, 1.0, 12, 4) == (["tilt", "camera"], 5)
+    # nothing below SCREEN_P_MAX, or no time: nothing confirmed
+    assert diagnose.confirmation_plan({"damping": screen["damping"]}, steps_of, 1e4, 1.0, 12, 4) == ([], 0)
+    assert diagnose.confirmation_plan(screen, steps_of, -5.0, 1.0, 12, 4) == ([], 0)
+    # fewer fresh draws than the screen had: all of them are enough
+    assert diagnose.confirmation_plan(screen, steps_of, 1e4, 1.0, 2, 4) == (["tilt", "camera", "offset"], 2)
+
+
+def test_screened_step_test_confirms_on_fresh_draws_as_the_full_test_would(images, tmp_path, monkeypatch):
+    # Three tilted drapes (placement seeds 0-2), 8 draws, tilt and offset; with the screen forced (SCREEN_BELOW
+    # above 1: any budget screens), every candidate is screened on SCREEN_DRAWS draws and those below SCREEN_P_MAX
+    # are confirmed on the other draws: a confirmed candidate's step test is then the full test's on all 8 draws.
+    folder = tmp_path / "tilted"
+    folder.mkdir()
+    tilted = [images["tilt"]] + [drape_image(str(folder / f"tilt{s}.png"), {"tilt": {"angle_rad": 0.3,
+                                                                                     "azimuth_rad": 0.0}}, seed=s)
+                                 for s in (1, 2)]
+    cfg = small_config()
+    args = dict(candidates="tilt,offset", samples=8, seed=0, config=cfg, mesh_level=1, max_refits=0)
+    full = diagnose.diagnose(PRESET, tilted, time_budget=1e4, **args)
+    assert full["step_test"]["draws"] == 8 and full["step_test"]["screen"] is None
+    monkeypatch.setattr(diagnose, "SCREEN_BELOW", 10.0)
+    screened = diagnose.diagnose(PRESET, tilted, time_budget=1e4, out_dir=str(tmp_path / "report"), **args)
+    with open(tmp_path / "report" / "diagnosis.json") as f:
+        validate(json.load(f))
+    info = screened["step_test"]["screen"]
+    assert screened["step_test"]["draws"] == diagnose.SCREEN_DRAWS == info["draws"]
+    assert "tilt" in info["confirmed"] and info["confirmation_draws"] == 8 - diagnose.SCREEN_DRAWS
+    assert info["confirmed"] == [n for n in info["confirmed"] if n in info["passed"]]
+    by_name = {e["effect"]: e for e in screened["ranking"]}
+    full_by_name = {e["effect"]: e for e in full["ranking"]}
+    for name, e in by_name.items():
+        st = e["step"]
+        assert st["screen"]["draws"] == diagnose.SCREEN_DRAWS
+        if name in info["confirmed"]:
+            assert st["draws"] == 8 and "confirmed on 4 fresh draws" in e["explanation"]
+            assert st["statistic"] == pytest.approx(full_by_name[name]["step"]["statistic"], rel=1e-9)
+            assert st["p_value"] == pytest.approx(full_by_name[name]["step"]["p_value"], rel=1e-9)
+        else:  # its p is the screen's, at least SCREEN_P_MAX
+            assert st["draws"] == diagnose.SCREEN_DRAWS
+            assert st["p_value"] == max(st["screen"]["p_value"], diagnose.SCREEN_P_MAX)
+            assert "not confirmed" in e["explanation"]
+    print({n: (e["step"]["screen"]["p_value"], e["step"]["p_value"], e["p_value"]) for n, e in by_name.items()},
+          screened["seconds"], full["seconds"])
+
+
+def test_refit_mode_searches_or_steps_with_what_the_later_refits_leave():
+    # 40 s an evaluation, a search of 5 points plus end and start: 280 s
+    assert diagnose.refit_mode(12.0, 0.0, 40.0, 280.0, True) == "epochs"  # its share pays for epochs
+    assert diagnose.refit_mode(-3.0, 300.0, 40.0, 280.0, True) == "search"  # no epochs: its search's best point
+    assert diagnose.refit_mode(-3.0, 100.0, 40.0, 280.0, True) == "step"  # one evaluation: the step itself
+    assert diagnose.refit_mode(-3.0, 30.0, 40.0, 280.0, True) is None  # not even that
+    assert diagnose.refit_mode(-3.0, 300.0, 40.0, 280.0, False) is None  # no start: only epochs would refit it
+
+
 def test_refit_order_sums_the_ranks_of_both_tests():
     def entry(name, p, stat=None):
         return {"effect": name, "p_value": p, **({"step": {"statistic": stat}} if stat is not None else {})}
