@@ -104,7 +104,10 @@
    sides, so the comparison is paired. The final ranking puts the refits that lower the error first (largest
    fall first), then the rest in the score tests' order. ``recommended`` = the first of them when its fall is at
    least MIN_MSE_FALL and some candidate was significant (or it is a switch named with --candidates), and the
-   MSE it removes is at least MIN_FALL_OF_REDRAPE of the re-drape floor, else None. The re-drape floor
+   MSE it removes is at least MIN_FALL_OF_REDRAPE of the re-drape floor, else None. ``alternatives`` are the
+   other refits that pass this rule with a best-of-K MSE above the recommended's by less than ALTERNATIVE_WITHIN
+   of the floor (the same line): differences that re-draping makes, so the images do not tell them apart (the
+   radial near twins, docs/diagnose.md seed 681). The re-drape floor
    (base.redrape_mse) is the mean over REDRAPE_FLOOR_MIN re-drapes of P's mean material (placement noise only) of
    the same K draws' best-of-K MSE against each: what the base MSE would be if P were right about the specimen,
    i.e. how much re-draping alone changes a drape. (Until 2026-11-24 the references were posterior draws, whose
@@ -151,6 +154,7 @@ MAX_REFITS = 3            # refits of the most promising candidates (tilt, offse
 REFIT_P_MAX = 0.05        # once one candidate is significant, the others up to this p are refitted too (module doc, 3.)
 MIN_MSE_FALL = 0.05       # a recommended refit lowers the best-of-K MSE by at least this fraction of the base's
 MIN_FALL_OF_REDRAPE = 0.5  # ... and by at least this fraction of the re-drape floor (module doc, 3.)
+ALTERNATIVE_WITHIN = MIN_FALL_OF_REDRAPE  # a refit whose MSE is within this x the floor of the recommended's: as good
 SCORE_CLIP_FACTOR = 1.5   # per-draw score norms capped at this x their median (the fit's cap is 3: module doc, 2.)
 HARMONIC_ORDERS = 6       # residual harmonics reported: k = 1..6
 FLIP_ENUMERATE_MAX = 16  # draws up to which the sign-flip test enumerates all 2^K patterns
@@ -447,6 +451,33 @@ def stepped_parameters(entry):
     """The parameter names the step test moves for registry entry `entry` (and the refit's line search scales):
     its `step_parameters`, else its primary."""
     return list(entry.get("step_parameters") or [entry["parameters"][0]["name"]])
+
+
+def alternatives(gaining, redrape):
+    """The refits that explain the images about as well as the recommended one (the first of `gaining`, the
+    refits that pass the recommendation rule, best first): those whose best-of-K MSE exceeds the recommended's by
+    less than ALTERNATIVE_WITHIN x the re-drape floor `redrape`, the same line a refit's fall must clear to count
+    (module doc, 3.). [{effect, mse, above, of_redrape}]; [] without a floor."""
+    if not gaining or not redrape:
+        return []
+    best = gaining[0]["refit"]["mse"]
+    out = []
+    for e in gaining[1:]:
+        above = e["refit"]["mse"] - best
+        if above < ALTERNATIVE_WITHIN * redrape:
+            out.append({"effect": e["effect"], "mse": e["refit"]["mse"], "above": above,
+                        "of_redrape": above / redrape})
+    return out
+
+
+def alternatives_words(alts, recommended, k):
+    """The verdict's sentence on the alternatives (module doc, 3.); empty without any."""
+    if not alts:
+        return ""
+    return (". As good within the re-drape noise: " + ", ".join(
+        f"{a['effect']} (best-of-{k} MSE {a['mse']:.4f}, {a['of_redrape']:.2f} of the re-drape floor above)"
+        for a in alts) + f": these images do not tell {'it' if len(alts) == 1 else 'them'} from {recommended} "
+        f"(differences under {ALTERNATIVE_WITHIN:g} of the floor count as noise)")
 
 
 def effect_steps(reg, names, second=None):
@@ -1063,7 +1094,8 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
     threshold = alpha / max(1, len(tested_names))
     label = (p.get("fabric") or {}).get("name") or (os.path.basename(preset_path) if preset_path else "preset")
     result = {"preset": preset_path, "model": p["model"], "images": list(images), "samples": k, "seed": int(seed),
-              "candidates": names, "base": None, "ranking": [], "recommended": None, "threshold": threshold,
+              "candidates": names, "base": None, "ranking": [], "recommended": None, "alternatives": [],
+              "threshold": threshold,
               "threshold_rule": f"alpha {alpha:g} Bonferroni-corrected over the {len(tested_names)} candidates tested "
                                 f"({alpha:g} / {len(tested_names)}): the family-wise chance of naming an effect on data "
                                 f"without one stays below {alpha:g}",
@@ -1445,6 +1477,8 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                              + (f"the refit is {refit_file}; fit --init {refit_file} --effects {best['effect']} "
                                 f"fits the effect and the material together from it" if refit_file
                                 else f"fit --effects {best['effect']}"))
+        result["alternatives"] = alternatives(gaining, redrape)
+        result["verdict"] += alternatives_words(result["alternatives"], best["effect"], k)
     else:
         tested = [e for e in result["ranking"] if e["p_value"] is not None]
         significant = [e for e in tested if e["p_value"] < threshold]

@@ -379,12 +379,12 @@ def test_the_schema_refuses_a_broken_diagnosis():
         schema = json.load(f)
     jsonschema.Draft202012Validator.check_schema(schema)
     good = {"preset": "p.json", "model": "bdp", "images": ["a.png"], "samples": 4, "seed": 0, "candidates": ["tilt"],
-            "base": {k: 0.1 for k in BASE_KEYS}, "ranking": [], "recommended": None, "threshold": 0.01,
-            "threshold_rule": "alpha", "switches": [], "test": "T2", "history": [], "cancelled": False,
+            "base": {k: 0.1 for k in BASE_KEYS}, "ranking": [], "recommended": None, "alternatives": [],
+            "threshold": 0.01, "threshold_rule": "alpha", "switches": [], "test": "T2", "history": [], "cancelled": False,
             "seconds": {"total": 1.0}}
     validate(good)
     for key, value in (("recommended", 3), ("threshold", 0), ("base", {"mse": 0.1}), ("images", []),
-                       ("ranking", [{"effect": "tilt"}])):
+                       ("ranking", [{"effect": "tilt"}]), ("alternatives", [{"effect": "camera"}])):
         with pytest.raises(jsonschema.ValidationError):
             validate(dict(good, **{key: value}))
 
@@ -505,6 +505,24 @@ def test_confirmation_plan_keeps_the_most_promising_the_time_pays_for():
     assert diagnose.confirmation_plan(screen, steps_of, -5.0, 1.0, 12, 4) == ([], 0)
     # fewer fresh draws than the screen had: all of them are enough
     assert diagnose.confirmation_plan(screen, steps_of, 1e4, 1.0, 2, 4) == (["tilt", "camera", "offset"], 2)
+
+
+def test_alternatives_are_the_refits_within_half_the_redrape_floor_of_the_recommended():
+    def entry(name, mse):
+        return {"effect": name, "refit": {"mse": mse}}
+    gaining = [entry("heterogeneity_map", 0.0133), entry("density_variation", 0.0200), entry("camera", 0.0240)]
+    # floor 0.015: half of it is 0.0075; density 0.0067 above the best is as good, camera 0.0107 above is not
+    got = diagnose.alternatives(gaining, 0.015)
+    assert [a["effect"] for a in got] == ["density_variation"]
+    assert got[0]["above"] == pytest.approx(0.0067) and got[0]["of_redrape"] == pytest.approx(0.0067 / 0.015)
+    assert got[0]["of_redrape"] < diagnose.ALTERNATIVE_WITHIN
+    # a larger floor takes camera in too; no floor, a single refit or none: no alternatives
+    assert [a["effect"] for a in diagnose.alternatives(gaining, 0.03)] == ["density_variation", "camera"]
+    assert diagnose.alternatives(gaining, None) == [] and diagnose.alternatives(gaining[:1], 0.015) == []
+    assert diagnose.alternatives([], 0.015) == []
+    words = diagnose.alternatives_words(got, "heterogeneity_map", 16)
+    assert "density_variation (best-of-16 MSE 0.0200, 0.45 of the re-drape floor above)" in words
+    assert "do not tell it from heterogeneity_map" in words and diagnose.alternatives_words([], "x", 16) == ""
 
 
 def test_screened_step_test_confirms_on_fresh_draws_as_the_full_test_would(images, tmp_path, monkeypatch):
