@@ -105,9 +105,9 @@
    fall first), then the rest in the score tests' order. ``recommended`` = the first of them when its fall is at
    least MIN_MSE_FALL and some candidate was significant (or it is a switch named with --candidates), and the
    MSE it removes is at least MIN_FALL_OF_REDRAPE of the re-drape floor, else None. ``alternatives`` are the
-   other refits that pass this rule with a best-of-K MSE above the recommended's by less than ALTERNATIVE_WITHIN
-   of the floor (the same line): differences that re-draping makes, so the images do not tell them apart (the
-   radial near twins, docs/diagnose.md seed 681). The re-drape floor
+   other refits that lower the error with a best-of-K MSE above the recommended's by less than
+   ALTERNATIVE_WITHIN of the floor (the same line): differences that re-draping makes, so the images do not tell
+   them apart (the radial near twins, docs/diagnose.md seed 681). The re-drape floor
    (base.redrape_mse) is the mean over REDRAPE_FLOOR_MIN re-drapes of P's mean material (placement noise only) of
    the same K draws' best-of-K MSE against each: what the base MSE would be if P were right about the specimen,
    i.e. how much re-draping alone changes a drape. (Until 2026-11-24 the references were posterior draws, whose
@@ -123,7 +123,8 @@
 
 Time budget (seconds, the whole job): the draws and score tests come first (their cost is K drapes with
 backward), then the step test (2b: its share, screened when thin); what remains, less the refits' evaluations and
-line searches (EVALUATION_OVERHEAD x K re-drape floor drapes each) and a reserve for the report, is split equally
+line searches (EVALUATION_OVERHEAD x K forward drapes each, at the drape time measured on the step test's drapes,
+else on the re-drape floor's) and a reserve for the report, is split equally
 between the refits. The least promising refits are dropped while the time left does not pay one evaluation each; a
 refit whose share does not pay for epochs keeps its search's best point when the later refits' single evaluations
 leave room for the search, else the step test's best step, evaluated once. Without a budget each refit runs
@@ -172,7 +173,7 @@ REDRAPE_FLOOR_MIN = 12    # re-drapes the re-drape floor is measured on (at leas
 PSEUDO_MIN = 4            # predictive silhouettes drawn as the null reference (at least; as many as images)
 PSEUDO_SEED_OFFSET = 100000  # their placement seeds: [seed, offset + j, 1], apart from the scored draws' [seed, i, 1]
 STEP_REFERENCES_MIN = 12  # predictive silhouettes the step test compares with (at least; 2 per image beyond six)
-EVALUATION_OVERHEAD = 1.1  # an evaluation's K drapes (a fresh model each) over K re-drape floor drapes (1.06 on circle3)
+EVALUATION_OVERHEAD = 1.1  # an evaluation's K drapes (a fresh model each) over K measured forward drapes (step test, else floor)
 STEP_FORWARD_SHARE = 0.4  # a forward drape's share of a draw with backward (measured; as the refits' evaluation)
 STEP_BUDGET_SHARE = 0.4   # at most this share of the budget left after the score tests goes to the step drapes,
 STEP_BUDGET_SHARE_MAX = 0.7  # ... or up to this share when the first leaves fewer than MIN_SAMPLES draws per step
@@ -454,10 +455,11 @@ def stepped_parameters(entry):
 
 
 def alternatives(gaining, redrape):
-    """The refits that explain the images about as well as the recommended one (the first of `gaining`, the
-    refits that pass the recommendation rule, best first): those whose best-of-K MSE exceeds the recommended's by
-    less than ALTERNATIVE_WITHIN x the re-drape floor `redrape`, the same line a refit's fall must clear to count
-    (module doc, 3.). [{effect, mse, above, of_redrape}]; [] without a floor."""
+    """The refits that explain the images about as well as the recommended one (`gaining`: the recommended first,
+    then the other refits that lower the error, whether or not they pass the rule themselves): those whose
+    best-of-K MSE exceeds the recommended's by less than ALTERNATIVE_WITHIN x the re-drape floor `redrape`, the
+    same line a refit's fall must clear to count (module doc, 3.). [{effect, mse, above, of_redrape}]; [] without a
+    floor."""
     if not gaining or not redrape:
         return []
     best = gaining[0]["refit"]["mse"]
@@ -1194,6 +1196,7 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
         steps = effect_steps(reg, names, second)
         n_steps = sum(len(v) for v in steps.values())
         k_step = len(done)
+        forward_step = None  # a forward drape's wall time measured on the step test's drapes
         k_screen = None
         j_step = max(STEP_REFERENCES_MIN, 2 * len(observations))
         # a forward drape's wall time: measured on the re-drape floor's drapes, else estimated from the draws
@@ -1229,6 +1232,10 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
             used = done[:k_first]
             tf = time.monotonic()
             images_k = _step_drapes(pred, models, drawn, steps, used, config, lanes, progress, cancel_event)
+            # the latest forward drape time, on these models and lanes: what the confirmation and the refits'
+            # evaluations are planned with (one estimate for both; the floor's was 20 % high on circle3)
+            measured = (time.monotonic() - tf) / max(1, len(used) * n_steps)
+            forward_step = measured
             screen_info = None
             if cancel_event is not None and cancel_event.is_set():
                 result["cancelled"] = True
@@ -1238,7 +1245,6 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                 for st in tests.values():
                     st["draws"] = len(used)
                 if k_screen is not None:  # confirm the promising on fresh draws, within the screen's share
-                    measured = (time.monotonic() - tf) / max(1, k_screen * n_steps)
                     room = (left - (time.monotonic() - ts) - REPORT_RESERVE_S
                             - int(max_refits) * k * measured * EVALUATION_OVERHEAD)
                     confirmed, m = confirmation_plan(tests, {n: len(v) for n, v in steps.items()}, room, measured,
@@ -1268,6 +1274,7 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                             st["p_value"] = max(st["p_value"], SCREEN_P_MAX)
             result["seconds"]["steps"] = time.monotonic() - ts
             result["step_test"] = {"draws": len(used), "references": len(references), "screen": screen_info,
+                                   "forward_s": forward_step,
                                    "rule": "per candidate the primary parameter at +- its moderate strength (and "
                                            "turned, for the tilt); the change of the draws' mean pixel MSE against "
                                            "the measured images minus against P's own predictive silhouettes; p "
@@ -1334,8 +1341,10 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
             rbase, _, _ = _summary(rshapes, observations, rp.calibration, float(config["sigma_obs"]), SCORE_SIGMA_DC)
             return rshapes, rbase
 
-        # an evaluation: K forward drapes, at the re-drape floor's measured drape time (else estimated from the draws)
-        evaluation = k * (forward_measured * EVALUATION_OVERHEAD if forward_measured
+        # an evaluation: K forward drapes, at the step test's measured drape time, else the re-drape floor's (else
+        # estimated from the draws)
+        forward_known = forward_step or forward_measured
+        evaluation = k * (forward_known * EVALUATION_OVERHEAD if forward_known
                           else per_draw * STEP_FORWARD_SHARE / lanes)
 
         def evaluations_of(e, searched=False):
@@ -1477,7 +1486,7 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                              + (f"the refit is {refit_file}; fit --init {refit_file} --effects {best['effect']} "
                                 f"fits the effect and the material together from it" if refit_file
                                 else f"fit --effects {best['effect']}"))
-        result["alternatives"] = alternatives(gaining, redrape)
+        result["alternatives"] = alternatives([best] + [e for e in falling if e is not best], redrape)
         result["verdict"] += alternatives_words(result["alternatives"], best["effect"], k)
     else:
         tested = [e for e in result["ranking"] if e["p_value"] is not None]

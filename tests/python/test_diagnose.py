@@ -543,6 +543,10 @@ def test_screened_step_test_confirms_on_fresh_draws_as_the_full_test_would(image
     with open(tmp_path / "report" / "diagnosis.json") as f:
         validate(json.load(f))
     info = screened["step_test"]["screen"]
+    # the refits' evaluations are planned at the drape time measured on the step drapes
+    for d in (full, screened):
+        assert d["step_test"]["forward_s"] > 0
+        assert d["refit_evaluation_s"] == pytest.approx(8 * d["step_test"]["forward_s"] * diagnose.EVALUATION_OVERHEAD)
     assert screened["step_test"]["draws"] == diagnose.SCREEN_DRAWS == info["draws"]
     assert "tilt" in info["confirmed"] and info["confirmation_draws"] == 8 - diagnose.SCREEN_DRAWS
     assert info["confirmed"] == [n for n in info["confirmed"] if n in info["passed"]]
