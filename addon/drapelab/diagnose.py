@@ -1234,8 +1234,7 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
             images_k = _step_drapes(pred, models, drawn, steps, used, config, lanes, progress, cancel_event)
             # the latest forward drape time, on these models and lanes: what the confirmation and the refits'
             # evaluations are planned with (one estimate for both: 1.43 s a drape on circle3, as the floor's)
-            measured = (time.monotonic() - tf) / max(1, len(used) * n_steps)
-            forward_step = measured
+            forward_step = (time.monotonic() - tf) / max(1, len(used) * n_steps)
             screen_info = None
             if cancel_event is not None and cancel_event.is_set():
                 result["cancelled"] = True
@@ -1246,8 +1245,8 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                     st["draws"] = len(used)
                 if k_screen is not None:  # confirm the promising on fresh draws, within the screen's share
                     room = (left - (time.monotonic() - ts) - REPORT_RESERVE_S
-                            - int(max_refits) * k * measured * EVALUATION_OVERHEAD)
-                    confirmed, m = confirmation_plan(tests, {n: len(v) for n, v in steps.items()}, room, measured,
+                            - int(max_refits) * k * forward_step * EVALUATION_OVERHEAD)
+                    confirmed, m = confirmation_plan(tests, {n: len(v) for n, v in steps.items()}, room, forward_step,
                                                      len(done) - k_screen, k_screen)
                     screen_info = {"draws": k_screen, "p_max": SCREEN_P_MAX, "passed": sorted(
                         n for n, st in tests.items() if st["p_value"] < SCREEN_P_MAX), "confirmed": confirmed,
@@ -1342,10 +1341,9 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
             return rshapes, rbase
 
         # an evaluation: K forward drapes, at the step test's measured drape time, else the re-drape floor's (else
-        # estimated from the draws)
+        # `forward`, estimated from the draws)
         forward_known = forward_step or forward_measured
-        evaluation = k * (forward_known * EVALUATION_OVERHEAD if forward_known
-                          else per_draw * STEP_FORWARD_SHARE / lanes)
+        evaluation = k * (forward_known * EVALUATION_OVERHEAD if forward_known else forward)
 
         def evaluations_of(e, searched=False):
             """Evaluations refit e still needs: its search's (unless `searched`), its end's and its start's."""
