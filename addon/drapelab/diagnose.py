@@ -65,9 +65,11 @@
    add it: P(reported step p < t) <= P(full test's p < t) for t < SCREEN_P_MAX. (Measured before it, on circle3 the whole library left 2-3 draws per step:
    no step test, so the fold-pattern effects the score misses could not be found; docs/diagnose.md.)
 3. Refits. When at least one candidate is below the threshold (the data differ from P), the candidates with p
-   below REFIT_P_MAX are refitted, up to MAX_REFITS of them in refit_order (by the sum of their ranks by combined p
-   and by step statistic), under the time budget: the score test says that something differs, the refits say
-   which effect explains it. Neither test alone picks the refits well: the combined p saturates (the step test's
+   below REFIT_P_MAX are refitted, up to MAX_REFITS of them in refit_order (the significant ones first, each group
+   by the sum of their ranks by combined p and by step statistic), under the time budget: the score test says that
+   something differs, the refits say which effect explains it. Significant first since seed 701 on circle3: a crease
+   step that passes near the threshold on drapes without a crease (p 0.002-0.012) went before the significant tilt
+   and camera by its strong step statistic, and the tilt's refit was dropped for time (docs/diagnose.md). Neither test alone picks the refits well: the combined p saturates (the step test's
    labellings cannot go below 2 / C(n + J, n)) while the score's p goes far lower for effects with a first-order
    signature; the step statistic is one finite step's change, noisy where several effects move the drape alike.
    Measured on the confusion runs of seeds 631, 641 and 651 (docs/diagnose.md): of 16 significant cases, the true
@@ -124,8 +126,8 @@
 Time budget (seconds, the whole job): the draws and score tests come first (their cost is K drapes with
 backward), then the step test (2b: its share, screened when thin); what remains, less the refits' evaluations and
 line searches (EVALUATION_OVERHEAD x K forward drapes each, at the drape time measured on the step test's drapes,
-else on the re-drape floor's) and a reserve for the report, is split equally
-between the refits. The least promising refits are dropped while the time left does not pay one evaluation each; a
+else on the re-drape floor's, until the first evaluation is measured: then the measured ones' mean) and a reserve for
+the report, is split equally between the refits. The least promising refits are dropped while the time left does not pay one evaluation each; a
 refit whose share does not pay for epochs keeps its search's best point when the later refits' single evaluations
 leave room for the search, else the step test's best step, evaluated once. Without a budget each refit runs
 fit.json default_epochs.
@@ -522,17 +524,21 @@ def step_draws(k, left, forward, references, n_steps):
     return max(0, min(k, usual if usual >= MIN_SAMPLES else min(MIN_SAMPLES, most)))
 
 
-def confirmation_plan(screen, steps_of, room, forward, fresh, screened):
+def confirmation_plan(screen, steps_of, room, forward, fresh, screened, test_s=0.0):
     """The candidates a screened step test confirms (module doc, 2b) and the fresh draws each of their steps gets:
     those whose screen p (`screen` {effect: {p_value, statistic}}) is below SCREEN_P_MAX, most promising first
     (smallest p, then most negative statistic); `room` seconds at `forward` s a drape pay for the draws, at most
-    `fresh` of them; while they pay for fewer than the `screened` draws the screen had (the confirmation would
-    not double them), the least promising is dropped. `steps_of` {effect: its step count}. Returns (names, draws)."""
+    `fresh` of them, and for the confirmed tests' own computation on all their draws, the screened and the fresh
+    (`test_s` seconds per draw and step: the screen's step_tests time over its draws and steps); while they pay
+    for fewer than the `screened` draws the screen had (the confirmation would not double them), the least
+    promising is dropped. `steps_of` {effect: its step count}. Returns (names, draws)."""
     names = sorted((n for n, st in screen.items() if st["p_value"] < SCREEN_P_MAX),
                    key=lambda n: (screen[n]["p_value"], screen[n]["statistic"]))
+    test_s = max(0.0, float(test_s))
     while names:
-        per_draw = max(forward, 1e-9) * sum(steps_of[n] for n in names)
-        m = min(int(fresh), int(max(0.0, room) / per_draw))
+        n_steps = sum(steps_of[n] for n in names)
+        per_draw = max(forward + test_s, 1e-9) * n_steps
+        m = min(int(fresh), int(max(0.0, room - test_s * n_steps * screened) / per_draw))
         if m >= max(1, min(int(screened), int(fresh))):
             return names, m
         names = names[:-1]
@@ -876,11 +882,16 @@ def _joint_drapes(preset, observations, names, k, seed, config, threads, templat
     return pred, models, shapes, grads, time.monotonic() - t0, lanes, pseudo, drawn
 
 
-def refit_order(entries):
+def refit_order(entries, threshold=None):
     """`entries` (ranking entries with p_value and, where the step test ran, step.statistic) in the order they are
-    refitted (module doc, 3.): by the sum of their ranks in the two tests (the combined p, smallest first; the step
-    statistic, most negative first), ties to the better step rank. A candidate without a step statistic ranks as
-    0 there (after every step that brought the draws closer), so without a step test this is the p order."""
+    refitted (module doc, 3.): with a `threshold`, the significant ones (p below it) first; within each group by
+    the sum of their ranks in the two tests (the combined p, smallest first; the step statistic, most negative
+    first), ties to the better step rank. A candidate without a step statistic ranks as 0 there (after every step
+    that brought the draws closer), so without a step test this is the p order."""
+    if threshold is not None:
+        return (refit_order([e for e in entries if e["p_value"] < threshold])
+                + refit_order([e for e in entries if e["p_value"] >= threshold]))
+
     def stat(e):
         return float((e.get("step") or {}).get("statistic", 0.0))
     by_p = sorted(entries, key=lambda e: (e["p_value"], stat(e)))
@@ -1197,6 +1208,7 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
         n_steps = sum(len(v) for v in steps.values())
         k_step = len(done)
         forward_step = None  # a forward drape's wall time measured on the step test's drapes
+        test_s = None  # the step tests' own computation per draw and step (seconds), measured on the first tests
         k_screen = None
         j_step = max(STEP_REFERENCES_MIN, 2 * len(observations))
         # a forward drape's wall time: measured on the re-drape floor's drapes, else estimated from the draws
@@ -1240,14 +1252,18 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                 result["cancelled"] = True
             else:
                 observed = [o.mask for o in observations]
+                tt = time.monotonic()
                 tests = step_tests([shapes[i]["image"] for i in used], images_k, steps, observed, references)
+                # the tests' own computation per draw and step (pixel MSEs against every image, the relabellings):
+                # a confirmation repeats it on all its draws
+                test_s = (time.monotonic() - tt) / max(1, len(used) * n_steps)
                 for st in tests.values():
                     st["draws"] = len(used)
                 if k_screen is not None:  # confirm the promising on fresh draws, within the screen's share
                     room = (left - (time.monotonic() - ts) - REPORT_RESERVE_S
                             - int(max_refits) * k * forward_step * EVALUATION_OVERHEAD)
                     confirmed, m = confirmation_plan(tests, {n: len(v) for n, v in steps.items()}, room, forward_step,
-                                                     len(done) - k_screen, k_screen)
+                                                     len(done) - k_screen, k_screen, test_s)
                     screen_info = {"draws": k_screen, "p_max": SCREEN_P_MAX, "passed": sorted(
                         n for n, st in tests.items() if st["p_value"] < SCREEN_P_MAX), "confirmed": confirmed,
                         "confirmation_draws": m}
@@ -1273,7 +1289,7 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                             st["p_value"] = max(st["p_value"], SCREEN_P_MAX)
             result["seconds"]["steps"] = time.monotonic() - ts
             result["step_test"] = {"draws": len(used), "references": len(references), "screen": screen_info,
-                                   "forward_s": forward_step,
+                                   "forward_s": forward_step, "test_s": test_s,
                                    "rule": "per candidate the primary parameter at +- its moderate strength (and "
                                            "turned, for the tilt); the change of the draws' mean pixel MSE against "
                                            "the measured images minus against P's own predictive silhouettes; p "
@@ -1315,7 +1331,8 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
 
         # 2. refits of the most promising candidates
         tested = [e for e in result["ranking"] if e["p_value"] is not None]
-        promising = (refit_order([e for e in tested if e["p_value"] < max(threshold, REFIT_P_MAX)])[:int(max_refits)]
+        promising = (refit_order([e for e in tested if e["p_value"] < max(threshold, REFIT_P_MAX)],
+                                 threshold)[:int(max_refits)]
                      if any(e["p_value"] < threshold for e in tested) else [])
         for order, e in enumerate(promising):
             e["refit_order"] = order + 1
@@ -1333,8 +1350,11 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
             fail."""
             rp = infer._Predictive(candidate, observations[0].mask.shape, lanes, config, template_dir, pred.level,
                                    "dynamic")
+            te = time.monotonic()
             draws = infer.preset_bend_samples(candidate, rp.num_edges, np.random.default_rng(at_seed), k)
             rshapes = rp.drape(draws, at_seed, cancel_event=cancel_event)
+            if not (cancel_event is not None and cancel_event.is_set()):
+                evaluations_s.append(time.monotonic() - te)
             if not any("error" not in r for r in rshapes):
                 return None
             rbase, _, _ = _summary(rshapes, observations, rp.calibration, float(config["sigma_obs"]), SCORE_SIGMA_DC)
@@ -1343,7 +1363,12 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
         # an evaluation: K forward drapes, at the step test's measured drape time, else the re-drape floor's (else
         # `forward`, estimated from the draws)
         forward_known = forward_step or forward_measured
-        evaluation = k * (forward_known * EVALUATION_OVERHEAD if forward_known else forward)
+        estimated = k * (forward_known * EVALUATION_OVERHEAD if forward_known else forward)
+        evaluations_s = []  # measured evaluations: once there is one, their mean plans the rest
+        result["refit_evaluations_measured_s"] = evaluations_s
+
+        def evaluation_s():
+            return float(np.mean(evaluations_s)) if evaluations_s else estimated
 
         def evaluations_of(e, searched=False):
             """Evaluations refit e still needs: its search's (unless `searched`), its end's and its start's."""
@@ -1355,15 +1380,15 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
             search unless `searched`) and the report's reserve, shared equally by the refits still to run."""
             left = float(time_budget) - (time.monotonic() - t0)
             evaluations = sum(evaluations_of(e, searched and i == idx) for i, e in enumerate(promising) if i >= idx)
-            return (left - REPORT_RESERVE_S - evaluations * evaluation) / (len(promising) - idx)
+            return (left - REPORT_RESERVE_S - evaluations * evaluation_s()) / (len(promising) - idx)
 
         if time_budget is not None:  # the least promising go first when the budget cannot pay one evaluation each
             left = float(time_budget) - (time.monotonic() - t0)
-            while promising and len(promising) * evaluation + REPORT_RESERVE_S > left:
+            while promising and len(promising) * estimated + REPORT_RESERVE_S > left:
                 dropped = promising.pop()
                 dropped["explanation"] += (f" Not refitted: the time budget left ({left:.0f} s) paid for "
-                                           f"{len(promising)} refit evaluation(s) of about {evaluation:.0f} s.")
-            result["refit_evaluation_s"] = evaluation
+                                           f"{len(promising)} refit evaluation(s) of about {estimated:.0f} s.")
+            result["refit_evaluation_s"] = estimated
 
         for idx, entry in enumerate(promising):
             budget = None
@@ -1373,8 +1398,9 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                 budget = refit_budget(idx)
                 # what this refit may spend when each later one gets a single evaluation (its step, or its end)
                 spare = (float(time_budget) - (time.monotonic() - t0) - REPORT_RESERVE_S
-                         - (len(promising) - idx - 1) * evaluation)
-                mode = refit_mode(budget, spare, evaluation, evaluations_of(entry) * evaluation, start is not None)
+                         - (len(promising) - idx - 1) * evaluation_s())
+                mode = refit_mode(budget, spare, evaluation_s(), evaluations_of(entry) * evaluation_s(),
+                                  start is not None)
                 if mode is None:
                     entry["explanation"] += " Not refitted: the time budget was spent."
                     continue

@@ -505,6 +505,11 @@ def test_confirmation_plan_keeps_the_most_promising_the_time_pays_for():
     assert diagnose.confirmation_plan(screen, steps_of, -5.0, 1.0, 12, 4) == ([], 0)
     # fewer fresh draws than the screen had: all of them are enough
     assert diagnose.confirmation_plan(screen, steps_of, 1e4, 1.0, 2, 4) == (["tilt", "camera", "offset"], 2)
+    # the tests' own computation, 0.25 s a draw and step, on the screen's 4 draws again (8 s) and on each fresh
+    # draw: 60 s pays for 5 draws of all three, not 7
+    assert diagnose.confirmation_plan(screen, steps_of, 60.0, 1.0, 12, 4, 0.25) == (["tilt", "camera", "offset"], 5)
+    # 40 s: (40 - 8) / 10 = 3 draws of all three would not double the screen's; without offset (40 - 6) / 7.5 = 4
+    assert diagnose.confirmation_plan(screen, steps_of, 40.0, 1.0, 12, 4, 0.25) == (["tilt", "camera"], 4)
 
 
 def test_alternatives_are_the_refits_within_half_the_redrape_floor_of_the_recommended():
@@ -592,6 +597,20 @@ def test_refit_order_sums_the_ranks_of_both_tests():
     plain = [entry("a", 0.02), entry("b", 0.001), entry("c", 0.01)]
     assert [e["effect"] for e in diagnose.refit_order(plain)] == ["b", "c", "a"]
     assert diagnose.refit_order([]) == []
+
+
+def test_refit_order_puts_the_significant_candidates_first():
+    def entry(name, p, stat=None):
+        return {"effect": name, "p_value": p, **({"step": {"statistic": stat}} if stat is not None else {})}
+    # seed 701's tilt drapes on circle3 (threshold 0.001): orientation, not significant, had the larger step
+    # statistic and went before the significant tilt, whose refit was then dropped for time
+    tilt = [entry("rest_curvature", 0.00065, -0.0225), entry("tilt", 0.00086, -0.0041),
+            entry("orientation", 0.0042, -0.0139), entry("camera", 0.00424, -0.0017)]
+    assert [e["effect"] for e in diagnose.refit_order(tilt)][:3] == ["rest_curvature", "orientation", "tilt"]
+    assert [e["effect"] for e in diagnose.refit_order(tilt, 0.001)] == ["rest_curvature", "tilt", "orientation",
+                                                                          "camera"]
+    # within each group the rank sum still decides; with nothing or everything significant nothing changes
+    assert diagnose.refit_order(tilt, 1e-9) == diagnose.refit_order(tilt) == diagnose.refit_order(tilt, 1.0)
 
 
 def test_line_search_finds_the_minimum_along_the_step_and_turns_a_two_parameter_step():
