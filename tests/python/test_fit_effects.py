@@ -258,3 +258,59 @@ def test_primary_strength_recovery_round_trip_with_the_material_known(name, tmp_
     job.run(epochs=20)
     (value,) = job.theta["effect_mu"]
     assert value == pytest.approx(truth, rel=0.25), (job.effect_start, [h.get("effects") for h in job.history])
+
+
+def _start_search_job(drapes, threads, tmp_path):
+    # a bdp fit (placement noise) of the tilt on one tilted circle1 drape
+    path = str(tmp_path / "tilted.png")
+    if not (tmp_path / "tilted.png").exists():
+        _tilted_image(path, 0.15, 1.2, tables.COTTON_BLUE.bend * 2.0)
+    cfg = small_config(sigma_dc=0.0)
+    cfg["init"]["scale_search"] = []
+    cfg["effects"] = dict(cfg["effects"], start_search_drapes=drapes)
+    return infer.FitJob([path], 0.192, model="bdp", seed=5, config=cfg, threads=threads, effects={"tilt": None},
+                        init_bend=tables.COTTON_BLUE.bend * 2.0)
+
+
+def test_the_effects_start_search_scores_each_candidate_by_its_best_placement_drape(tmp_path):
+    # start_search_drapes = 1 keeps the one drape from flat (the score _start_score gives); with more, every
+    # candidate drapes the same placements (a stream of their own) and scores the best of them per image, on the
+    # lanes exactly as on one lane; the best of more placements is never worse than the best of fewer.
+    one = _start_search_job(1, 2, tmp_path)
+    start = one.effect_start_search()
+    assert start["drapes"] == 1
+    bend = one.family.tables(one.theta, one.num_edges)
+    model = one.workers[0].model
+    assert start["loss"] == [one._start_score(model.parameters(stretch=one.stretch, bend=bend,
+                                                                effects=one.plan.values(c)))
+                             for c in one.plan.start_candidates(one.plan.off)]
+
+    job = _start_search_job(3, 2, tmp_path)
+    assert job.start_search_drapes() == 3
+    velocities = job._start_velocities(3)
+    assert len(velocities) == 3 and not np.allclose(velocities[0], velocities[1])
+    assert not np.allclose(velocities[0], job.placement_noise(0, 0))  # not an epoch's placement
+    assert not np.allclose(velocities[0], job.placement_noise(3, 0))
+    candidates = job.plan.start_candidates(job.theta["effect_mu"])
+    bend = job.family.tables(job.theta, job.num_edges)
+    lanes = job._start_scores(bend, candidates, velocities)
+    serial = _start_search_job(3, 1, tmp_path)
+    assert serial._start_scores(bend, candidates, velocities) == lanes
+    fewer = job._start_scores(bend, candidates, velocities[:1])
+    assert all(a <= b for a, b in zip(lanes, fewer)) and lanes != fewer
+    chosen = job.effect_start_search()
+    assert chosen["drapes"] == 3 and chosen["loss"] == lanes
+    assert chosen["chosen"] == list(candidates[int(np.argmin(lanes))])
+    assert chosen["loss"][0] > min(chosen["loss"])  # the tilted drape: not the off start
+
+
+def test_a_time_budget_counts_the_effects_start_search(tmp_path):
+    # the budget's fixed part (scale search + first epoch) grows by the start search's drapes on the lanes
+    plans = {}
+    for drapes in (1, 4):
+        job = _start_search_job(drapes, 2, tmp_path)
+        plans[drapes] = infer._plan_time_budget(job, 1000.0, 0.0, False)
+    candidates = len(job.plan.start_candidates(job.plan.off))
+    for drapes, lane_drapes in ((1, candidates), (4, -(-candidates * 4 // 2))):
+        plan = plans[drapes]
+        assert plan.scale_search == pytest.approx(lane_drapes * plan.drape_estimate)
