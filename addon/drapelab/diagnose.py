@@ -1017,6 +1017,9 @@ def refit_with_effect(preset, images, name, level, seed, config, threads=None, t
     fit's start search among the off value and +- moderate strengths, which judges them by one drape without
     placement noise."""
     cfg = copy.deepcopy(config)
+    # the fit's start search (without `start`) on one drape from flat, as the refits' time plan assumes (the
+    # confusion tables were measured so): fit.json's placement drapes would multiply its drapes
+    cfg["effects"] = dict(infer.effect_settings(cfg), start_search_drapes=1)
     if start is not None:  # a fine-tune from a step near the answer: smaller steps (measured: docs/diagnose.md)
         cfg["effects"] = dict(infer.effect_settings(cfg))
         cfg["effects"]["learning_rate"] = REFIT_START_LEARNING_RATE_FACTOR * float(cfg["effects"]["learning_rate"])

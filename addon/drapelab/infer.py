@@ -559,9 +559,9 @@ class FitJob:
         the training images best; theta's effect means move there. At an off value some parameters have no
         gradient (a tilt's azimuth at zero angle), so the gradient epochs alone could not leave it. With
         placement noise each candidate is scored by the best of start_search_drapes() drapes of the same
-        placements per image (best-of-K, as the diagnosis's step test and the evaluation judge drapes): one drape
-        without placement noise, whose folds all fall where the flat rest state puts them, judged fabric 1's
-        photos' 2-fold axis worse than no anisotropy (docs/lab/bending-anisotropy.md)."""
+        placements per image (best-of-K, as the evaluation judges drapes): one drape without placement noise,
+        whose folds fall where the flat rest state puts them whatever the candidate, chose a tilt's opposite
+        direction in 2 of 4 synthetic cases, four placement drapes in none (docs/lab/effect-recovery.md)."""
         model = self.workers[0].model
         bend = self.family.tables(self.theta, self.num_edges)
         candidates = self.plan.start_candidates(self.theta["effect_mu"])
@@ -807,7 +807,8 @@ def _plan_time_budget(job, total, t_start, calibrating, template_dir=None):
     calibration, from one drape on the fit's mesh."""
     config = job.config
     scale_drapes = len(config["init"].get("scale_search") or [])
-    if job.plan.size and job.effect_start is None and job.epoch == 0:  # the effects' start search: its candidates' drapes on the lanes
+    if job.plan.size and job.effect_start is None and job.epoch == 0:
+        # the effects' start search: its candidates' drapes (one lane for one drape each, else on the lanes)
         searched = len(job.plan.start_candidates(job.theta["effect_mu"]))
         drapes = job.start_search_drapes()
         scale_drapes += searched if drapes == 1 else math.ceil(searched * drapes / len(job.workers))
