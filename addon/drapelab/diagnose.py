@@ -141,7 +141,6 @@ import math
 import os
 import threading
 import time
-import concurrent.futures
 
 import numpy as np
 
@@ -577,14 +576,7 @@ def step_permutation_test(deltas, n, max_permutations=None, seed=0):
     return best, float(observed[best]), p
 
 
-def _in_lanes(run, lanes):
-    """run(lane) for lane in range(lanes), on threads when there are several (the drapes' lanes)."""
-    if lanes == 1:
-        run(0)
-        return
-    with concurrent.futures.ThreadPoolExecutor(lanes) as pool:
-        for f in [pool.submit(run, lane) for lane in range(lanes)]:
-            f.result()
+_in_lanes = infer._in_lanes  # run(lane) for lane in range(lanes), on threads when there are several
 
 
 def _forward_silhouette(m, p, v0, pred, config, cancel_event):

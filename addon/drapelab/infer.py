@@ -269,6 +269,17 @@ class _Worker:
         return data, g["bend"], x, image, self.plan.gather(g)
 
 
+def _in_lanes(run, lanes):
+    """run(lane) for lane in range(lanes), on threads when there are several (the drapes' lanes); an exception in
+    a lane (Cancelled, SolverError) is raised here."""
+    if lanes == 1:
+        run(0)
+        return
+    with concurrent.futures.ThreadPoolExecutor(lanes) as pool:
+        for f in [pool.submit(run, lane) for lane in range(lanes)]:
+            f.result()
+
+
 def _observed(model, x, params):
     """The positions the renderer sees (the active effects' measurement transforms; x when none)."""
     return model.observe(x, params) if model.has_observation else x
@@ -544,13 +555,7 @@ class FitJob:
                                  dtype=np.float64)
                 terms[i, d] = [data_term(img, o, self.sigma_obs, self.sigma_dc)[0] for o in self.observations]
 
-        lanes = len(self.workers)
-        if lanes == 1:
-            run(0)
-        else:
-            with concurrent.futures.ThreadPoolExecutor(lanes) as pool:
-                for f in [pool.submit(run, lane) for lane in range(lanes)]:
-                    f.result()
+        _in_lanes(run, len(self.workers))
         return [float(np.mean(np.min(t, axis=0))) for t in terms]
 
     def effect_start_search(self, cancel_event=None):
@@ -1460,12 +1465,7 @@ def _drape_draws(models, stretch, draws, fwd, mode_opts, placement, seed, camera
                 if progress:
                     progress(done[0], n)
 
-    if lanes == 1:
-        run(0)
-    else:
-        with concurrent.futures.ThreadPoolExecutor(lanes) as pool:
-            for f in [pool.submit(run, l) for l in range(lanes)]:
-                f.result()
+    _in_lanes(run, lanes)
     return shapes
 
 
