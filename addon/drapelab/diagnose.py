@@ -1013,7 +1013,6 @@ def refit_with_effect(preset, images, name, level, seed, config, threads=None, t
     # confusion tables were measured so): fit.json's placement drapes would multiply its drapes
     cfg["effects"] = dict(infer.effect_settings(cfg), start_search_drapes=1)
     if start is not None:  # a fine-tune from a step near the answer: smaller steps (measured: docs/diagnose.md)
-        cfg["effects"] = dict(infer.effect_settings(cfg))
         cfg["effects"]["learning_rate"] = REFIT_START_LEARNING_RATE_FACTOR * float(cfg["effects"]["learning_rate"])
     log_std = float(np.mean(preset["posterior"]["bend"]["log_std"]))
     prior_sd = max(log_std, 1e-3)
