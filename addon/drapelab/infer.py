@@ -68,7 +68,7 @@ import time
 import numpy as np
 
 from . import budget, fit_effects, measure, render, sim, tables, variational
-from ._native import Cancelled, InputError, SolverError
+from ._native import Cancelled, InputError, SolverError, native
 
 __all__ = ["MODELS", "load_config", "FitJob", "fit", "load_preset", "write_preset", "sample_bend_tables",
            "kl_divergence", "evaluate", "calibrate_preset", "PRESET_SCHEMA_VERSION"]
@@ -178,16 +178,16 @@ def data_term(image, obs, sigma_obs, sigma_dc, dc_bias=0.0):
     """The data term of the loss for one (soft or hard) silhouette against one observation, and its gradient
     per pixel: mean_pixels (I_hat - I)^2 / (2 sigma_obs^2) + (DC_hat - b - DC)^2 / (2 sigma_dc^2) (sigma_dc 0: no
     DC term), b = dc_bias: the soft silhouette's drape coefficient minus the hard one's (a constant; FitJob
-    estimates it, see FitJob.estimate_dc_bias; 0 for hard silhouettes)."""
-    diff = image - obs.mask
-    data = float(np.mean(diff ** 2) / (2 * sigma_obs ** 2))
-    g_image = diff / (sigma_obs ** 2 * diff.size)
-    if sigma_dc:
-        dc, d_dc = soft_drape_coefficient(image, obs.calibration["px_per_m"])
-        r = dc - dc_bias - obs.dc
-        data += r ** 2 / (2 * sigma_dc ** 2)
-        g_image = g_image + r / sigma_dc ** 2 * d_dc
-    return data, g_image
+    estimates it, see FitJob.estimate_dc_bias; 0 for hard silhouettes). Native (infer/sample_loop.hpp), the
+    function the fit's sample loop evaluates."""
+    value, g_image = native.infer.data_term(np.ascontiguousarray(image, dtype=np.float64), obs.target,
+                                            _data_settings(obs, sigma_obs, sigma_dc, dc_bias))
+    return float(value), np.asarray(g_image)
+
+
+def _data_settings(obs, sigma_obs, sigma_dc, dc_bias=0.0):
+    return native.infer.DataTermSettings(float(sigma_obs), float(sigma_dc or 0.0), float(dc_bias or 0.0),
+                                         float(obs.calibration["px_per_m"]))
 
 
 class _Observation:
@@ -198,6 +198,7 @@ class _Observation:
         c = sil.calibration
         self.calibration = {"px_per_m": float(c.px_per_m), "centre_px": [float(c.cx), float(c.cy)]}
         self.dc = float(measure.drape_coefficient(self.mask, c.px_per_m))
+        self.target = native.infer.SilhouetteTarget(self.mask, self.dc)
         nodes = measure.analyse_nodes(measure.r_theta(self.mask, c))
         self.nodes = int(nodes.count)
         self.amplitude = float(nodes.amplitude_m)
@@ -216,57 +217,30 @@ def _camera_for(kind, calibration, shape):
 
 
 class _Worker:
-    """One Monte Carlo lane: its own model, solver state (warm start) and renderer."""
+    """One Monte Carlo lane's model and renderer (the epoch's draws run in the native sample loop, one lane per
+    worker; the start searches use the workers' models directly)."""
 
     def __init__(self, mesh, heterogeneous, density, stretch, config, camera, plan=None, px_per_m=720.0):
         self.plan = plan or fit_effects.EffectPlan()
         self.model = sim.ClothModel(mesh, heterogeneous=heterogeneous, density=density, effects=self.plan.values(),
                                     px_per_m=px_per_m)
-        self.params = None  # the last drape's parameters (the observation's transforms read them)
         self.stretch = stretch
         self.config = config
         self.renderer = render.SoftRenderer(camera, sigma=config["render_sigma_px"])
         self.faces = self.model.faces
 
-    def drape(self, bend, warm, key, velocities0=None, effects=None, cancel_event=None):
-        """Drape with these tables (and fitted effect values, a vector in the plan's order). Static mode
-        warm-starts from warm[key] (the previous equilibrium of the same Monte Carlo slot, so results do not
-        depend on which lane ran it) and stores the new one."""
-        p = self.model.parameters(stretch=self.stretch, bend=bend,
-                                  effects=self.plan.values(effects) if effects is not None else None)
-        self.params = p
-        cfg = self.config
-        if cfg["forward"] == "static":
-            if warm.get(key) is None:  # first solve: the paper's rollout from flat, then Newton to rest
-                warm[key] = self.model.simulate(p, mode="dynamic", record=False, cancel_event=cancel_event,
-                                                **cfg["dynamic"])
-            try:
-                x = self.model.simulate(p, mode="static", positions0=warm[key], cancel_event=cancel_event,
-                                        **cfg["static"])
-            except SolverError:
-                # Folds rearranging: let the drape move for a while (rollout from the warm state), then retry
-                # with a larger iteration allowance; a second failure is reported.
-                start = self.model.simulate(p, mode="dynamic", record=False, positions0=warm[key],
-                                            cancel_event=cancel_event, **cfg["dynamic"])
-                opts = dict(cfg["static"])
-                opts["max_iterations"] = 3 * int(opts["max_iterations"])
-                x = self.model.simulate(p, mode="static", positions0=start, cancel_event=cancel_event, **opts)
-            warm[key] = x
-        else:
-            x = self.model.simulate(p, mode="dynamic", record=True, velocities0=velocities0, cancel_event=cancel_event,
-                                    **cfg["dynamic"])
-        return x
 
-    def loss_and_gradient(self, bend, obs, sigma_obs, sigma_dc, warm, key, velocities0=None, effects=None,
-                          dc_bias=0.0, cancel_event=None):
-        """Data term, dL/dB (shaped like bend), positions, image and dL/d(fitted effect parameters) (a vector in
-        the plan's order) for one drape against one observation."""
-        x = self.drape(bend, warm, key, velocities0, effects, cancel_event)
-        image = self.renderer.render(_observed(self.model, x, self.params), self.faces)
-        data, g_image = data_term(image, obs, sigma_obs, sigma_dc, dc_bias)
-        g_x = self.renderer.backward(g_image)
-        g = _observed_backward(self.model, x, self.params, g_x, cancel_event)
-        return data, g["bend"], x, image, self.plan.gather(g)
+def _sample_loop(workers, camera, config):
+    """The native loop of an epoch's draws (infer/sample_loop.hpp): one lane per worker, fit.json's forward mode,
+    rollout (dynamic) and Newton (static) settings and render sigma."""
+    dyn = dict(config["dynamic"])
+    stat = dict(config["static"])
+    return native.infer.SampleLoop(
+        [w.model.native for w in workers], camera, render_sigma_px=float(config["render_sigma_px"]),
+        static=config["forward"] == "static", time_step=float(dyn.get("time_step", sim.DEFAULT_TIME_STEP)),
+        steps=int(dyn.get("steps", sim.DEFAULT_STEPS)), max_speed=float(dyn.get("max_speed", sim.DEFAULT_MAX_SPEED)),
+        force_tolerance=float(stat.get("force_tolerance", sim.DEFAULT_FORCE_TOLERANCE)),
+        max_iterations=int(stat.get("max_iterations", sim.DEFAULT_MAX_ITERATIONS)))
 
 
 def _in_lanes(run, lanes):
@@ -363,7 +337,9 @@ class FitJob:
         bias = self.config.get("dc_soft_bias", "estimate")
         self.dc_bias = None if bias == "estimate" else float(bias)  # None: estimated when run() starts
         self.adam = {k: {"m": np.zeros_like(v), "v": np.zeros_like(v)} for k, v in self.theta.items()}
-        self.warm = {}  # Monte Carlo slot -> last equilibrium (static mode warm starts)
+        # The epoch's draws run natively on one lane per worker; static mode's warm starts (Monte Carlo slot ->
+        # last equilibrium) live there (the `warm` property).
+        self.loop = _sample_loop(self.workers, self.camera, self.config)
         self.previous_theta = None  # before the last Adam step (undone if the next drape fails)
         self.scale = None  # result of the initial scale search
         self.lr_scale = 1.0
@@ -404,36 +380,30 @@ class FitJob:
         terms["grad_norm"] is the norm of the data term's Monte Carlo gradient (all blocks together); with
         `clip` (a norm) that gradient is scaled down to at most `clip` (terms["clip"] = the factor applied)
         before the prior/KL gradient, which is exact, is added."""
-        jobs = []
+        model = self.workers[0].model
+        draws, meta = [], []
         for s in range(self.samples):
             noise = self.noise(epoch, s) if self.family.stochastic else None
             v0 = self.placement_noise(epoch, s)
             effect = self.effect_draw(theta, epoch, s)
-            for o in self.observations:
-                jobs.append((s, noise, o, v0, effect))
-        results = [None] * len(jobs)
-
-        def run(lane, indices):
-            w = self.workers[lane]
-            for i in indices:
-                if cancel_event is not None and cancel_event.is_set():
-                    raise Cancelled()
-                s, noise, o, v0, effect = jobs[i]
-                bend = self.family.tables(theta, self.num_edges, noise)
-                results[i] = (w.loss_and_gradient(bend, o, self.sigma_obs, self.sigma_dc, self.warm, i, v0, effect[0],
-                                                  self.dc_bias or 0.0, cancel_event), bend, noise, effect)
-
-        lanes = len(self.workers)
-        assignments = [list(range(l, len(jobs), lanes)) for l in range(lanes)]
-        if lanes == 1:
-            run(0, assignments[0])
-        else:
-            with concurrent.futures.ThreadPoolExecutor(lanes) as pool:
-                for f in [pool.submit(run, l, a) for l, a in enumerate(assignments)]:
-                    f.result()
+            bend = self.family.tables(theta, self.num_edges, noise)
+            p = model.parameters(stretch=self.stretch, bend=bend,
+                                 effects=self.plan.values(effect[0]) if effect[0] is not None else None)
+            for k in range(len(self.observations)):
+                # slot = the draw's index: its warm start does not depend on the lane that runs it
+                draws.append(native.infer.SampleDraw(p, None if v0 is None else np.ascontiguousarray(v0).ravel(), k,
+                                                     len(draws)))
+                meta.append((bend, noise, effect))
+        sink = sim._progress_sink(None, cancel_event, "fit epoch")
+        out = self.loop.run(draws, [o.target for o in self.observations],
+                            _data_settings(self.observations[0], self.sigma_obs, self.sigma_dc, self.dc_bias), sink)
         # The ELBO assembly (mean data term, chain rule to theta, clipping, prior) is native (infer/elbo.hpp).
-        draws = [variational.Draw(d, g_bend, bend, noise, g_effect if self.plan.size else None, eps)
-                 for (d, g_bend, x, image, g_effect), bend, noise, (_, inside, eps) in results]
+        elbo_draws, images = [], []
+        for (data, g_flat, image), (bend, noise, (_, _, eps)) in zip(out, meta):
+            g = model.split(g_flat)
+            elbo_draws.append(variational.Draw(data, g["bend"], bend, noise,
+                                               self.plan.gather(g) if self.plan.size else None, eps))
+            images.append(image)
         # The prior: the family's (bdp: KL to N(prior_mu, prior_sigma^2); homo/heter: MAP under it, because one
         # silhouette does not pin 15 free entries and unregularised tables wander to shapes that drape the training
         # image but generalise badly), and N(off, prior_scale^2) per fitted effect parameter (the registry's)
@@ -442,10 +412,19 @@ class FitJob:
         # recovered as 0.10 with prior scale 0.15 rad, 0.145 without prior).
         ecfg = effect_settings(self.config)
         terms, grads = variational.assemble_elbo(
-            self.family, self.effect_block, theta, draws, clip, self.prior_mu, self.prior_sigma,
+            self.family, self.effect_block, theta, elbo_draws, clip, self.prior_mu, self.prior_sigma,
             float(self.config["kl_weight"]), float(ecfg["prior_weight"]))
-        terms["images"] = [r[0][3] for r in results]
+        terms["images"] = images
         return terms, grads
+
+    @property
+    def warm(self):
+        """Static mode's warm starts: {Monte Carlo slot: last equilibrium (V, 3)} (a copy)."""
+        return {k: np.asarray(v).reshape(-1, 3) for k, v in self.loop.warm_starts.items()}
+
+    @warm.setter
+    def warm(self, value):
+        self.loop.warm_starts = {int(k): np.ascontiguousarray(v, dtype=np.float64).ravel() for k, v in value.items()}
 
     def clip_threshold(self):
         """Clipping norm for the next epoch's data gradient: fit.json gradient_clip.factor x the median norm
@@ -673,7 +652,7 @@ class FitJob:
                 self.theta = {k: v.copy() for k, v in self.previous_theta.items()}
                 self.previous_theta = None
                 self.lr_scale *= 0.5
-                self.warm = {}
+                self.loop.forget_warm_starts()
                 self.history.append({"epoch": self.epoch, "rejected": str(e), "lr_scale": self.lr_scale})
                 continue
             m = self.metrics(terms["images"])

@@ -1,17 +1,22 @@
 // Bindings of infer/ as the submodule drapelab_native.infer: the variational families, the fitted effects'
 // block, the ELBO assembly, Adam and the clip rule. Parameter blocks are dicts of flat float64 arrays; tables are
-// (rows, 15) arrays. The facade addon/drapelab/variational.py reshapes to the fit's (3, 5) / (E, 3, 5) blocks.
+// (rows, 15) arrays. SampleLoop runs an epoch's drapes on native threads (GIL released, Progress polled). The facade addon/drapelab/variational.py reshapes to the fit's (3, 5) / (E, 3, 5) blocks.
 #include <pybind11/eigen.h>
 #include <pybind11/pybind11.h>
 #include <pybind11/stl.h>
 
+#include <map>
 #include <memory>
 #include <optional>
 
 #include "infer/adam.hpp"
 #include "infer/effect_block.hpp"
 #include "infer/elbo.hpp"
+#include "infer/sample_loop.hpp"
 #include "infer/variational_family.hpp"
+#include "py_progress.hpp"
+#include "render/soft_rasterizer.hpp"
+#include "util/error.hpp"
 
 namespace py = pybind11;
 using namespace drapelab::infer;
@@ -138,4 +143,87 @@ void bind_infer(py::module_& root) {
       },
       py::arg("mu"), py::arg("sigma"), py::arg("mu0"), py::arg("sigma0"),
       "(sum of KL(N(mu, sigma^2) || N(mu0, sigma0^2)), d/dmu, d/dsigma).");
+  py::class_<SilhouetteTarget>(m, "SilhouetteTarget", "A training silhouette: hard mask (H, W) and drape coefficient.")
+      .def(py::init([](const drapelab::Image& mask, double dc) {
+             if (!mask.allFinite()) throw drapelab::InputError("SilhouetteTarget: the mask has non-finite values");
+             return SilhouetteTarget{mask, dc};
+           }),
+           py::arg("mask"), py::arg("drape_coefficient"))
+      .def_readonly("mask", &SilhouetteTarget::mask)
+      .def_readonly("drape_coefficient", &SilhouetteTarget::drape_coefficient);
+
+  py::class_<DataTermSettings>(m, "DataTermSettings", "The data term's scales (infer/sample_loop.hpp).")
+      .def(py::init([](double sigma_obs, double sigma_dc, double dc_bias, double px_per_m, double support_radius,
+                       double specimen_radius) {
+             return DataTermSettings{sigma_obs, sigma_dc, dc_bias, px_per_m, support_radius, specimen_radius};
+           }),
+           py::arg("sigma_obs"), py::arg("sigma_dc") = 0.0, py::arg("dc_bias") = 0.0, py::arg("px_per_m") = 720.0,
+           py::arg("support_radius") = 0.09, py::arg("specimen_radius") = 0.15);
+
+  m.def(
+      "data_term",
+      [](const drapelab::Image& image, const SilhouetteTarget& target, const DataTermSettings& settings) {
+        if (!image.allFinite()) throw drapelab::InputError("data term: the image has non-finite values");
+        drapelab::Image g;
+        const double d = silhouette_data_term(image, target, settings, &g);
+        return py::make_tuple(d, g);
+      },
+      py::arg("image"), py::arg("target"), py::arg("settings"),
+      "(data term, its gradient per pixel) of a soft or hard silhouette against a target.");
+
+  py::class_<SampleDraw>(m, "SampleDraw", "One Monte Carlo draw: parameters, placement velocities, target, slot.")
+      .def(py::init([](Vector parameters, std::optional<Vector> velocities0, int target, int slot) {
+             SampleDraw d;
+             d.parameters = std::move(parameters);
+             if (velocities0) d.velocities0 = std::move(*velocities0);
+             d.target = target;
+             d.slot = slot;
+             return d;
+           }),
+           py::arg("parameters"), py::arg("velocities0") = py::none(), py::arg("target") = 0, py::arg("slot") = 0);
+
+  py::class_<SampleLoop, std::shared_ptr<SampleLoop>>(
+      m, "SampleLoop", "An epoch's draws on threads, one lane per model (infer/sample_loop.hpp).")
+      .def(py::init([](std::vector<std::shared_ptr<drapelab::Model>> models, const drapelab::Camera& camera,
+                       double render_sigma_px, bool static_mode, double time_step, int steps, double max_speed,
+                       double force_tolerance, int max_iterations) {
+             if (!(render_sigma_px > 0)) throw drapelab::InputError("SampleLoop: render_sigma_px must be > 0");
+             if (steps < 1) throw drapelab::InputError("SampleLoop: steps must be >= 1");
+             if (!(time_step > 0)) throw drapelab::InputError("SampleLoop: time_step must be > 0");
+             if (max_iterations < 1) throw drapelab::InputError("SampleLoop: max_iterations must be >= 1");
+             if (!(force_tolerance > 0)) throw drapelab::InputError("SampleLoop: force_tolerance must be > 0");
+             std::vector<std::shared_ptr<const drapelab::Model>> lanes(models.begin(), models.end());
+             drapelab::SoftRasterOptions render;
+             render.sigma = render_sigma_px;
+             DrapeSettings drape;
+             drape.static_mode = static_mode;
+             drape.rollout.time_step = time_step;
+             drape.rollout.steps = steps;
+             drape.rollout.max_speed = max_speed;
+             drape.statics.force_tolerance = force_tolerance;
+             drape.statics.max_iterations = max_iterations;
+             return std::make_shared<SampleLoop>(std::move(lanes), camera, render, drape);
+           }),
+           py::arg("models"), py::arg("camera"), py::arg("render_sigma_px") = 1.0, py::arg("static") = false,
+           py::arg("time_step") = 0.05, py::arg("steps") = 100, py::arg("max_speed") = 50.0,
+           py::arg("force_tolerance") = 1e-6, py::arg("max_iterations") = 200)
+      .def_property_readonly("lanes", &SampleLoop::lanes)
+      .def_property("warm_starts", &SampleLoop::warm_starts, &SampleLoop::set_warm_starts,
+                    "Static mode's warm starts: {slot: equilibrium (3V)}.")
+      .def("forget_warm_starts", &SampleLoop::forget_warm_starts)
+      .def(
+          "run",
+          [](SampleLoop& loop, const std::vector<SampleDraw>& draws, const std::vector<SilhouetteTarget>& targets,
+             const DataTermSettings& data, std::shared_ptr<drapelab_bindings::PyProgress> progress) {
+            std::vector<SampleOutcome> out;
+            {
+              py::gil_scoped_release no_gil;
+              out = loop.run(draws, targets, data, drapelab_bindings::progress_sink_of(progress));
+            }
+            py::list results;
+            for (auto& o : out) results.append(py::make_tuple(o.data, std::move(o.gradient), std::move(o.image)));
+            return results;
+          },
+          py::arg("draws"), py::arg("targets"), py::arg("data"), py::arg("progress") = nullptr,
+          "[(data term, dL/dparameters (flat), soft image)] per draw, in the draws' order.");
 }

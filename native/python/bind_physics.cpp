@@ -27,37 +27,17 @@
 #include "solver/static_solve.hpp"
 #include "util/error.hpp"
 #include "util/progress.hpp"
+#include "py_progress.hpp"
 
 namespace py = pybind11;
 using namespace drapelab;
+using drapelab_bindings::progress_sink_of;
+using drapelab_bindings::PyProgress;
 
 namespace {
 
 using Vector = Eigen::VectorXd;
 using MatrixX4iRow = Eigen::Matrix<int, Eigen::Dynamic, 4, Eigen::RowMajor>;
-
-// A ProgressSink whose callback is a Python callable, invoked with the GIL held. The solver threads call
-// step() without the GIL; cancel() only sets an atomic flag.
-struct PyProgress {
-  explicit PyProgress(py::object cb) : callback(std::move(cb)), sink(make_callback()) {}
-  ~PyProgress() {
-    py::gil_scoped_acquire gil;  // the callback is released with the GIL held
-    callback = py::object();
-  }
-
-  ProgressSink::Callback make_callback() {
-    if (callback.is_none()) return {};
-    return [this](int done, int total) {
-      py::gil_scoped_acquire gil;
-      callback(done, total);
-    };
-  }
-
-  py::object callback;
-  ProgressSink sink;
-};
-
-ProgressSink* sink_of(const std::shared_ptr<PyProgress>& p) { return p ? &p->sink : nullptr; }
 
 struct PyImplicitEuler {
   explicit PyImplicitEuler(std::shared_ptr<const Model> m) : model(std::move(m)), solver(*model) {}
@@ -370,7 +350,7 @@ void bind_physics(py::module_& m) {
             o.factor_memory_mb = factor_memory_mb;
             py::gil_scoped_release no_gil;
             std::lock_guard<std::mutex> lock(s.mutex);
-            return s.solver.forward(p, o, sink_of(progress), x0 ? &*x0 : nullptr, v0 ? &*v0 : nullptr);
+            return s.solver.forward(p, o, progress_sink_of(progress), x0 ? &*x0 : nullptr, v0 ? &*v0 : nullptr);
           },
           py::arg("parameters"), py::arg("time_step") = 0.05, py::arg("steps") = 100, py::arg("max_speed") = 50.0,
           py::arg("record") = true, py::arg("progress") = nullptr, py::arg("x0") = py::none(),
@@ -392,7 +372,7 @@ void bind_physics(py::module_& m) {
             {
               py::gil_scoped_release no_gil;
               std::lock_guard<std::mutex> lock(s.mutex);
-              g = s.solver.backward(dL_dx, dL_dv ? &*dL_dv : nullptr, sink_of(progress));
+              g = s.solver.backward(dL_dx, dL_dv ? &*dL_dv : nullptr, progress_sink_of(progress));
             }
             py::dict out;
             out["parameters"] = g.parameters;
@@ -477,7 +457,7 @@ void bind_physics(py::module_& m) {
             {
               py::gil_scoped_release no_gil;
               std::lock_guard<std::mutex> lock(s.mutex);
-              r = s.solver.solve(p, o, sink_of(progress), x0 ? &*x0 : nullptr);
+              r = s.solver.solve(p, o, progress_sink_of(progress), x0 ? &*x0 : nullptr);
             }
             py::dict out;
             out["positions"] = r.positions;
