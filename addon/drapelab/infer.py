@@ -46,13 +46,15 @@ test drapes of a fabric are other specimens and re-drapes: without it the 90 % i
 
 The numerical core is native (native/src/infer, reached through drapelab.variational): the families above as
 types (parameter blocks, draws from noise, the chain rule, the prior), the fitted effects' block, the ELBO
-assembly with its gradient clipping, Adam and the clip rule. This module keeps the configuration, the drapes of
-each epoch's draws on threads, the start searches, checkpoints and presets.
+assembly with its gradient clipping, Adam and the clip rule, and the sample loop (infer/sample_loop.hpp): each
+epoch's draws (drape, soft render, data term, observation and adjoint) and the start searches' drapes on native
+threads, one lane per worker, cancel polled at every solver step. This module keeps the configuration, the
+draws' noise (numpy streams, below), the start searches' choice, checkpoints and presets.
 
 A fit is a job: progress callback per epoch, cancel (threading.Event), a checkpoint after every epoch
 (atomic JSON, resumable, bit-identical continuation: the noise of epoch k sample s is drawn from
-default_rng([seed, k, s])), a time budget or an epoch count. Monte Carlo samples run on threads (native
-calls release the GIL); the same seed gives the same result whatever the thread count (each Monte Carlo
+default_rng([seed, k, s])), a time budget or an epoch count. Monte Carlo samples run on native threads (the
+loop releases the GIL); the same seed gives the same result whatever the thread count (each Monte Carlo
 slot keeps its own warm start). A resumed fit restarts its warm starts from the flat drape.
 """
 import concurrent.futures
@@ -456,20 +458,18 @@ class FitJob:
             out.append({"iou": measure.iou(hard, o.mask), "mse": measure.pixel_mse(hard, o.mask)})
         return {"iou": float(np.mean([m["iou"] for m in out])), "mse": float(np.mean([m["mse"] for m in out]))}
 
-    def _start_score(self, params, cancel_event=None):
-        """The start searches' score of one parameter vector: the data term of its drape's hard silhouette (the
-        dynamic rollout from flat, no placement noise), averaged over the training images; inf when the drape
-        fails."""
-        if cancel_event is not None and cancel_event.is_set():
-            raise Cancelled()
-        w = self.workers[0]
-        try:
-            x = w.model.simulate(params, mode="dynamic", record=False, cancel_event=cancel_event,
-                                 **self.config["dynamic"])
-        except SolverError:
-            return np.inf
-        img = np.asarray(render.hard_silhouette(self.camera, _observed(w.model, x, params), w.faces), dtype=np.float64)
-        return float(np.mean([data_term(img, o, self.sigma_obs, self.sigma_dc)[0] for o in self.observations]))
+    def _start_scores(self, params, velocities, cancel_event=None):
+        """The start searches' scores: per parameter vector in `params`, the mean over the training images of the
+        best (smallest) data term of its drapes' hard silhouettes, one unrecorded rollout from flat per placement in
+        `velocities` (None: at rest); inf where none of its drapes succeed. Natively on the job's lanes
+        (infer/sample_loop.hpp, SampleLoop.score)."""
+        draws = [native.infer.SampleDraw(p, None if v is None else np.ascontiguousarray(v).ravel())
+                 for p in params for v in velocities]
+        sink = sim._progress_sink(None, cancel_event, "start search")
+        terms = np.asarray(self.loop.score(draws, [o.target for o in self.observations],
+                                           _data_settings(self.observations[0], self.sigma_obs, self.sigma_dc), sink))
+        terms = terms.reshape(len(params), len(velocities), len(self.observations))
+        return [float(np.mean(np.min(t, axis=0))) for t in terms]
 
     def scale_search(self, cancel_event=None):
         """Initialisation: the one-parameter family start_table * s (s from fit.json init.scale_search) drapes
@@ -480,12 +480,12 @@ class FitJob:
         if not factors:
             return None
         model = self.workers[0].model
-        scores = []
+        params = []
         for f in factors:
             bend = np.exp(self.log_bend0) * float(f)
-            scores.append(self._start_score(model.parameters(
-                stretch=self.stretch, bend=bend if not self.family.per_element else
-                np.broadcast_to(bend, (self.num_edges,) + BEND_SHAPE)), cancel_event))
+            params.append(model.parameters(stretch=self.stretch, bend=bend if not self.family.per_element else
+                                           np.broadcast_to(bend, (self.num_edges,) + BEND_SHAPE)))
+        scores = self._start_scores(params, [None], cancel_event)
         best = float(factors[int(np.argmin(scores))])
         shift = np.log(best)
         self.log_bend0 = self.log_bend0 + shift
@@ -504,38 +504,13 @@ class FitJob:
     def _start_velocities(self, drapes):
         """The placement velocities of the effects' start search (None per drape without placement noise): the
         same `drapes` placements for every candidate, so that their scores compare like for like, from a stream
-        of their own (START_SEARCH_STREAM)."""
-        if self.placement[0] <= 0:
+        of their own (START_SEARCH_STREAM); one drape is the deterministic drape from flat at rest."""
+        if self.placement[0] <= 0 or drapes == 1:
             return [None]
         rest = self.workers[0].model.rest_positions
         return [placement_velocities(rest, np.random.default_rng([self.seed, 0, d, START_SEARCH_STREAM]),
                                      *self.placement)
                 for d in range(drapes)]
-
-    def _start_scores(self, bend, candidates, velocities, cancel_event=None):
-        """Per effect vector of `candidates` (with the tables `bend`): the mean over the training images of the best
-        (smallest) data term of its drapes' hard silhouettes, one drape per placement in `velocities` (None: from
-        flat at rest), on the job's lanes; inf where none of its drapes succeed."""
-        tasks = [(i, d) for i in range(len(candidates)) for d in range(len(velocities))]
-        terms = np.full((len(candidates), len(velocities), len(self.observations)), np.inf)
-
-        def run(lane):
-            w = self.workers[lane]
-            for i, d in tasks[lane::len(self.workers)]:
-                if cancel_event is not None and cancel_event.is_set():
-                    raise Cancelled()
-                p = w.model.parameters(stretch=self.stretch, bend=bend, effects=self.plan.values(candidates[i]))
-                try:
-                    x = w.model.simulate(p, mode="dynamic", record=False, velocities0=velocities[d],
-                                         cancel_event=cancel_event, **self.config["dynamic"])
-                except SolverError:
-                    continue
-                img = np.asarray(render.hard_silhouette(self.camera, _observed(w.model, x, p), w.faces),
-                                 dtype=np.float64)
-                terms[i, d] = [data_term(img, o, self.sigma_obs, self.sigma_dc)[0] for o in self.observations]
-
-        _in_lanes(run, len(self.workers))
-        return [float(np.mean(np.min(t, axis=0))) for t in terms]
 
     def effect_start_search(self, cancel_event=None):
         """Initialisation of the fitted effects: of the plan's start candidates (the off values, and each
@@ -550,11 +525,8 @@ class FitJob:
         bend = self.family.tables(self.theta, self.num_edges)
         candidates = self.plan.start_candidates(self.theta["effect_mu"])
         drapes = self.start_search_drapes()
-        if drapes == 1:
-            scores = [self._start_score(model.parameters(stretch=self.stretch, bend=bend, effects=self.plan.values(c)),
-                                        cancel_event) for c in candidates]
-        else:
-            scores = self._start_scores(bend, candidates, self._start_velocities(drapes), cancel_event)
+        params = [model.parameters(stretch=self.stretch, bend=bend, effects=self.plan.values(c)) for c in candidates]
+        scores = self._start_scores(params, self._start_velocities(drapes), cancel_event)
         best = int(np.argmin(scores))
         self.theta["effect_mu"] = candidates[best].copy()
         self.effect_start = {"parameters": self.plan.names, "candidates": [c.tolist() for c in candidates],
@@ -790,12 +762,12 @@ def _plan_time_budget(job, total, t_start, calibrating, template_dir=None):
     of drapes on the calibration mesh timed now (the calibration's own lanes, forward and settings); without the
     calibration, from one drape on the fit's mesh."""
     config = job.config
-    scale_drapes = len(config["init"].get("scale_search") or [])
+    lanes = len(job.workers)  # the start searches' drapes run on the job's lanes
+    scale_drapes = math.ceil(len(config["init"].get("scale_search") or []) / lanes)
     if job.plan.size and job.effect_start is None and job.epoch == 0:
-        # the effects' start search: its candidates' drapes (one lane for one drape each, else on the lanes)
+        # the effects' start search: its candidates' drapes, start_search_drapes() each
         searched = len(job.plan.start_candidates(job.theta["effect_mu"]))
-        drapes = job.start_search_drapes()
-        scale_drapes += searched if drapes == 1 else math.ceil(searched * drapes / len(job.workers))
+        scale_drapes += math.ceil(searched * job.start_search_drapes() / lanes)
     epoch_drapes = math.ceil(job.samples * len(job.observations) / len(job.workers))
     if not calibrating:
         model = job.workers[0].model

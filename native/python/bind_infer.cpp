@@ -225,5 +225,22 @@ void bind_infer(py::module_& root) {
             return results;
           },
           py::arg("draws"), py::arg("targets"), py::arg("data"), py::arg("progress") = nullptr,
-          "[(data term, dL/dparameters (flat), soft image)] per draw, in the draws' order.");
+          "[(data term, dL/dparameters (flat), soft image)] per draw, in the draws' order.")
+      .def(
+          "score",
+          [](SampleLoop& loop, const std::vector<SampleDraw>& draws, const std::vector<SilhouetteTarget>& targets,
+             const DataTermSettings& data, std::shared_ptr<drapelab_bindings::PyProgress> progress) {
+            std::vector<std::vector<double>> out;
+            {
+              py::gil_scoped_release no_gil;
+              out = loop.score(draws, targets, data, drapelab_bindings::progress_sink_of(progress));
+            }
+            Eigen::MatrixXd m(static_cast<Eigen::Index>(out.size()), static_cast<Eigen::Index>(targets.size()));
+            for (size_t i = 0; i < out.size(); ++i)
+              for (size_t k = 0; k < targets.size(); ++k) m(i, k) = out[i][k];
+            return m;
+          },
+          py::arg("draws"), py::arg("targets"), py::arg("data"), py::arg("progress") = nullptr,
+          "(draws, targets) data terms of each draw's hard silhouette (unrecorded rollout from flat with its "
+          "velocities) against every target; inf where the rollout fails.");
 }

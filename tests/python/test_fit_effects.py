@@ -273,17 +273,22 @@ def _start_search_job(drapes, threads, tmp_path):
 
 
 def test_the_effects_start_search_scores_each_candidate_by_its_best_placement_drape(tmp_path):
-    # start_search_drapes = 1 keeps the one drape from flat (the score _start_score gives); with more, every
-    # candidate drapes the same placements (a stream of their own) and scores the best of them per image, on the
-    # lanes exactly as on one lane; the best of more placements is never worse than the best of fewer.
+    # start_search_drapes = 1 keeps the one drape from flat at rest: its score is the data term of that drape's hard
+    # silhouette (computed here through the facade: simulate, observe, hard render); with more, every candidate
+    # drapes the same placements (a stream of their own) and scores the best of them per image, on the lanes
+    # exactly as on one lane; the best of more placements is never worse than the best of fewer.
     one = _start_search_job(1, 2, tmp_path)
     start = one.effect_start_search()
-    assert start["drapes"] == 1
+    assert start["drapes"] == 1 and one._start_velocities(1) == [None]
     bend = one.family.tables(one.theta, one.num_edges)
     model = one.workers[0].model
-    assert start["loss"] == [one._start_score(model.parameters(stretch=one.stretch, bend=bend,
-                                                                effects=one.plan.values(c)))
-                             for c in one.plan.start_candidates(one.plan.off)]
+    expected = []
+    for c in one.plan.start_candidates(one.plan.off):
+        p = model.parameters(stretch=one.stretch, bend=bend, effects=one.plan.values(c))
+        x = model.simulate(p, mode="dynamic", record=False, **one.config["dynamic"])
+        hard = np.asarray(render.hard_silhouette(one.camera, model.observe(x, p), model.faces), dtype=float)
+        expected.append(np.mean([infer.data_term(hard, o, one.sigma_obs, one.sigma_dc)[0] for o in one.observations]))
+    assert start["loss"] == pytest.approx(expected, rel=1e-12)
 
     job = _start_search_job(3, 2, tmp_path)
     assert job.start_search_drapes() == 3
@@ -293,10 +298,12 @@ def test_the_effects_start_search_scores_each_candidate_by_its_best_placement_dr
     assert not np.allclose(velocities[0], job.placement_noise(3, 0))
     candidates = job.plan.start_candidates(job.theta["effect_mu"])
     bend = job.family.tables(job.theta, job.num_edges)
-    lanes = job._start_scores(bend, candidates, velocities)
+    params = [job.workers[0].model.parameters(stretch=job.stretch, bend=bend, effects=job.plan.values(c))
+              for c in candidates]
+    lanes = job._start_scores(params, velocities)
     serial = _start_search_job(3, 1, tmp_path)
-    assert serial._start_scores(bend, candidates, velocities) == lanes
-    fewer = job._start_scores(bend, candidates, velocities[:1])
+    assert serial._start_scores(params, velocities) == lanes
+    fewer = job._start_scores(params, velocities[:1])
     assert all(a <= b for a, b in zip(lanes, fewer)) and lanes != fewer
     chosen = job.effect_start_search()
     assert chosen["drapes"] == 3 and chosen["loss"] == lanes
@@ -305,12 +312,13 @@ def test_the_effects_start_search_scores_each_candidate_by_its_best_placement_dr
 
 
 def test_a_time_budget_counts_the_effects_start_search(tmp_path):
-    # the budget's fixed part (scale search + first epoch) grows by the start search's drapes on the lanes
+    # the budget's fixed part (scale search + first epoch) grows by the start search's drapes on the lanes (one
+    # drape per candidate, or start_search_drapes of them; the search runs on the job's two lanes either way)
     plans = {}
     for drapes in (1, 4):
         job = _start_search_job(drapes, 2, tmp_path)
         plans[drapes] = infer._plan_time_budget(job, 1000.0, 0.0, False)
     candidates = len(job.plan.start_candidates(job.plan.off))
-    for drapes, lane_drapes in ((1, candidates), (4, -(-candidates * 4 // 2))):
+    for drapes, lane_drapes in ((1, -(-candidates // 2)), (4, -(-candidates * 4 // 2))):
         plan = plans[drapes]
         assert plan.scale_search == pytest.approx(lane_drapes * plan.drape_estimate)

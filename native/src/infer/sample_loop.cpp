@@ -4,7 +4,10 @@
 #include <cmath>
 #include <exception>
 #include <string>
+#include <limits>
 #include <thread>
+
+#include "render/rasterizer.hpp"
 
 #include "util/error.hpp"
 
@@ -156,19 +159,10 @@ SampleOutcome SampleLoop::run_draw(Lane& lane, const SampleDraw& draw, const Sil
   return out;
 }
 
-std::vector<SampleOutcome> SampleLoop::run(const std::vector<SampleDraw>& draws,
-                                           const std::vector<SilhouetteTarget>& targets,
-                                           const DataTermSettings& data, ProgressSink* progress) {
-  check_settings(data);
-  const int n = static_cast<int>(draws.size());
-  for (int i = 0; i < n; ++i)
-    if (draws[i].target < 0 || draws[i].target >= static_cast<int>(targets.size()))
-      throw InputError("sample loop: draw " + std::to_string(i) + " names silhouette " +
-                       std::to_string(draws[i].target) + " of " + std::to_string(targets.size()));
-  std::vector<SampleOutcome> out(n);
-  if (n == 0) return out;
+template <class F>
+void SampleLoop::for_each_draw(int n, ProgressSink* progress, F&& f) {
+  if (n == 0) return;
   if (progress && progress->cancelled()) throw Cancelled();
-
   std::atomic<bool> stop{false};
   std::atomic<int> done{0};
   std::mutex progress_mutex;
@@ -187,7 +181,7 @@ std::vector<SampleOutcome> SampleLoop::run(const std::vector<SampleDraw>& draws,
       ProgressSink sink([&](int, int) { poll(false); });
       for (int i = l; i < n; i += L) {
         poll(false);
-        out[i] = run_draw(*lanes_[l], draws[i], targets[draws[i].target], data, &sink);
+        f(*lanes_[l], i, &sink);
         poll(true);
       }
     } catch (...) {
@@ -212,6 +206,64 @@ std::vector<SampleOutcome> SampleLoop::run(const std::vector<SampleDraw>& draws,
     }
   }
   if (cancelled) std::rethrow_exception(cancelled);
+}
+
+namespace {
+
+void check_targets(const std::vector<SampleDraw>& draws, const std::vector<SilhouetteTarget>& targets, bool all) {
+  if (targets.empty()) throw InputError("sample loop: no target silhouettes");
+  for (size_t i = 0; i < draws.size(); ++i)
+    if (!all && (draws[i].target < 0 || draws[i].target >= static_cast<int>(targets.size())))
+      throw InputError("sample loop: draw " + std::to_string(i) + " names silhouette " +
+                       std::to_string(draws[i].target) + " of " + std::to_string(targets.size()));
+}
+
+}  // namespace
+
+std::vector<SampleOutcome> SampleLoop::run(const std::vector<SampleDraw>& draws,
+                                           const std::vector<SilhouetteTarget>& targets,
+                                           const DataTermSettings& data, ProgressSink* progress) {
+  check_settings(data);
+  check_targets(draws, targets, false);
+  std::vector<SampleOutcome> out(draws.size());
+  for_each_draw(static_cast<int>(draws.size()), progress, [&](Lane& lane, int i, ProgressSink* sink) {
+    out[i] = run_draw(lane, draws[i], targets[draws[i].target], data, sink);
+  });
+  return out;
+}
+
+std::vector<double> SampleLoop::score_draw(Lane& lane, const SampleDraw& draw,
+                                           const std::vector<SilhouetteTarget>& targets,
+                                           const DataTermSettings& data, ProgressSink* sink) {
+  const Model& model = *lane.model;
+  model.validate_parameters(draw.parameters);
+  if (draw.velocities0.size() && draw.velocities0.size() != model.num_dofs())
+    throw InputError("sample loop: velocities0 must have " + std::to_string(model.num_dofs()) + " values");
+  RolloutOptions o = drape_.rollout;
+  o.record = false;
+  Eigen::VectorXd x;
+  try {
+    x = lane.rollout.forward(draw.parameters, o, sink, nullptr, draw.velocities0.size() ? &draw.velocities0 : nullptr);
+  } catch (const SolverError&) {
+    return std::vector<double>(targets.size(), std::numeric_limits<double>::infinity());
+  }
+  const Eigen::VectorXd seen = model.has_observation() ? model.observe(x, draw.parameters) : x;
+  const Image hard = hard_silhouette(lane.renderer.camera(), Eigen::Map<const MatrixX3d>(seen.data(), seen.size() / 3, 3),
+                                     model.mesh().faces);
+  std::vector<double> out;
+  for (const auto& t : targets) out.push_back(silhouette_data_term(hard, t, data));
+  return out;
+}
+
+std::vector<std::vector<double>> SampleLoop::score(const std::vector<SampleDraw>& draws,
+                                                   const std::vector<SilhouetteTarget>& targets,
+                                                   const DataTermSettings& data, ProgressSink* progress) {
+  check_settings(data);
+  check_targets(draws, targets, true);
+  std::vector<std::vector<double>> out(draws.size());
+  for_each_draw(static_cast<int>(draws.size()), progress, [&](Lane& lane, int i, ProgressSink* sink) {
+    out[i] = score_draw(lane, draws[i], targets, data, sink);
+  });
   return out;
 }
 

@@ -20,6 +20,8 @@
 // Lanes run on threads (the first on the calling one); draws are dealt round-robin (draw i to lane i mod L).
 // A lane's failure (SolverError, InputError) stops the other lanes at their next solver step and is rethrown;
 // progress->step(draws done, draws) is called after every draw and polled at every solver step (cancel).
+//
+// score() is the start searches' forward-only variant: hard silhouettes of unrecorded rollouts, no gradient.
 #pragma once
 #include <Eigen/Core>
 
@@ -86,6 +88,13 @@ class SampleLoop {
   std::vector<SampleOutcome> run(const std::vector<SampleDraw>& draws, const std::vector<SilhouetteTarget>& targets,
                                  const DataTermSettings& data, ProgressSink* progress = nullptr);
 
+  // The start searches' scores: per draw and target, the data term of the hard silhouette of the draw's unrecorded
+  // rollout from flat (with its velocities; static mode too), seen through the observation; +inf for every target
+  // when the rollout fails (SolverError). No gradient, no warm start.
+  std::vector<std::vector<double>> score(const std::vector<SampleDraw>& draws,
+                                         const std::vector<SilhouetteTarget>& targets, const DataTermSettings& data,
+                                         ProgressSink* progress = nullptr);
+
   // Drops the static warm starts (after a rejected step, whose equilibria belong to other tables).
   void forget_warm_starts();
   int lanes() const { return static_cast<int>(lanes_.size()); }
@@ -99,6 +108,11 @@ class SampleLoop {
   SampleOutcome run_draw(Lane& lane, const SampleDraw& draw, const SilhouetteTarget& target,
                          const DataTermSettings& data, ProgressSink* sink);
   Eigen::VectorXd drape(Lane& lane, const SampleDraw& draw, ProgressSink* sink);
+  std::vector<double> score_draw(Lane& lane, const SampleDraw& draw, const std::vector<SilhouetteTarget>& targets,
+                                 const DataTermSettings& data, ProgressSink* sink);
+  // f(lane, draw index, lane's sink) for every draw, dealt round-robin over the lanes on threads (see above).
+  template <class F>
+  void for_each_draw(int n, ProgressSink* progress, F&& f);
 
   std::vector<std::unique_ptr<Lane>> lanes_;
   DrapeSettings drape_;

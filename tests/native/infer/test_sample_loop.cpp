@@ -213,5 +213,37 @@ TEST(SampleLoop, CancelStopsEveryLaneAndAFailureIsReportedAsItself) {
   EXPECT_THROW(SampleLoop({}, camera(), SoftRasterOptions{}, drape_settings(false)), InputError);
 }
 
+TEST(SampleLoop, ScoreIsTheHardSilhouettesDataTermAndInfWhereTheRolloutFails) {
+  const auto model = small_model();
+  const std::vector<SilhouetteTarget> targets{target(*model), target(*model)};
+  std::vector<SampleDraw> draws(3);
+  for (int i = 0; i < 3; ++i) draws[i].parameters = parameters(*model, 0.5 + i, 0.003 * i);
+  DataTermSettings data = data_settings();
+  data.dc_bias = 0;
+  SampleLoop two({model, small_model()}, camera(), SoftRasterOptions{}, drape_settings(true));
+  const auto scores = two.score(draws, targets, data);
+  ASSERT_EQ(scores.size(), 3u);
+  for (int i = 0; i < 3; ++i) {
+    ImplicitEuler rollout(*model);
+    RolloutOptions o = drape_settings(false).rollout;
+    o.record = false;
+    const Eigen::VectorXd x = model->observe(rollout.forward(draws[i].parameters, o), draws[i].parameters);
+    const Image hard = hard_silhouette(camera(), Eigen::Map<const MatrixX3d>(x.data(), x.size() / 3, 3), model->mesh().faces);
+    ASSERT_EQ(scores[i].size(), 2u);
+    EXPECT_EQ(scores[i][0], silhouette_data_term(hard, targets[0], data)) << i;
+    EXPECT_EQ(scores[i][1], scores[i][0]) << i;
+  }
+  SampleLoop one({model}, camera(), SoftRasterOptions{}, drape_settings(false));
+  EXPECT_EQ(one.score(draws, targets, data), scores);
+  EXPECT_TRUE(two.warm_starts().empty());  // scores keep no warm start
+
+  DrapeSettings diverging = drape_settings(false);
+  diverging.rollout.max_speed = 1e-6;  // every rollout "diverges" at its first step
+  SampleLoop failing({model}, camera(), SoftRasterOptions{}, diverging);
+  const auto inf = failing.score(draws, targets, data);
+  EXPECT_TRUE(std::isinf(inf[1][0]) && std::isinf(inf[1][1]));
+  EXPECT_THROW(failing.run(draws, targets, data), SolverError);
+}
+
 }  // namespace
 }  // namespace drapelab::infer
