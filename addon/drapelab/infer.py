@@ -64,7 +64,6 @@ import hashlib
 import json
 import math
 import os
-import threading
 import time
 
 import numpy as np
@@ -1372,52 +1371,65 @@ class _Predictive:
         self.mode_opts = config["dynamic"] if self.forward == "dynamic" else config["static"]
         placement = preset.get("placement_noise") or (config.get("placement_noise") if preset["model"] == "bdp" else None) or {}
         self.placement = (float(placement.get("velocity_m_s", 0.0)), int(placement.get("angular_modes", 0)))
+        self.loop = None  # the native loop of its drapes (built at the first)
 
     def drape(self, draws, seed, progress=None, cancel_event=None):
         """Drapes bending draws; the effects of draw i are drawn from the preset's active_effects with
         default_rng([seed, 11]) (fixed and point-estimate effects: their values)."""
         effects = fit_effects.sample_effect_values(self.effects, np.random.default_rng([seed, 11]), len(draws))
+        if self.loop is None:
+            self.loop = _predictive_loop(self.models, self.camera, self.forward, self.mode_opts)
         return _drape_draws(self.models, self.stretch, draws, self.forward, self.mode_opts, self.placement, seed,
-                            self.camera, self.calibration, progress, cancel_event, effects)
+                            self.camera, self.calibration, progress, cancel_event, effects, self.loop)
 
 
 def _drape_draws(models, stretch, draws, fwd, mode_opts, placement, seed, camera, cal_obj, progress=None,
-                 cancel_event=None, effects=None):
-    """Drapes draws[i] (one lane per model, on threads) from the flat state, draw i with the placement
-    velocities of default_rng([seed, i, 1]) and the effect values effects[i] (None: the models' own).
-    Returns per draw {"x", "image", "dc", "nodes"} or {"error"}."""
-    n = len(draws)
-    lanes = len(models)
+                 cancel_event=None, effects=None, loop=None):
+    """Drapes draws[i] (one lane per model, in the native sample loop `loop`, built here when not given) from the
+    flat state, draw i with the placement velocities of default_rng([seed, i, 1]) and the effect values effects[i]
+    (None: the models' own). Returns per draw {"x", "image", "dc", "nodes"} or {"error"}."""
     amplitude, modes = placement
     rest = models[0].rest_positions
-    shapes = [None] * n
-    done = [0]
-    lock = threading.Lock()
+    m = models[0]
+    batch = []
+    for i in range(len(draws)):
+        p = m.parameters(stretch=stretch, bend=draws[i], effects=effects[i] if effects else None)
+        v0 = placement_velocities(rest, np.random.default_rng([seed, i, 1]), amplitude, modes) if amplitude > 0 else None
+        batch.append(native.infer.SampleDraw(p, None if v0 is None else v0.ravel()))
+    if loop is None:
+        loop = _predictive_loop(models, camera, fwd, mode_opts)
+    seen = [0]
 
-    def run(lane):
-        m = models[lane]
-        for i in range(lane, n, lanes):
-            if cancel_event is not None and cancel_event.is_set():
-                raise Cancelled()
-            p = m.parameters(stretch=stretch, bend=draws[i], effects=effects[i] if effects else None)
-            v0 = placement_velocities(rest, np.random.default_rng([seed, i, 1]), amplitude, modes) if amplitude > 0 else None
-            try:
-                x = m.simulate(p, mode=fwd, record=False, velocities0=v0, cancel_event=cancel_event, **mode_opts) \
-                    if fwd == "dynamic" else m.simulate(p, mode="static", cancel_event=cancel_event, **mode_opts)
-            except SolverError as e:  # a draw whose drape fails is reported, not fatal
-                shapes[i] = {"error": str(e)}
-                continue
-            img = _hard_image(camera, _observed(m, x, p), m.faces)
-            nodes = measure.analyse_nodes(measure.r_theta(img, cal_obj))
-            shapes[i] = {"x": x, "image": img, "dc": measure.drape_coefficient(img, cal_obj.px_per_m),
-                         "nodes": nodes.count, "amplitude": nodes.amplitude_m}
-            with lock:
-                done[0] += 1
-                if progress:
-                    progress(done[0], n)
+    def reported(done, total):  # the loop polls at every solver step; report each finished draw once
+        if progress and done > seen[0]:
+            seen[0] = done
+            progress(done, total)
 
-    _in_lanes(run, lanes)
+    out = loop.predict(batch, sim._progress_sink(reported if progress else None, cancel_event, "predictive drapes"))
+    shapes = []
+    for x, img, error in out:
+        if error is not None:  # a draw whose drape fails is reported, not fatal
+            shapes.append({"error": error})
+            continue
+        img = np.asarray(img)
+        nodes = measure.analyse_nodes(measure.r_theta(img, cal_obj))
+        shapes.append({"x": np.asarray(x).reshape(-1, 3), "image": img,
+                       "dc": measure.drape_coefficient(img, cal_obj.px_per_m), "nodes": nodes.count,
+                       "amplitude": nodes.amplitude_m})
     return shapes
+
+
+def _predictive_loop(models, camera, fwd, mode_opts):
+    """The native loop of predictive drapes on `models` (one lane each): fwd "dynamic" (mode_opts: rollout
+    settings) or "static" (mode_opts: Newton settings)."""
+    dyn = mode_opts if fwd == "dynamic" else {}
+    stat = mode_opts if fwd == "static" else {}
+    return native.infer.SampleLoop(
+        [m.native for m in models], camera, static=fwd == "static",
+        time_step=float(dyn.get("time_step", sim.DEFAULT_TIME_STEP)), steps=int(dyn.get("steps", sim.DEFAULT_STEPS)),
+        max_speed=float(dyn.get("max_speed", sim.DEFAULT_MAX_SPEED)),
+        force_tolerance=float(stat.get("force_tolerance", sim.DEFAULT_FORCE_TOLERANCE)),
+        max_iterations=int(stat.get("max_iterations", sim.DEFAULT_MAX_ITERATIONS)))
 
 
 def _best_of_curve(mses):

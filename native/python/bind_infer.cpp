@@ -242,5 +242,26 @@ void bind_infer(py::module_& root) {
           },
           py::arg("draws"), py::arg("targets"), py::arg("data"), py::arg("progress") = nullptr,
           "(draws, targets) data terms of each draw's hard silhouette (unrecorded rollout from flat with its "
-          "velocities) against every target; inf where the rollout fails.");
+          "velocities) against every target; inf where the rollout fails.")
+      .def(
+          "predict",
+          [](SampleLoop& loop, const std::vector<SampleDraw>& draws,
+             std::shared_ptr<drapelab_bindings::PyProgress> progress) {
+            std::vector<SampleLoop::Predicted> out;
+            {
+              py::gil_scoped_release no_gil;
+              out = loop.predict(draws, drapelab_bindings::progress_sink_of(progress));
+            }
+            py::list results;
+            for (auto& o : out) {
+              if (!o.error.empty())
+                results.append(py::make_tuple(py::none(), py::none(), o.error));
+              else
+                results.append(py::make_tuple(std::move(o.positions), std::move(o.image), py::none()));
+            }
+            return results;
+          },
+          py::arg("draws"), py::arg("progress") = nullptr,
+          "[(positions (3V), hard silhouette, None) or (None, None, error message)] per draw: unrecorded rollouts "
+          "from flat with the draws' velocities (static: equilibria from the flat rest state).");
 }

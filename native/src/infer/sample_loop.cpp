@@ -267,4 +267,34 @@ std::vector<std::vector<double>> SampleLoop::score(const std::vector<SampleDraw>
   return out;
 }
 
+std::vector<SampleLoop::Predicted> SampleLoop::predict(const std::vector<SampleDraw>& draws,
+                                                       ProgressSink* progress) {
+  std::vector<Predicted> out(draws.size());
+  for_each_draw(static_cast<int>(draws.size()), progress, [&](Lane& lane, int i, ProgressSink* sink) {
+    const Model& model = *lane.model;
+    const SampleDraw& draw = draws[i];
+    model.validate_parameters(draw.parameters);
+    if (draw.velocities0.size() && draw.velocities0.size() != model.num_dofs())
+      throw InputError("sample loop: velocities0 must have " + std::to_string(model.num_dofs()) + " values");
+    Eigen::VectorXd x;
+    try {
+      if (drape_.static_mode) {
+        x = lane.statics.solve(draw.parameters, drape_.statics, sink).positions;
+      } else {
+        RolloutOptions o = drape_.rollout;
+        o.record = false;
+        x = lane.rollout.forward(draw.parameters, o, sink, nullptr, draw.velocities0.size() ? &draw.velocities0 : nullptr);
+      }
+    } catch (const SolverError& e) {
+      out[i].error = e.what();
+      return;
+    }
+    const Eigen::VectorXd seen = model.has_observation() ? model.observe(x, draw.parameters) : x;
+    out[i].image = hard_silhouette(lane.renderer.camera(),
+                                   Eigen::Map<const MatrixX3d>(seen.data(), seen.size() / 3, 3), model.mesh().faces);
+    out[i].positions = std::move(x);
+  });
+  return out;
+}
+
 }  // namespace drapelab::infer

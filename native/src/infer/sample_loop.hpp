@@ -28,6 +28,7 @@
 #include <map>
 #include <memory>
 #include <mutex>
+#include <string>
 #include <vector>
 
 #include "physics/model.hpp"
@@ -94,6 +95,17 @@ class SampleLoop {
   std::vector<std::vector<double>> score(const std::vector<SampleDraw>& draws,
                                          const std::vector<SilhouetteTarget>& targets, const DataTermSettings& data,
                                          ProgressSink* progress = nullptr);
+
+  // Posterior-predictive drapes (evaluation, calibration): per draw, the positions and the hard silhouette (seen
+  // through the observation) of its unrecorded rollout from flat with its velocities, or in static mode of the
+  // equilibrium reached from the flat rest state (no warm start, no retry); a failed drape (SolverError) gives its
+  // message in `error` and no positions.
+  struct Predicted {
+    Eigen::VectorXd positions;
+    Image image;
+    std::string error;
+  };
+  std::vector<Predicted> predict(const std::vector<SampleDraw>& draws, ProgressSink* progress = nullptr);
 
   // Drops the static warm starts (after a rejected step, whose equilibria belong to other tables).
   void forget_warm_starts();

@@ -245,5 +245,46 @@ TEST(SampleLoop, ScoreIsTheHardSilhouettesDataTermAndInfWhereTheRolloutFails) {
   EXPECT_THROW(failing.run(draws, targets, data), SolverError);
 }
 
+TEST(SampleLoop, PredictGivesTheDrapesAndTheirHardSilhouettesOrTheFailure) {
+  const auto model = small_model();
+  std::vector<SampleDraw> draws(3);
+  for (int i = 0; i < 3; ++i) draws[i].parameters = parameters(*model, 0.5 + i, 0.003 * i);
+  draws[1].velocities0 = Eigen::VectorXd::Constant(model->num_dofs(), 0.01);
+  for (const bool static_mode : {false, true}) {
+    SampleLoop two({model, small_model()}, camera(), SoftRasterOptions{}, drape_settings(static_mode));
+    const auto out = two.predict(draws);
+    ASSERT_EQ(out.size(), 3u);
+    for (int i = 0; i < 3; ++i) {
+      Eigen::VectorXd x;
+      if (static_mode) {
+        StaticSolver statics(*model);
+        x = statics.solve(draws[i].parameters, drape_settings(true).statics).positions;
+      } else {
+        ImplicitEuler rollout(*model);
+        RolloutOptions o = drape_settings(false).rollout;
+        o.record = false;
+        x = rollout.forward(draws[i].parameters, o, nullptr, nullptr,
+                            draws[i].velocities0.size() ? &draws[i].velocities0 : nullptr);
+      }
+      EXPECT_TRUE(out[i].error.empty()) << out[i].error;
+      EXPECT_TRUE(out[i].positions == x) << i << (static_mode ? " static" : " dynamic");
+      const Eigen::VectorXd seen = model->observe(x, draws[i].parameters);
+      const Image hard = hard_silhouette(camera(), Eigen::Map<const MatrixX3d>(seen.data(), seen.size() / 3, 3),
+                                         model->mesh().faces);
+      EXPECT_TRUE((out[i].image == hard).all()) << i;
+    }
+    SampleLoop one({model}, camera(), SoftRasterOptions{}, drape_settings(static_mode));
+    const auto serial = one.predict(draws);
+    for (int i = 0; i < 3; ++i) EXPECT_TRUE(serial[i].positions == out[i].positions) << i;
+    EXPECT_TRUE(two.warm_starts().empty());
+  }
+  DrapeSettings diverging = drape_settings(false);
+  diverging.rollout.max_speed = 1e-6;
+  SampleLoop failing({model}, camera(), SoftRasterOptions{}, diverging);
+  const auto failed = failing.predict(draws);
+  EXPECT_NE(failed[2].error.find("rollout"), std::string::npos) << failed[2].error;
+  EXPECT_EQ(failed[2].positions.size(), 0);
+}
+
 }  // namespace
 }  // namespace drapelab::infer
