@@ -181,14 +181,20 @@ def data_term(image, obs, sigma_obs, sigma_dc, dc_bias=0.0):
     DC term), b = dc_bias: the soft silhouette's drape coefficient minus the hard one's (a constant; FitJob
     estimates it, see FitJob.estimate_dc_bias; 0 for hard silhouettes). Native (infer/sample_loop.hpp), the
     function the fit's sample loop evaluates."""
-    value, g_image = native.infer.data_term(np.ascontiguousarray(image, dtype=np.float64), obs.target,
+    target = getattr(obs, "target", None)
+    if target is None:  # any object with a hard `mask` (and `dc`, `calibration` for the DC term)
+        target = native.infer.SilhouetteTarget(np.ascontiguousarray(obs.mask, dtype=np.float64),
+                                               float(getattr(obs, "dc", 0.0)))
+    value, g_image = native.infer.data_term(np.ascontiguousarray(image, dtype=np.float64), target,
                                             _data_settings(obs, sigma_obs, sigma_dc, dc_bias))
     return float(value), np.asarray(g_image)
 
 
 def _data_settings(obs, sigma_obs, sigma_dc, dc_bias=0.0):
-    return native.infer.DataTermSettings(float(sigma_obs), float(sigma_dc or 0.0), float(dc_bias or 0.0),
-                                         float(obs.calibration["px_per_m"]))
+    if sigma_dc and not hasattr(obs, "calibration"):
+        raise InputError("data term: the drape-coefficient term needs the observation's calibration and dc")
+    px = obs.calibration["px_per_m"] if hasattr(obs, "calibration") else measure.DATASET_PX_PER_M
+    return native.infer.DataTermSettings(float(sigma_obs), float(sigma_dc or 0.0), float(dc_bias or 0.0), float(px))
 
 
 class _Observation:
