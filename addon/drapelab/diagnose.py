@@ -132,6 +132,7 @@ refit whose share does not pay for epochs keeps its search's best point when the
 leave room for the search, else the step test's best step, evaluated once. Without a budget each refit runs
 fit.json default_epochs.
 """
+import concurrent.futures
 import copy
 import hashlib
 import html
@@ -576,7 +577,16 @@ def step_permutation_test(deltas, n, max_permutations=None, seed=0):
     return best, float(observed[best]), p
 
 
-_in_lanes = infer._in_lanes  # run(lane) for lane in range(lanes), on threads when there are several
+def _in_lanes(run, lanes):
+    """run(lane) for lane in range(lanes), on threads when there are several (the diagnosis' drapes); an exception in
+    a lane (Cancelled, SolverError) is raised here."""
+    if lanes == 1:
+        run(0)
+        return
+    with concurrent.futures.ThreadPoolExecutor(lanes) as pool:
+        for f in [pool.submit(run, lane) for lane in range(lanes)]:
+            f.result()
+
 
 
 def _forward_silhouette(m, p, v0, pred, config, cancel_event):

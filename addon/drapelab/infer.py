@@ -57,7 +57,6 @@ default_rng([seed, k, s])), a time budget or an epoch count. Monte Carlo samples
 loop releases the GIL); the same seed gives the same result whatever the thread count (each Monte Carlo
 slot keeps its own warm start). A resumed fit restarts its warm starts from the flat drape.
 """
-import concurrent.futures
 import copy
 import datetime
 import hashlib
@@ -248,17 +247,6 @@ def _sample_loop(workers, camera, config):
         steps=int(dyn.get("steps", sim.DEFAULT_STEPS)), max_speed=float(dyn.get("max_speed", sim.DEFAULT_MAX_SPEED)),
         force_tolerance=float(stat.get("force_tolerance", sim.DEFAULT_FORCE_TOLERANCE)),
         max_iterations=int(stat.get("max_iterations", sim.DEFAULT_MAX_ITERATIONS)))
-
-
-def _in_lanes(run, lanes):
-    """run(lane) for lane in range(lanes), on threads when there are several (the drapes' lanes); an exception in
-    a lane (Cancelled, SolverError) is raised here."""
-    if lanes == 1:
-        run(0)
-        return
-    with concurrent.futures.ThreadPoolExecutor(lanes) as pool:
-        for f in [pool.submit(run, lane) for lane in range(lanes)]:
-            f.result()
 
 
 def _observed(model, x, params):
