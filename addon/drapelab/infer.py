@@ -226,27 +226,25 @@ class _Worker:
     """One Monte Carlo lane's model and renderer (the epoch's draws run in the native sample loop, one lane per
     worker; the start searches use the workers' models directly)."""
 
-    def __init__(self, mesh, heterogeneous, density, stretch, config, camera, plan=None, px_per_m=720.0):
-        self.plan = plan or fit_effects.EffectPlan()
-        self.model = sim.ClothModel(mesh, heterogeneous=heterogeneous, density=density, effects=self.plan.values(),
+    def __init__(self, mesh, heterogeneous, density, config, camera, plan=None, px_per_m=720.0):
+        plan = plan or fit_effects.EffectPlan()
+        self.model = sim.ClothModel(mesh, heterogeneous=heterogeneous, density=density, effects=plan.values(),
                                     px_per_m=px_per_m)
-        self.stretch = stretch
-        self.config = config
         self.renderer = render.SoftRenderer(camera, sigma=config["render_sigma_px"])
         self.faces = self.model.faces
 
 
-def _sample_loop(workers, camera, config):
-    """The native loop of an epoch's draws (infer/sample_loop.hpp): one lane per worker, fit.json's forward mode,
-    rollout (dynamic) and Newton (static) settings and render sigma."""
-    dyn = dict(config["dynamic"])
-    stat = dict(config["static"])
+def _native_loop(models, camera, static, dynamic, statics, render_sigma_px=1.0):
+    """The native sample loop (infer/sample_loop.hpp) on `models` (ClothModel, one lane each): `static` forward or
+    not, `dynamic` the rollout settings (fit.json "dynamic"), `statics` the Newton settings (fit.json "static");
+    missing settings take sim's defaults."""
     return native.infer.SampleLoop(
-        [w.model.native for w in workers], camera, render_sigma_px=float(config["render_sigma_px"]),
-        static=config["forward"] == "static", time_step=float(dyn.get("time_step", sim.DEFAULT_TIME_STEP)),
-        steps=int(dyn.get("steps", sim.DEFAULT_STEPS)), max_speed=float(dyn.get("max_speed", sim.DEFAULT_MAX_SPEED)),
-        force_tolerance=float(stat.get("force_tolerance", sim.DEFAULT_FORCE_TOLERANCE)),
-        max_iterations=int(stat.get("max_iterations", sim.DEFAULT_MAX_ITERATIONS)))
+        [m.native for m in models], camera, render_sigma_px=float(render_sigma_px), static=bool(static),
+        time_step=float(dynamic.get("time_step", sim.DEFAULT_TIME_STEP)),
+        steps=int(dynamic.get("steps", sim.DEFAULT_STEPS)),
+        max_speed=float(dynamic.get("max_speed", sim.DEFAULT_MAX_SPEED)),
+        force_tolerance=float(statics.get("force_tolerance", sim.DEFAULT_FORCE_TOLERANCE)),
+        max_iterations=int(statics.get("max_iterations", sim.DEFAULT_MAX_ITERATIONS)))
 
 
 def _observed(model, x, params):
@@ -312,7 +310,7 @@ class FitJob:
         heterogeneous = self.family.per_element
         lanes = min(self.threads, max(self.samples, len(self.observations)))
         self.plan = fit_effects.EffectPlan(effects)
-        self.workers = [_Worker(self.mesh, heterogeneous, self.density, self.stretch, self.config, self.camera,
+        self.workers = [_Worker(self.mesh, heterogeneous, self.density, self.config, self.camera,
                                 self.plan, self.observations[0].calibration["px_per_m"]) for _ in range(lanes)]
         self.num_edges = self.workers[0].model.num_bending_edges
         self.theta = self.family.initial(self.log_bend0, self.num_edges, float(self.config["init"]["bdp_std"]))
@@ -334,7 +332,8 @@ class FitJob:
         self.adam = {k: {"m": np.zeros_like(v), "v": np.zeros_like(v)} for k, v in self.theta.items()}
         # The epoch's draws run natively on one lane per worker; static mode's warm starts (Monte Carlo slot ->
         # last equilibrium) live there (the `warm` property).
-        self.loop = _sample_loop(self.workers, self.camera, self.config)
+        self.loop = _native_loop([w.model for w in self.workers], self.camera, self.config["forward"] == "static",
+                                 self.config["dynamic"], self.config["static"], self.config["render_sigma_px"])
         self.previous_theta = None  # before the last Adam step (undone if the next drape fails)
         self.scale = None  # result of the initial scale search
         self.lr_scale = 1.0
@@ -1414,16 +1413,10 @@ def _drape_draws(models, stretch, draws, fwd, mode_opts, placement, seed, camera
 
 
 def _predictive_loop(models, camera, fwd, mode_opts):
-    """The native loop of predictive drapes on `models` (one lane each): fwd "dynamic" (mode_opts: rollout
-    settings) or "static" (mode_opts: Newton settings)."""
-    dyn = mode_opts if fwd == "dynamic" else {}
-    stat = mode_opts if fwd == "static" else {}
-    return native.infer.SampleLoop(
-        [m.native for m in models], camera, static=fwd == "static",
-        time_step=float(dyn.get("time_step", sim.DEFAULT_TIME_STEP)), steps=int(dyn.get("steps", sim.DEFAULT_STEPS)),
-        max_speed=float(dyn.get("max_speed", sim.DEFAULT_MAX_SPEED)),
-        force_tolerance=float(stat.get("force_tolerance", sim.DEFAULT_FORCE_TOLERANCE)),
-        max_iterations=int(stat.get("max_iterations", sim.DEFAULT_MAX_ITERATIONS)))
+    """The native loop of predictive drapes on `models`: fwd "dynamic" (mode_opts: rollout settings) or "static"
+    (mode_opts: Newton settings)."""
+    static = fwd == "static"
+    return _native_loop(models, camera, static, {} if static else mode_opts, mode_opts if static else {})
 
 
 def _best_of_curve(mses):

@@ -1,6 +1,7 @@
 // Bindings of infer/ as the submodule drapelab_native.infer: the variational families, the fitted effects'
 // block, the ELBO assembly, Adam and the clip rule. Parameter blocks are dicts of flat float64 arrays; tables are
-// (rows, 15) arrays. SampleLoop runs an epoch's drapes on native threads (GIL released, Progress polled). The facade addon/drapelab/variational.py reshapes to the fit's (3, 5) / (E, 3, 5) blocks.
+// (rows, 15) arrays. The facade addon/drapelab/variational.py reshapes to the fit's (3, 5) / (E, 3, 5) blocks.
+// SampleLoop runs an epoch's drapes on native threads (GIL released, Progress polled).
 #include <pybind11/eigen.h>
 #include <pybind11/pybind11.h>
 #include <pybind11/stl.h>

@@ -3,12 +3,11 @@
 #include <atomic>
 #include <cmath>
 #include <exception>
-#include <string>
 #include <limits>
+#include <string>
 #include <thread>
 
 #include "render/rasterizer.hpp"
-
 #include "util/error.hpp"
 
 namespace drapelab::infer {
@@ -29,6 +28,24 @@ void check_settings(const DataTermSettings& s) {
   if (!(s.support_radius > 0) || !(s.specimen_radius > s.support_radius))
     throw InputError("data term: need 0 < support_radius < specimen_radius");
 }
+
+// A draw's parameters and velocities fit the lane's model (InputError naming what does not).
+void check_draw(const Model& model, const SampleDraw& draw) {
+  model.validate_parameters(draw.parameters);
+  if (draw.velocities0.size() && draw.velocities0.size() != model.num_dofs())
+    throw InputError("sample loop: velocities0 must have " + std::to_string(model.num_dofs()) + " values");
+}
+
+const Eigen::VectorXd* velocities_of(const SampleDraw& draw) {
+  return draw.velocities0.size() ? &draw.velocities0 : nullptr;
+}
+
+// The positions the renderer sees: x through the active effects' measurement transforms.
+Eigen::VectorXd observed(const Model& model, const Eigen::VectorXd& x, const Eigen::VectorXd& p) {
+  return model.has_observation() ? model.observe(x, p) : x;
+}
+
+Eigen::Map<const MatrixX3d> as_rows(const Eigen::VectorXd& x) { return {x.data(), x.size() / 3, 3}; }
 
 }  // namespace
 
@@ -101,15 +118,16 @@ void SampleLoop::set_warm_starts(std::map<int, Eigen::VectorXd> warm) {
   warm_ = std::move(warm);
 }
 
+RolloutOptions SampleLoop::rollout_options(bool record) const {
+  RolloutOptions o = drape_.rollout;
+  o.record = record;
+  return o;
+}
+
 Eigen::VectorXd SampleLoop::drape(Lane& lane, const SampleDraw& draw, ProgressSink* sink) {
-  const Eigen::VectorXd* v0 = draw.velocities0.size() ? &draw.velocities0 : nullptr;
-  if (!drape_.static_mode) {
-    RolloutOptions o = drape_.rollout;
-    o.record = true;
-    return lane.rollout.forward(draw.parameters, o, sink, nullptr, v0);
-  }
-  RolloutOptions settle = drape_.rollout;
-  settle.record = false;
+  if (!drape_.static_mode)
+    return lane.rollout.forward(draw.parameters, rollout_options(true), sink, nullptr, velocities_of(draw));
+  const RolloutOptions settle = rollout_options(false);
   Eigen::VectorXd start;
   {
     std::lock_guard<std::mutex> lock(warm_mutex_);
@@ -137,14 +155,10 @@ Eigen::VectorXd SampleLoop::drape(Lane& lane, const SampleDraw& draw, ProgressSi
 SampleOutcome SampleLoop::run_draw(Lane& lane, const SampleDraw& draw, const SilhouetteTarget& target,
                                    const DataTermSettings& data, ProgressSink* sink) {
   const Model& model = *lane.model;
-  model.validate_parameters(draw.parameters);
-  if (draw.velocities0.size() && draw.velocities0.size() != model.num_dofs())
-    throw InputError("sample loop: velocities0 must have " + std::to_string(model.num_dofs()) + " values");
+  check_draw(model, draw);
   const Eigen::VectorXd x = drape(lane, draw, sink);
-  const Eigen::VectorXd seen = model.has_observation() ? model.observe(x, draw.parameters) : x;
-  const auto& faces = model.mesh().faces;
   SampleOutcome out;
-  out.image = lane.renderer.forward(Eigen::Map<const MatrixX3d>(seen.data(), seen.size() / 3, 3), faces);
+  out.image = lane.renderer.forward(as_rows(observed(model, x, draw.parameters)), model.mesh().faces);
   Image g_image;
   out.data = silhouette_data_term(out.image, target, data, &g_image);
   const MatrixX3d g_seen_m = lane.renderer.backward(g_image);
@@ -210,12 +224,8 @@ void SampleLoop::for_each_draw(int n, ProgressSink* progress, F&& f) {
 
 namespace {
 
-void check_targets(const std::vector<SampleDraw>& draws, const std::vector<SilhouetteTarget>& targets, bool all) {
+void check_targets(const std::vector<SilhouetteTarget>& targets) {
   if (targets.empty()) throw InputError("sample loop: no target silhouettes");
-  for (size_t i = 0; i < draws.size(); ++i)
-    if (!all && (draws[i].target < 0 || draws[i].target >= static_cast<int>(targets.size())))
-      throw InputError("sample loop: draw " + std::to_string(i) + " names silhouette " +
-                       std::to_string(draws[i].target) + " of " + std::to_string(targets.size()));
 }
 
 }  // namespace
@@ -224,7 +234,11 @@ std::vector<SampleOutcome> SampleLoop::run(const std::vector<SampleDraw>& draws,
                                            const std::vector<SilhouetteTarget>& targets,
                                            const DataTermSettings& data, ProgressSink* progress) {
   check_settings(data);
-  check_targets(draws, targets, false);
+  check_targets(targets);
+  for (size_t i = 0; i < draws.size(); ++i)
+    if (draws[i].target < 0 || draws[i].target >= static_cast<int>(targets.size()))
+      throw InputError("sample loop: draw " + std::to_string(i) + " names silhouette " +
+                       std::to_string(draws[i].target) + " of " + std::to_string(targets.size()));
   std::vector<SampleOutcome> out(draws.size());
   for_each_draw(static_cast<int>(draws.size()), progress, [&](Lane& lane, int i, ProgressSink* sink) {
     out[i] = run_draw(lane, draws[i], targets[draws[i].target], data, sink);
@@ -232,24 +246,22 @@ std::vector<SampleOutcome> SampleLoop::run(const std::vector<SampleDraw>& draws,
   return out;
 }
 
+Image SampleLoop::hard_image(const Lane& lane, const Eigen::VectorXd& x, const Eigen::VectorXd& p) const {
+  return hard_silhouette(lane.renderer.camera(), as_rows(observed(*lane.model, x, p)), lane.model->mesh().faces);
+}
+
 std::vector<double> SampleLoop::score_draw(Lane& lane, const SampleDraw& draw,
                                            const std::vector<SilhouetteTarget>& targets,
                                            const DataTermSettings& data, ProgressSink* sink) {
   const Model& model = *lane.model;
-  model.validate_parameters(draw.parameters);
-  if (draw.velocities0.size() && draw.velocities0.size() != model.num_dofs())
-    throw InputError("sample loop: velocities0 must have " + std::to_string(model.num_dofs()) + " values");
-  RolloutOptions o = drape_.rollout;
-  o.record = false;
+  check_draw(model, draw);
   Eigen::VectorXd x;
   try {
-    x = lane.rollout.forward(draw.parameters, o, sink, nullptr, draw.velocities0.size() ? &draw.velocities0 : nullptr);
+    x = lane.rollout.forward(draw.parameters, rollout_options(false), sink, nullptr, velocities_of(draw));
   } catch (const SolverError&) {
     return std::vector<double>(targets.size(), std::numeric_limits<double>::infinity());
   }
-  const Eigen::VectorXd seen = model.has_observation() ? model.observe(x, draw.parameters) : x;
-  const Image hard = hard_silhouette(lane.renderer.camera(), Eigen::Map<const MatrixX3d>(seen.data(), seen.size() / 3, 3),
-                                     model.mesh().faces);
+  const Image hard = hard_image(lane, x, draw.parameters);
   std::vector<double> out;
   for (const auto& t : targets) out.push_back(silhouette_data_term(hard, t, data));
   return out;
@@ -259,7 +271,7 @@ std::vector<std::vector<double>> SampleLoop::score(const std::vector<SampleDraw>
                                                    const std::vector<SilhouetteTarget>& targets,
                                                    const DataTermSettings& data, ProgressSink* progress) {
   check_settings(data);
-  check_targets(draws, targets, true);
+  check_targets(targets);
   std::vector<std::vector<double>> out(draws.size());
   for_each_draw(static_cast<int>(draws.size()), progress, [&](Lane& lane, int i, ProgressSink* sink) {
     out[i] = score_draw(lane, draws[i], targets, data, sink);
@@ -271,27 +283,18 @@ std::vector<SampleLoop::Predicted> SampleLoop::predict(const std::vector<SampleD
                                                        ProgressSink* progress) {
   std::vector<Predicted> out(draws.size());
   for_each_draw(static_cast<int>(draws.size()), progress, [&](Lane& lane, int i, ProgressSink* sink) {
-    const Model& model = *lane.model;
     const SampleDraw& draw = draws[i];
-    model.validate_parameters(draw.parameters);
-    if (draw.velocities0.size() && draw.velocities0.size() != model.num_dofs())
-      throw InputError("sample loop: velocities0 must have " + std::to_string(model.num_dofs()) + " values");
+    check_draw(*lane.model, draw);
     Eigen::VectorXd x;
     try {
-      if (drape_.static_mode) {
-        x = lane.statics.solve(draw.parameters, drape_.statics, sink).positions;
-      } else {
-        RolloutOptions o = drape_.rollout;
-        o.record = false;
-        x = lane.rollout.forward(draw.parameters, o, sink, nullptr, draw.velocities0.size() ? &draw.velocities0 : nullptr);
-      }
+      x = drape_.static_mode
+              ? lane.statics.solve(draw.parameters, drape_.statics, sink).positions
+              : lane.rollout.forward(draw.parameters, rollout_options(false), sink, nullptr, velocities_of(draw));
     } catch (const SolverError& e) {
       out[i].error = e.what();
       return;
     }
-    const Eigen::VectorXd seen = model.has_observation() ? model.observe(x, draw.parameters) : x;
-    out[i].image = hard_silhouette(lane.renderer.camera(),
-                                   Eigen::Map<const MatrixX3d>(seen.data(), seen.size() / 3, 3), model.mesh().faces);
+    out[i].image = hard_image(lane, x, draw.parameters);
     out[i].positions = std::move(x);
   });
   return out;

@@ -120,6 +120,9 @@ class SampleLoop {
   SampleOutcome run_draw(Lane& lane, const SampleDraw& draw, const SilhouetteTarget& target,
                          const DataTermSettings& data, ProgressSink* sink);
   Eigen::VectorXd drape(Lane& lane, const SampleDraw& draw, ProgressSink* sink);
+  RolloutOptions rollout_options(bool record) const;
+  // The hard silhouette of positions x seen through the observation of parameters p.
+  Image hard_image(const Lane& lane, const Eigen::VectorXd& x, const Eigen::VectorXd& p) const;
   std::vector<double> score_draw(Lane& lane, const SampleDraw& draw, const std::vector<SilhouetteTarget>& targets,
                                  const DataTermSettings& data, ProgressSink* sink);
   // f(lane, draw index, lane's sink) for every draw, dealt round-robin over the lanes on threads (see above).
