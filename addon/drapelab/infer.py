@@ -151,14 +151,6 @@ def sample_bend_tables(model_kind, theta, num_edges, noise=None):
     return family.tables(theta, num_edges, noise)
 
 
-def soft_drape_coefficient(image, px_per_m, support_radius=0.09, specimen_radius=0.15):
-    """Drape coefficient of a soft silhouette (area = sum of coverage) and its derivative per pixel."""
-    disk = math.pi * support_radius ** 2
-    span = math.pi * specimen_radius ** 2 - disk
-    area = float(np.sum(image)) / px_per_m ** 2
-    return (area - disk) / span, 1.0 / (px_per_m ** 2 * span)
-
-
 def placement_velocities(rest, rng, amplitude, modes, support_radius=0.09, specimen_radius=0.15):
     """Initial velocities (V, 3) of one random placement: vertical, zero on the support disk (see module doc)."""
     rest = np.asarray(rest, dtype=float)
@@ -568,8 +560,9 @@ class FitJob:
         x = _observed(w.model, w.model.simulate(p, mode="dynamic", record=False, cancel_event=cancel_event,
                                                 **self.config["dynamic"]), p)
         px = self.observations[0].calibration["px_per_m"]
-        soft = soft_drape_coefficient(w.renderer.render(x, w.faces), px)[0]
-        hard = soft_drape_coefficient(np.asarray(render.hard_silhouette(self.camera, x, w.faces), dtype=float), px)[0]
+        # the soft silhouette's area is its summed coverage, the hard one's its pixels (the native data term's DC)
+        soft = measure.drape_coefficient_from_area(float(np.sum(w.renderer.render(x, w.faces))) / px ** 2)
+        hard = measure.drape_coefficient(render.hard_silhouette(self.camera, x, w.faces), px)
         self.dc_bias = float(soft - hard)
         return self.dc_bias
 

@@ -40,7 +40,8 @@ from ._native import InputError, native
 __all__ = [
     "DATASET_PX_PER_M", "Calibration", "InputError", "calibration", "read_image", "write_image", "to_luminance",
     "extract_silhouette", "load_silhouette", "automatic_threshold", "calibrate_from_disk", "calibrate_from_mesh",
-    "check_cusick_calibration", "pixel_mse", "iou", "shadow_area", "drape_coefficient", "r_theta",
+    "check_cusick_calibration", "pixel_mse", "iou", "shadow_area", "drape_coefficient",
+    "drape_coefficient_from_area", "r_theta",
     "analyse_nodes", "node_count", "node_amplitude", "harmonics", "two_fold", "r_theta_rmse", "hausdorff_distance",
     "measure_silhouette", "measure_image", "compare_mesh_image", "load_manifest", "check_output_path", "write_json",
     "write_overlay",
@@ -233,6 +234,11 @@ def drape_coefficient(mask, px_per_m=DATASET_PX_PER_M, support_radius=0.09, spec
     """(A_shadow - A_disk) / (A_specimen - A_disk) of a mask (unitless)."""
     return native.drape_coefficient(_image2d(mask, "drape_coefficient"), float(px_per_m),
                                     float(support_radius), float(specimen_radius))
+
+
+def drape_coefficient_from_area(area_m2, support_radius=0.09, specimen_radius=0.15):
+    """(A - A_disk) / (A_specimen - A_disk) of a shadow area A (m^2), e.g. a soft silhouette's summed coverage."""
+    return native.drape_coefficient_from_area(float(area_m2), float(support_radius), float(specimen_radius))
 
 
 def r_theta(mask, calibration=None, samples=360, step_px=0.1):

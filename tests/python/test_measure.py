@@ -291,3 +291,17 @@ def test_overlay_uses_three_colours_and_writes_a_png(tmp_path):
     lum, info = M.read_image(path)
     assert info["format"] == "png" and lum.shape[0] > 200
     assert sorted(os.listdir(tmp_path)) == ["overlay.png"]
+
+
+def test_drape_coefficient_from_area_is_the_masks_own_and_of_soft_coverage():
+    mask = M.load_silhouette(JPG, None).mask
+    area = M.shadow_area(mask, M.DATASET_PX_PER_M)
+    assert M.drape_coefficient_from_area(area) == pytest.approx(M.drape_coefficient(mask, M.DATASET_PX_PER_M),
+                                                                abs=1e-12)
+    # a soft silhouette's area is its summed coverage: half coverage everywhere halves the area
+    half = 0.5 * np.asarray(mask, dtype=float)
+    disk, span = np.pi * 0.09 ** 2, np.pi * (0.15 ** 2 - 0.09 ** 2)
+    got = M.drape_coefficient_from_area(float(np.sum(half)) / M.DATASET_PX_PER_M ** 2)
+    assert got == pytest.approx((area / 2 - disk) / span, rel=1e-12)
+    with pytest.raises(M.InputError, match="specimen radius must exceed the support-disk radius"):
+        M.drape_coefficient_from_area(area, support_radius=0.2, specimen_radius=0.15)
