@@ -7,6 +7,7 @@
 #include <string>
 #include <thread>
 
+#include "measure/metrics.hpp"
 #include "render/rasterizer.hpp"
 #include "util/error.hpp"
 
@@ -63,10 +64,10 @@ double silhouette_data_term(const Image& image, const SilhouetteTarget& target, 
   double data = diff.square().sum() / n / (2 * s2);
   if (grad_image) *grad_image = diff / (s2 * n);
   if (s.sigma_dc > 0) {
-    const double disk = kPi * s.support_radius * s.support_radius;
-    const double span = kPi * s.specimen_radius * s.specimen_radius - disk;
+    // the soft silhouette's shadow area is its summed coverage; d DC / d area = 1 / (specimen - disk area)
+    const double span = kPi * s.specimen_radius * s.specimen_radius - kPi * s.support_radius * s.support_radius;
     const double px2 = s.px_per_m * s.px_per_m;
-    const double dc = (image.sum() / px2 - disk) / span;
+    const double dc = drape_coefficient(image.sum() / px2, CusickGeometry{s.specimen_radius, s.support_radius});
     const double r = dc - s.dc_bias - target.drape_coefficient;
     const double sd2 = s.sigma_dc * s.sigma_dc;
     data += r * r / (2 * sd2);
