@@ -140,6 +140,8 @@ def main():
                    "p_values": {e["effect"]: e["p_value"] for e in tested},
                    "p_values_score": {e["effect"]: e.get("p_value_score", e["p_value"]) for e in tested},
                    "p_values_step": {e["effect"]: e["step"]["p_value"] for e in tested if e.get("step")},
+                   "p_values_step_permutation": {e["effect"]: e["step"].get("p_value_permutation")
+                                                 for e in tested if e.get("step")},
                    "steps": {e["effect"]: e["step"]["step"] for e in tested if e.get("step")},
                    "seconds": time.monotonic() - t0}
             rows.append(row)

@@ -48,12 +48,16 @@
    with each candidate's primary parameter at its registry moderate strength (and at minus it where the bounds
    allow; a tilt also turned; an effect whose axis is set by several parameters, bending_anisotropy, steps each of
    the registry's `step_parameters` in turn), forward only, and the change of each draw's pixel MSE is measured against every
-   measured image and against P's own predictive silhouettes (STEP_REFERENCES_MIN of them, the score's and more).
-   The statistic is the change's mean over the measured images minus its mean over the references (negative: the
-   step brings the draws closer to the measurements than to what P itself drapes), the smallest over the
-   effect's steps; under "P is right" measured and reference images are exchangeable, so its p-value comes from
-   relabelling them (all C(n + J, n) labellings, the step chosen anew in each). A candidate's p_value is
-   min(1, 2 min(score p, step p)) (Bonferroni over its two tests); both are reported.
+   measured image, against P's own predictive silhouettes (STEP_REFERENCES_MIN of them, the score's and more) and
+   against the re-drape floor's re-drapes of P's mean material. The statistic is the change's mean over the
+   measured images minus its mean over the references (negative: the step brings the draws closer to the
+   measurements than to what P itself drapes). Its null (step_specimen_test): under "P is right" the measured
+   images are n re-drapes of one specimen drawn from P, so the statistic varies by the spread between specimens
+   (the references' variance less the re-drapes') plus the spread between re-drapes over n; p integrates over
+   both variances' uncertainty and is Sidak-corrected over the effect's steps. (Until 2026-11-28 p came from
+   relabelling measured and reference images as if every measured image were a specimen of its own: too narrow
+   where P is uncertain, it passed a crease step on circle3 drapes without a crease; docs/diagnose.md.) A
+   candidate's p_value is min(1, 2 min(score p, step p)) (Bonferroni over its two tests); both are reported.
    Screened (a fine mesh or a whole library on a budget): when the budget pays for fewer than SCREEN_BELOW of the
    draws on every step, every candidate is screened on SCREEN_DRAWS of them, and those whose screen p is below
    SCREEN_P_MAX are confirmed on fresh draws (the next of the K), as many as the budget left pays for at the
@@ -66,11 +70,11 @@
    no step test, so the fold-pattern effects the score misses could not be found; docs/diagnose.md.)
 3. Refits. When at least one candidate is below the threshold (the data differ from P), the candidates with p
    below REFIT_P_MAX are refitted, up to MAX_REFITS of them in refit_order (the significant ones first, each group
-   by the sum of their ranks by combined p and by step statistic), under the time budget: the score test says that
+   by the sum of their ranks by combined p and by the step test's p, then statistic), under the time budget: the score test says that
    something differs, the refits say which effect explains it. Significant first since seed 701 on circle3: a crease
    step that passes near the threshold on drapes without a crease (p 0.002-0.012) went before the significant tilt
-   and camera by its strong step statistic, and the tilt's refit was dropped for time (docs/diagnose.md). Neither test alone picks the refits well: the combined p saturates (the step test's
-   labellings cannot go below 2 / C(n + J, n)) while the score's p goes far lower for effects with a first-order
+   and camera by its strong step statistic, and the tilt's refit was dropped for time (docs/diagnose.md). Neither test alone picks the refits well: the combined p saturated (the step test's
+   labellings, its null until 2026-11-28, cannot go below 2 / C(n + J, n)) while the score's p goes far lower for effects with a first-order
    signature; the step statistic is one finite step's change, noisy where several effects move the drape alike.
    Measured on the confusion runs of seeds 631, 641 and 651 (docs/diagnose.md): of 16 significant cases, the true
    effect was outside the first three by p in 2 (offset and bending_anisotropy at seed 651, 5th; their step
@@ -174,7 +178,7 @@ SCORE_SIGMA_DC = 0.0      # the score test's data term: pixel term only (see the
 REDRAPE_FLOOR_MIN = 12    # re-drapes the re-drape floor is measured on (at least; module doc, 3.)
 PSEUDO_MIN = 4            # predictive silhouettes drawn as the null reference (at least; as many as images)
 PSEUDO_SEED_OFFSET = 100000  # their placement seeds: [seed, offset + j, 1], apart from the scored draws' [seed, i, 1]
-STEP_REFERENCES_MIN = 12  # predictive silhouettes the step test compares with (at least; 2 per image beyond six)
+STEP_REFERENCES_MIN = 24  # predictive silhouettes the step test compares with (at least; 4 per image beyond six)
 EVALUATION_OVERHEAD = 1.1  # an evaluation's K drapes (a fresh model each) over K measured forward drapes (step test, else floor)
 STEP_FORWARD_SHARE = 0.4  # a forward drape's share of a draw with backward (measured; as the refits' evaluation)
 STEP_BUDGET_SHARE = 0.4   # at most this share of the budget left after the score tests goes to the step drapes,
@@ -182,7 +186,9 @@ STEP_BUDGET_SHARE_MAX = 0.7  # ... or up to this share when the first leaves few
 SCREEN_DRAWS = 4          # with a budget that does not pay for every draw on every step: the screen's draws per step,
 SCREEN_P_MAX = 0.2        # ... the screen's p below which a candidate is confirmed on fresh draws (module doc, 2b)
 SCREEN_BELOW = 0.5        # ... screened when the budget pays for fewer than this share of the draws on every step
+SPECIMEN_QUADRATURE = (60, 99)  # the specimen null's chi-square cells: log-spaced per tail, uniform between
 STEP_PERMUTATIONS_MAX = 20000  # labellings enumerated up to this count (six images, 12 references: 18564), else drawn
+                               # (the relabelling test: the fallback without references, and p_value_permutation)
 
 
 def second_directions(reg):
@@ -567,14 +573,80 @@ def step_permutation_test(deltas, n, max_permutations=None, seed=0):
         rng = np.random.default_rng(seed)
         labels = np.zeros((limit, total))
         labels[0, :n] = 1.0
-        for row in range(1, limit):
-            labels[row, rng.choice(total, n, replace=False)] = 1.0
+        chosen = np.argsort(rng.random((limit - 1, total)), axis=1)[:, :n]  # n of the images, uniformly, per row
+        np.put_along_axis(labels[1:], chosen, 1.0, axis=1)
     stats = labels @ d.T / n - (1.0 - labels) @ d.T / (total - n)      # [permutations, steps]
     observed = d[:, :n].mean(axis=1) - d[:, n:].mean(axis=1)
     best = int(np.argmin(observed))
     smallest = stats.min(axis=1)
     p = float(np.mean(smallest <= observed[best] + 1e-12 * max(1.0, abs(observed[best]))))
     return best, float(observed[best]), p
+
+
+def _chi2_nodes(dof):
+    """Quadrature of a chi-square variable with `dof` degrees of freedom: (values, weights) at the midpoints in
+    probability of SPECIMEN_QUADRATURE's cells (fine in both tails, where the variances' uncertainty decides small
+    p-values), the weights summing to 1 - 2e-12."""
+    from scipy import stats
+
+    edges = np.unique(np.concatenate([np.logspace(-12, -2, SPECIMEN_QUADRATURE[0]),
+                                      np.linspace(0.01, 0.99, SPECIMEN_QUADRATURE[1]),
+                                      1.0 - np.logspace(-2, -12, SPECIMEN_QUADRATURE[0])]))
+    return stats.chi2.ppf(0.5 * (edges[1:] + edges[:-1]), dof), np.diff(edges)
+
+
+def step_specimen_test(deltas, n, n_references, n_redrapes=0):
+    """The step test's p-value against the specimen null (module doc, 2b). `deltas` [S, N] as for
+    step_permutation_test, its columns the n measured images, then `n_references` posterior-predictive references
+    (each a specimen of its own drawn from P), then `n_redrapes` re-drapes of P's mean material (placement only).
+    Under "P is right" the measured images are n re-drapes of ONE specimen drawn from P, so their mean change m has
+    the variance B + W / n about the references' mean r (B: the variance between specimens of a specimen's
+    expected change, W: the variance between re-drapes of one specimen), not (B + W) / n as if every image were a
+    specimen of its own (the relabelling test's null, too narrow where P is uncertain), nor W / n (re-drapes of P's
+    mean alone, where every step towards the specimen passes). The references' variance v_r estimates B + W on
+    J - 1 dof, the re-drapes' and measured images' pooled spread v_w estimates W; both are uncertain, and a B
+    estimated as their difference makes small p-values far too small (measured: 7x at 0.001 where B = W). So p is
+    the probability of a change at most m - r averaged over the two variances' posteriors (scaled inverse
+    chi-square, B + W at least W), by quadrature: Phi((m - r) / sqrt(B + W / n + (B + W) / J)). Measured on
+    simulated Gaussian nulls (20000 each): rejection rates at 0.001 of 0.0006-0.0014 where B >= W, fewer where B is
+    smaller (conservative). The effect's p is its smallest step's, Sidak-corrected over its S steps (the choice of
+    step is part of the statistic). Returns (step index, statistic m - r, p, z: the same change over the plug-in
+    sd sqrt(max(v_r - v_w, 0) + v_w / n + v_r / J))."""
+    from scipy import stats
+
+    d = np.atleast_2d(np.asarray(deltas, dtype=float))
+    s_count, total = d.shape
+    j, f = int(n_references), int(n_redrapes)
+    if n < 1 or j < 3 or f < 0 or n + j + f != total:
+        raise ValueError(f"step_specimen_test: {n} measured, {j} references and {f} re-drapes of {total} images")
+    m, r, q = d[:, :n], d[:, n:n + j], d[:, n + j:]
+    observed = m.mean(axis=1) - r.mean(axis=1)
+    v_r = r.var(axis=1, ddof=1)
+    parts = [(g.var(axis=1, ddof=1), g.shape[1] - 1) for g in (q, m) if g.shape[1] >= 2]
+    nu_w = sum(k for _, k in parts)
+    v_w = sum(v * k for v, k in parts) / nu_w if parts else None
+    x_r, w_r = _chi2_nodes(j - 1)
+    if v_w is not None:
+        x_w, w_w = _chi2_nodes(nu_w)
+    p_steps, z = np.ones(s_count), np.zeros(s_count)
+    for s in range(s_count):
+        total_var = (j - 1) * v_r[s] / x_r                      # B + W, per node
+        if v_w is None:  # one image, no re-drapes: nothing separates B from W; the widest null, B + W
+            var, weight = total_var * (1.0 + 1.0 / j), w_r
+            plug = v_r[s] * (1.0 + 1.0 / j)
+        else:
+            within = nu_w * v_w[s] / x_w                          # W, per node
+            tv, wv = np.maximum(total_var[:, None], within[None, :]), within[None, :]
+            var = (tv - wv) + wv / n + tv / j
+            weight = w_r[:, None] * w_w[None, :]
+            plug = max(v_r[s] - v_w[s], 0.0) + v_w[s] / n + v_r[s] / j
+        if not np.all(var > 0):  # every image changed alike (no spread at all): no evidence either way
+            continue
+        p_steps[s] = float(np.sum(weight * stats.norm.cdf(observed[s] / np.sqrt(var))) / np.sum(weight))
+        z[s] = observed[s] / math.sqrt(plug)
+    best = int(np.argmin(p_steps))
+    p = float(-np.expm1(s_count * np.log1p(-min(float(p_steps[best]), 1.0 - 1e-16))))
+    return best, float(observed[best]), min(1.0, max(p, np.finfo(float).tiny)), float(z[best])
 
 
 def _in_lanes(run, lanes):
@@ -631,19 +703,22 @@ def _step_drapes(pred, models, drawn, steps, used, config, lanes, progress, canc
     return out
 
 
-def step_tests(base_images, step_images, steps, observed, references):
-    """{effect: {statistic, p_value, step, best_of_k_fall}} from the step drapes (module doc, 2b): per step, the change
-    of the draws' mean pixel MSE against every measured and reference image (draws that failed with the step are
-    left out on both sides), then step_permutation_test. best_of_k_fall is the measured images' mean best-of-K MSE
-    fall the best step makes (positive: closer)."""
-    images = list(observed) + list(references)
+def step_tests(base_images, step_images, steps, observed, references, redrapes=()):
+    """{effect: {statistic, p_value, z, p_value_permutation, step, best_of_k_fall}} from the step drapes (module
+    doc, 2b): per step, the change of the draws' mean pixel MSE against every measured, reference and re-drape image
+    (draws that failed with the step are left out on both sides), then step_specimen_test (p_value; with fewer than
+    three references, step_permutation_test) and, for comparison, step_permutation_test on the measured images and
+    references (p_value_permutation). best_of_k_fall is the measured images' mean best-of-K MSE fall the best step
+    makes (positive: closer)."""
+    images = list(observed) + list(references) + list(redrapes)
+    n, j = len(observed), len(references)
     base = np.array([[measure.pixel_mse(b, q) for q in images] if b is not None else [np.nan] * len(images)
                      for b in base_images])
     out = {}
-    for n, st in steps.items():
+    for name, st in steps.items():
         deltas, falls = [], []
         for si in range(len(st)):
-            imgs = step_images[(n, si)]
+            imgs = step_images[(name, si)]
             e = np.array([[measure.pixel_mse(a, q) for q in images] if a is not None else [np.nan] * len(images)
                           for a in imgs])
             both = ~np.isnan(e[:, 0]) & ~np.isnan(base[:, 0])
@@ -652,11 +727,16 @@ def step_tests(base_images, step_images, steps, observed, references):
                 falls.append(0.0)
                 continue
             deltas.append(np.mean(e[both] - base[both], axis=0))
-            falls.append(float(np.mean(np.min(base[both, :len(observed)], axis=0)
-                                       - np.min(e[both, :len(observed)], axis=0))))
-        best, stat, p = step_permutation_test(deltas, len(observed))
-        out[n] = {"statistic": stat, "p_value": p, "step": st[best][0], "values": dict(st[best][1]),
-                  "best_of_k_fall": falls[best]}
+            falls.append(float(np.mean(np.min(base[both, :n], axis=0) - np.min(e[both, :n], axis=0))))
+        deltas = np.asarray(deltas)
+        _, _, p_perm = step_permutation_test(deltas[:, :n + j], n)
+        if j >= 3:
+            best, stat, p, z = step_specimen_test(deltas, n, j, len(images) - n - j)
+        else:
+            best, stat, p = step_permutation_test(deltas[:, :n + j], n)
+            z = None
+        out[name] = {"statistic": stat, "p_value": p, "z": z, "p_value_permutation": p_perm,
+                     "step": st[best][0], "values": dict(st[best][1]), "best_of_k_fall": falls[best]}
     return out
 
 
@@ -885,17 +965,21 @@ def _joint_drapes(preset, observations, names, k, seed, config, threads, templat
 
 
 def refit_order(entries, threshold=None):
-    """`entries` (ranking entries with p_value and, where the step test ran, step.statistic) in the order they are
-    refitted (module doc, 3.): with a `threshold`, the significant ones (p below it) first; within each group by
-    the sum of their ranks in the two tests (the combined p, smallest first; the step statistic, most negative
-    first), ties to the better step rank. A candidate without a step statistic ranks as 0 there (after every step
-    that brought the draws closer), so without a step test this is the p order."""
+    """`entries` (ranking entries with p_value and, where the step test ran, step.p_value and step.statistic) in the
+    order they are refitted (module doc, 3.): with a `threshold`, the significant ones (p below it) first; within
+    each group by the sum of their ranks in the two tests (the combined p, smallest first; the step test's p,
+    smallest first, then its statistic, most negative first), ties to the better step rank. A candidate without a
+    step test ranks after every one with it there (p 1, statistic 0), so without a step test this is the p order.
+    (Until 2026-11-28 the step rank went by the statistic alone: the relabelling p saturated. With the specimen
+    null's continuous p the raw statistic put prestrain's refit before a stiffness map's whose step p was 500x
+    smaller, on the round-trip test's drapes.)"""
     if threshold is not None:
         return (refit_order([e for e in entries if e["p_value"] < threshold])
                 + refit_order([e for e in entries if e["p_value"] >= threshold]))
 
     def stat(e):
-        return float((e.get("step") or {}).get("statistic", 0.0))
+        st = e.get("step") or {}
+        return (float(st.get("p_value", 1.0)), float(st.get("statistic", 0.0)))
     by_p = sorted(entries, key=lambda e: (e["p_value"], stat(e)))
     by_step = sorted(entries, key=lambda e: (stat(e), e["p_value"]))
     rank_p = {id(e): i for i, e in enumerate(by_p)}
@@ -1120,7 +1204,7 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
               "test": "Hotelling T^2 of the per-draw score (pixel data term gradient at the off value, the bending "
                       "scale's part projected out, norms capped), p from sign flips of the draws; p_value_f: "
                       "Hotelling's F(q, K - 1 - q), p_value_chi2: the asymptotic chi2(q); with the step test (the "
-                      "draws at the effect's moderate strength, p from relabelling measured and reference images) "
+                      "draws at the effect's moderate strength, p against n re-drapes of one specimen drawn from P) "
                       "p_value = min(1, 2 min(p_value_score, step.p_value))",
               "material_prior": None, "history": [], "cancelled": False, "seconds": {}}
     figures = {"images": []}
@@ -1214,7 +1298,7 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
         forward_step = None  # a forward drape's wall time measured on the step test's drapes
         test_s = None  # the step tests' own computation per draw and step (seconds), measured on the first tests
         k_screen = None
-        j_step = max(STEP_REFERENCES_MIN, 2 * len(observations))
+        j_step = max(STEP_REFERENCES_MIN, 4 * len(observations))
         # a forward drape's wall time: measured on the re-drape floor's drapes, else estimated from the draws
         forward = forward_measured or per_draw * STEP_FORWARD_SHARE / lanes
         left = None
@@ -1224,9 +1308,10 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
             if MIN_SAMPLES <= k_step and k_step < SCREEN_BELOW * len(done):  # thin: screen, then confirm
                 k_screen = min(k_step, SCREEN_DRAWS)
         tests = {}
-        # with few images the relabelling cannot reach the threshold (one image: 1 in 13), and the combined p would
-        # only halve the score test's power: then the step test is not run
-        attainable = 2.0 / math.comb(len(observations) + j_step, len(observations)) < threshold
+        # the specimen test's p is continuous; a relabelling one, its fallback without references,
+        # cannot reach the threshold with few images (one image: 1 in 13), and the combined p would only halve the
+        # score test's power: then the step test is not run
+        attainable = j_step >= 3 or 2.0 / math.comb(len(observations) + j_step, len(observations)) < threshold
         if not attainable:
             result["step_test"] = {"draws": 0, "references": 0,
                                    "rule": f"not run: with {len(observations)} image(s) and {j_step} references the "
@@ -1257,7 +1342,8 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
             else:
                 observed = [o.mask for o in observations]
                 tt = time.monotonic()
-                tests = step_tests([shapes[i]["image"] for i in used], images_k, steps, observed, references)
+                tests = step_tests([shapes[i]["image"] for i in used], images_k, steps, observed, references,
+                                   redrapes)
                 # the tests' own computation per draw and step (pixel MSEs against every image, the relabellings):
                 # a confirmation repeats it on all its draws
                 test_s = (time.monotonic() - tt) / max(1, len(used) * n_steps)
@@ -1286,19 +1372,21 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                             both = used + fresh
                             merged = {key: images_k[key] + more[key] for key in more}
                             for n, st in step_tests([shapes[i]["image"] for i in both], merged, sub, observed,
-                                                    references).items():
+                                                    references, redrapes).items():
                                 tests[n] = {**st, "draws": len(both), "screen": tests[n]["screen"]}
                     for st in tests.values():  # unconfirmed (on the screen's draws only): at least SCREEN_P_MAX
                         if st["draws"] == k_screen:
                             st["p_value"] = max(st["p_value"], SCREEN_P_MAX)
             result["seconds"]["steps"] = time.monotonic() - ts
-            result["step_test"] = {"draws": len(used), "references": len(references), "screen": screen_info,
-                                   "forward_s": forward_step, "test_s": test_s,
+            result["step_test"] = {"draws": len(used), "references": len(references), "redrapes": len(redrapes),
+                                   "screen": screen_info, "forward_s": forward_step, "test_s": test_s,
                                    "rule": "per candidate the primary parameter at +- its moderate strength (and "
                                            "turned, for the tilt); the change of the draws' mean pixel MSE against "
                                            "the measured images minus against P's own predictive silhouettes; p "
-                                           "from the labellings of measured and reference images (exchangeable if P "
-                                           "is right); p_value = min(1, 2 min(score p, step p))"
+                                           "against n re-drapes of one specimen drawn from P (Student's t, the "
+                                           "variance between specimens from the references, within one from the "
+                                           "re-drapes and the measured images; Sidak over the steps); "
+                                           "p_value = min(1, 2 min(score p, step p))"
                                            + ("" if screen_info is None else
                                               f"; screened on {k_screen} draws, the candidates with screen p below "
                                               f"{SCREEN_P_MAX:g} confirmed on fresh draws as the budget allows (their "
@@ -1324,8 +1412,8 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
             entry["explanation"] += (f" Step test ({st['step']}): the draws' MSE against the measurements moves "
                                      f"{st['statistic']:+.2g} relative to P's own drapes, p = {st['p_value']:.2g}; "
                                      f"combined p = {entry['p_value']:.2g} ({verdict}).")
-        # ties: with K = 16 draws the sign-flip p-value cannot go below 2 / 2^16 = 3.1e-5 and the step test's
-        # labellings bound it too; the step statistic, then Hotelling's F break them
+        # ties: with K = 16 draws the sign-flip p-value cannot go below 2 / 2^16 = 3.1e-5 (the step test's is
+        # continuous); the step statistic, then Hotelling's F break them
         result["ranking"].sort(key=lambda e: (e["p_value"] is None, e["p_value"] if e["p_value"] is not None else 1.0,
                                               (e.get("step") or {}).get("statistic", 0.0),
                                               e.get("p_value_f") if e.get("p_value_f") is not None else 1.0))

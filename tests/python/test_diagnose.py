@@ -414,6 +414,46 @@ def test_step_permutation_test_finds_the_step_that_brings_the_draws_closer():
         diagnose.step_permutation_test(shifted, 0)
 
 
+def _specimen_sets(rng, between, within, n=6, refs=24, redrapes=12, shift=0.0, steps=1):
+    """deltas [steps, n + refs + redrapes] under the specimen model: the measured images re-drapes of one specimen
+    (its expected change drawn with variance `between`), each reference a specimen of its own, the re-drapes of the
+    mean specimen; `shift` moves the measured images' changes."""
+    b = rng.normal(0.0, np.sqrt(between), size=(steps, 1))
+    m = shift + b + rng.normal(0.0, np.sqrt(within), size=(steps, n))
+    r = rng.normal(0.0, np.sqrt(between), size=(steps, refs)) + rng.normal(0.0, np.sqrt(within), size=(steps, refs))
+    q = rng.normal(0.0, np.sqrt(within), size=(steps, redrapes))
+    return np.hstack([m, r, q])
+
+
+def test_step_specimen_test_holds_its_level_where_the_relabelling_does_not():
+    rng = np.random.default_rng(11)
+    n, refs, redrapes = 6, 24, 12
+    p_spec, p_perm = [], []
+    for _ in range(300):  # P uncertain: specimens differ as much as re-drapes of one do (B = W)
+        d = _specimen_sets(rng, 1.0, 1.0, n, refs, redrapes)
+        p_spec.append(diagnose.step_specimen_test(d, n, refs, redrapes)[2])
+        p_perm.append(diagnose.step_permutation_test(d[:, :n + refs], n)[2])
+    p_spec, p_perm = np.array(p_spec), np.array(p_perm)
+    assert 0.02 <= np.mean(p_spec < 0.05) <= 0.08      # the specimen null: its level
+    assert np.mean(p_perm < 0.05) > 0.15                # every image a specimen of its own: far too many
+    # P sure of the material (B = 0): a change of 3 re-drape sds towards the measured images is found
+    d = _specimen_sets(np.random.default_rng(3), 0.0, 1.0, n, refs, redrapes, shift=-3.0)
+    best, stat, p, z = diagnose.step_specimen_test(d, n, refs, redrapes)
+    assert best == 0 and p < 1e-3 and z < -3 and stat == pytest.approx(d[0, :n].mean() - d[0, n:n + refs].mean())
+    # the choice of step is part of the statistic (Sidak over the steps)
+    wide = np.vstack([d, _specimen_sets(np.random.default_rng(4), 0.0, 1.0, n, refs, redrapes, steps=7)])
+    assert diagnose.step_specimen_test(wide, n, refs, redrapes)[2] > p
+    # a step that moves every image alike is not significant; one that changes nothing has p 1
+    common = _specimen_sets(np.random.default_rng(5), 0.0, 1.0, n, refs, redrapes) - 5.0
+    assert diagnose.step_specimen_test(common, n, refs, redrapes)[2] > 0.01
+    assert diagnose.step_specimen_test(np.zeros((2, n + refs + redrapes)), n, refs, redrapes)[2] == 1.0
+    # one measured image and no re-drapes: nothing separates B from W, the widest null
+    one = _specimen_sets(np.random.default_rng(6), 0.0, 1.0, 1, refs, 0, shift=-3.0)
+    assert diagnose.step_specimen_test(one, 1, refs, 0)[2] > diagnose.step_specimen_test(d, n, refs, redrapes)[2]
+    with pytest.raises(ValueError):
+        diagnose.step_specimen_test(d, n, refs, redrapes + 1)
+
+
 def test_effect_steps_are_the_stepped_parameters_at_their_moderate_strength():
     reg = fit_effects.registry()
     steps = diagnose.effect_steps(reg, list(reg))
@@ -544,6 +584,9 @@ def test_screened_step_test_confirms_on_fresh_draws_as_the_full_test_would(image
     full = diagnose.diagnose(PRESET, tilted, time_budget=1e4, **args)
     assert full["step_test"]["draws"] == 8 and full["step_test"]["screen"] is None
     monkeypatch.setattr(diagnose, "SCREEN_BELOW", 10.0)
+    # three images and four draws: against the specimen null (2026-11-28) the tilt's screen p is 0.24, the offset's
+    # 0.67; a screen line between them confirms the one and not the other
+    monkeypatch.setattr(diagnose, "SCREEN_P_MAX", 0.5)
     screened = diagnose.diagnose(PRESET, tilted, time_budget=1e4, out_dir=str(tmp_path / "report"), **args)
     with open(tmp_path / "report" / "diagnosis.json") as f:
         validate(json.load(f))
@@ -568,6 +611,7 @@ def test_screened_step_test_confirms_on_fresh_draws_as_the_full_test_would(image
             assert st["draws"] == diagnose.SCREEN_DRAWS
             assert st["p_value"] == max(st["screen"]["p_value"], diagnose.SCREEN_P_MAX)
             assert "not confirmed" in e["explanation"]
+    assert "offset" not in info["confirmed"]
     print({n: (e["step"]["screen"]["p_value"], e["step"]["p_value"], e["p_value"]) for n, e in by_name.items()},
           screened["seconds"], full["seconds"])
 
@@ -597,6 +641,11 @@ def test_refit_order_sums_the_ranks_of_both_tests():
     plain = [entry("a", 0.02), entry("b", 0.001), entry("c", 0.01)]
     assert [e["effect"] for e in diagnose.refit_order(plain)] == ["b", "c", "a"]
     assert diagnose.refit_order([]) == []
+    # with the step test's p (the specimen null's, continuous) the step rank goes by it, the statistic breaking
+    # ties: the round trip's stiffness-map drapes, where prestrain's statistic was the larger
+    stepped = [{"effect": "prestrain", "p_value": 0.0022, "step": {"p_value": 0.0011, "statistic": -0.0190}},
+               {"effect": "heterogeneity_map", "p_value": 4.7e-6, "step": {"p_value": 2.4e-6, "statistic": -0.0187}}]
+    assert [e["effect"] for e in diagnose.refit_order(stepped)] == ["heterogeneity_map", "prestrain"]
 
 
 def test_refit_order_puts_the_significant_candidates_first():

@@ -8,7 +8,8 @@ k = 1..6 (against the re-drape floor), and the drape coefficient, node count and
 draws' 90 % interval. For every registered effect not in P (or only --candidates) it runs a score test at the
 effect's off value (the data term's gradient per draw, back-propagated through the rollout; Hotelling's T^2
 over the draws, p from sign flips of the draws) and a step test (the same draws with the effect at its moderate
-strength, forward only; p from relabelling the measured images and P's own predictive silhouettes), combined
+strength, forward only; p against n re-drapes of one specimen drawn from P, its spread from P's own predictive
+silhouettes and re-drapes of P's mean), combined
 per candidate (twice the smaller p), with the threshold --alpha (0.01) Bonferroni-corrected over the candidates
 tested. Once one is below it, up to --max-refits (3) candidates with p below 0.05 are refitted (fit --effects NAME
 with P's material held at its posterior: only the effect is fitted) and written as DIR/presets/NAME.json;
