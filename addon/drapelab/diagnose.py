@@ -729,12 +729,10 @@ def step_tests(base_images, step_images, steps, observed, references, redrapes=(
             deltas.append(np.mean(e[both] - base[both], axis=0))
             falls.append(float(np.mean(np.min(base[both, :n], axis=0) - np.min(e[both, :n], axis=0))))
         deltas = np.asarray(deltas)
-        _, _, p_perm = step_permutation_test(deltas[:, :n + j], n)
+        best, stat, p_perm = step_permutation_test(deltas[:, :n + j], n)
+        p, z = p_perm, None  # fewer than three references (their drapes failed): the relabelling test's
         if j >= 3:
             best, stat, p, z = step_specimen_test(deltas, n, j, len(images) - n - j)
-        else:
-            best, stat, p = step_permutation_test(deltas[:, :n + j], n)
-            z = None
         out[name] = {"statistic": stat, "p_value": p, "z": z, "p_value_permutation": p_perm,
                      "step": st[best][0], "values": dict(st[best][1]), "best_of_k_fall": falls[best]}
     return out
@@ -1308,19 +1306,13 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
             if MIN_SAMPLES <= k_step and k_step < SCREEN_BELOW * len(done):  # thin: screen, then confirm
                 k_screen = min(k_step, SCREEN_DRAWS)
         tests = {}
-        # the specimen test's p is continuous; a relabelling one, its fallback without references,
-        # cannot reach the threshold with few images (one image: 1 in 13), and the combined p would only halve the
-        # score test's power: then the step test is not run
-        attainable = j_step >= 3 or 2.0 / math.comb(len(observations) + j_step, len(observations)) < threshold
-        if not attainable:
-            result["step_test"] = {"draws": 0, "references": 0,
-                                   "rule": f"not run: with {len(observations)} image(s) and {j_step} references the "
-                                           f"smallest p it can give is above the threshold {threshold:.2g}"}
-        if n_steps and attainable and k_step < MIN_SAMPLES:
+        # (the specimen test's p is continuous, so any number of images can reach the threshold: until 2026-11-28
+        # the relabelling test was not run where its smallest p, 2 / C(n + J, n), could not)
+        if n_steps and k_step < MIN_SAMPLES:
             result["step_test"] = {"draws": 0, "references": 0,
                                    "rule": f"not run: the time budget left room for {k_step} draws per step "
                                            f"({MIN_SAMPLES} needed)"}
-        if n_steps and attainable and k_step >= MIN_SAMPLES and not result["cancelled"]:
+        if n_steps and k_step >= MIN_SAMPLES and not result["cancelled"]:
             ts = time.monotonic()
             k_first = k_screen or k_step
             _progress(progress, "steps", f"step test{' screen' if k_screen else ''}: {n_steps} steps of {len(steps)} "
@@ -1383,9 +1375,10 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                                    "rule": "per candidate the primary parameter at +- its moderate strength (and "
                                            "turned, for the tilt); the change of the draws' mean pixel MSE against "
                                            "the measured images minus against P's own predictive silhouettes; p "
-                                           "against n re-drapes of one specimen drawn from P (Student's t, the "
-                                           "variance between specimens from the references, within one from the "
-                                           "re-drapes and the measured images; Sidak over the steps); "
+                                           "against n re-drapes of one specimen drawn from P (the variance "
+                                           "between specimens from the references, within one from the re-drapes "
+                                           "and the measured images, integrated over both estimates' uncertainty; "
+                                           "Sidak over the steps); "
                                            "p_value = min(1, 2 min(score p, step p))"
                                            + ("" if screen_info is None else
                                               f"; screened on {k_screen} draws, the candidates with screen p below "
