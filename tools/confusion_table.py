@@ -4,7 +4,9 @@
 effect, placement seed --reference-seed); then, for every seed of --seeds (seeds not used in any tuning run),
 6 drapes of the same material are made per case and diagnosed with the reference:
     each registered effect whose primary parameter is not structural, at its registry moderate strength (times --strength-factor;
-    an effect whose axis is set by two step_parameters, bending_anisotropy, along a random axis from the seed),
+    an effect whose axis is set by two step_parameters, bending_anisotropy's 2-fold axis or an offset's direction,
+    along a random axis from the seed; with --directions random a tilt's azimuth (the registry's second_direction
+    parameter) too, else along +x as before 2026-11-28),
     `control` (no effect) and `weak` (a 4 degree tilt, 0.07 rad: below the re-drape noise),
 recording what the diagnosis ranks first (smallest p), what it recommends (or null), and, where a refit ran,
 how much of the gap between the reference on these drapes and the reference on control drapes of the same seed
@@ -55,13 +57,22 @@ def strength_factor(arg, seed, name):
     return float(np.exp(rng.uniform(np.log(lo), np.log(hi))))
 
 
-def cases(names, registry, factor="1", seed=0):
+def cases(names, registry, factor="1", seed=0, directions="x"):
+    """[(case, {effect: {parameter: value}} or None)] for one seed (module doc). `directions`: "x" keeps a tilt
+    along +x (azimuth 0), "random" draws its azimuth (the registry's second_direction parameter) from the seed."""
     out = []
     for name in names:
         primary = registry[name]["parameters"][0]
         scale = strength_factor(factor, seed, name)
         stepped = registry[name].get("step_parameters") or []
-        if len(stepped) == 2:  # an axis set by two parameters (bending_anisotropy): a random one, from the seed
+        turned = registry[name].get("second_direction") or {}
+        if directions == "random" and len(turned) == 1:  # a direction parameter (the tilt's azimuth): uniform
+            (direction,) = turned
+            angle = np.random.default_rng([seed, sum(ord(c) for c in name), 13]).uniform(0.0, 2.0 * np.pi)
+            value = float(np.clip(primary["moderate"] * scale, primary["lower"], primary["upper"]))
+            out.append((name, {name: {primary["name"]: value, direction: float(angle)}}))
+            continue
+        if len(stepped) == 2:  # an axis set by two parameters (bending_anisotropy, offset): a random one, from the seed
             by_name = {q["name"]: q for q in registry[name]["parameters"]}
             angle = np.random.default_rng([seed, sum(ord(c) for c in name), 11]).uniform(0.0, 2.0 * np.pi)
             values = {}
@@ -89,6 +100,8 @@ def main():
     ap.add_argument("--strength-factor", default="1",
                     help="the hidden effects' strength as a factor of the registry's moderate (the step test's "
                          "step), or 'random': log-uniform in [0.7, 1.4] per seed and effect")
+    ap.add_argument("--directions", choices=("x", "random"), default="x",
+                    help="a tilt along +x (the tables before 2026-11-28) or in a random direction per seed")
     args = ap.parse_args()
     registry = {e["name"]: e for e in sim.effects()}
     names = args.effects.split(",") if args.effects else [
@@ -110,7 +123,7 @@ def main():
     rows = json.load(open(result_path))["rows"] if os.path.isfile(result_path) else []
     done = {(r["case"], r["seed"]) for r in rows}
     for seed in [int(s) for s in args.seeds.split(",")]:
-        for case, effects in cases(names, registry, args.strength_factor, seed):
+        for case, effects in cases(names, registry, args.strength_factor, seed, args.directions):
             if (case, seed) in done:
                 continue
             folder = os.path.join(args.out, f"seed{seed}", case)

@@ -46,8 +46,8 @@
    that change the fold pattern (prestrain, a stiffness map, a plastic set) move the drape little to first order and
    a lot at a finite strength. So the same draws (material, P's effect draws, placement noise) are draped once more
    with each candidate's primary parameter at its registry moderate strength (and at minus it where the bounds
-   allow; a tilt also turned; an effect whose axis is set by several parameters, bending_anisotropy, steps each of
-   the registry's `step_parameters` in turn), forward only, and the change of each draw's pixel MSE is measured against every
+   allow; a tilt also turned; an effect whose axis is set by several parameters, bending_anisotropy's 2-fold axis
+   and an offset's direction, steps each of the registry's `step_parameters` in turn), forward only, and the change of each draw's pixel MSE is measured against every
    measured image, against P's own predictive silhouettes (STEP_REFERENCES_MIN of them, the score's and more) and
    against the re-drape floor's re-drapes of P's mean material. The statistic is the change's mean over the
    measured images minus its mean over the references (negative: the step brings the draws closer to the
@@ -495,7 +495,8 @@ def effect_steps(reg, names, second=None):
     candidates that are not switches: each stepped parameter (the registry's `step_parameters`, else the primary)
     at its registry moderate strength, and at minus it when its bounds allow, the effect's other parameters off;
     for an effect with a second direction (the tilt's azimuth) the same again with the direction parameter turned.
-    bending_anisotropy steps cos2 and sin2: its 2-fold axis at 0, 90, 45 and 135 degrees."""
+    bending_anisotropy steps cos2 and sin2: its 2-fold axis at 0, 90, 45 and 135 degrees; offset dx and dy, and
+    (the registry's `step_diagonals`) both at once along the diagonals: eight directions 45 degrees apart."""
     second = second_directions(reg) if second is None else second
     out = {}
     for n in names:
@@ -514,6 +515,12 @@ def effect_steps(reg, names, second=None):
                 values.append(-q["moderate"])
             out[n] += [(f"{q['name']}={v:+.3g}{tag}", {**off, **turn, q["name"]: v})
                        for turn, tag in turns for v in values]
+        if entry.get("step_diagonals") and len(stepped) == 2:  # the plane's diagonals, each at the moderate length
+            a, b = stepped
+            for sa, sb in ((1, 1), (-1, -1), (-1, 1), (1, -1)):
+                va, vb = (float(np.clip(sgn * q["moderate"] / math.sqrt(2.0), q["lower"], q["upper"]))
+                          for sgn, q in ((sa, a), (sb, b)))
+                out[n].append((f"{a['name']}={va:+.3g},{b['name']}={vb:+.3g}", {**off, a["name"]: va, b["name"]: vb}))
     return out
 
 

@@ -107,6 +107,7 @@ py::list effect_list() {
     py::list steps;
     for (const auto& name : e.step_parameters) steps.append(py::str(name));
     d["step_parameters"] = steps;
+    d["step_diagonals"] = e.step_diagonals;
     out.append(d);
   }
   return out;

@@ -16,10 +16,11 @@ from fit_support import SHIPPED_PRESET as PRESET, small_config
 # map was found, p 2e-4, but 8 refit epochs did not lower the error): a fast check of the loop; the targets at
 # moderate strengths are tools/confusion_table.py's. The third effect is an offset (1 cm, moderate), not a tilt:
 # against the step test's specimen null (2026-11-28) even a 0.4 rad tilt on these six drapes is not significant
-# (combined p 0.0037, 0.3 rad: 0.0094; docs/diagnose.md)
+# (combined p 0.0037, 0.3 rad: 0.0094; docs/diagnose.md). The offset lies along y: the step test once stepped an
+# offset along x alone and missed one along y (docs/diagnose.md, "Measured: directions")
 CASES = {"prestrain": {"prestrain": {"strain": 0.03}},
          "heterogeneity_map": {"heterogeneity_map": {"radial": 0.8}},
-         "offset": {"offset": {"dx_m": 0.01}},
+         "offset": {"offset": {"dy_m": 0.01}},
          "control": None}
 CANDIDATES = "prestrain,heterogeneity_map,offset"
 COUNT = 6

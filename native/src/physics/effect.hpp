@@ -90,9 +90,14 @@ struct EffectSpec {
   std::map<std::string, double> second_direction;
   // Optional: the parameters the diagnosis's step test steps (each at +- its moderate strength, the others off);
   // empty: the primary alone. An effect whose finite-strength signature has a direction set by several parameters
-  // and none at the off values (bending_anisotropy's 2-fold axis) names them all, so that the step test, and the
-  // refit that starts at its best step, sees each axis (docs/diagnose.md, "Steps along several parameters").
+  // (bending_anisotropy's 2-fold axis, an offset's direction) names them all, so that the step test, and the
+  // refit that starts at its best step, sees each axis (docs/diagnose.md, "Measured: directions").
   std::vector<std::string> step_parameters;
+  // Optional, with two step_parameters: the step test also steps along the four diagonals of their plane (each
+  // pair at +- moderate / sqrt 2), eight directions in all, for an effect whose drape changes a lot with the
+  // direction (an offset 45 degrees from its nearest step was significant but not refitted: docs/diagnose.md,
+  // "Measured: directions").
+  bool step_diagonals = false;
 };
 
 // Effect name -> parameter name -> value; an effect present here is active (missing parameters take their

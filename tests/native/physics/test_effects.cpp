@@ -350,6 +350,7 @@ TEST(EffectRegistry, SpecsAreComplete) {
       ASSERT_NE(it, e.parameters.end()) << name;
       EXPECT_NE(it->moderate, it->off) << name;
     }
+    if (e.step_diagonals) EXPECT_EQ(e.step_parameters.size(), 2u) << e.name;  // the diagonals of their plane
   }
 }
 
