@@ -47,9 +47,10 @@
    a lot at a finite strength. So the same draws (material, P's effect draws, placement noise) are draped once more
    with each candidate's primary parameter at its registry moderate strength (and at minus it where the bounds
    allow; a tilt also turned; an effect whose axis is set by several parameters, bending_anisotropy's 2-fold axis
-   and an offset's direction, steps each of the registry's `step_parameters` in turn), forward only, and the change of each draw's pixel MSE is measured against every
-   measured image, against P's own predictive silhouettes (STEP_REFERENCES_MIN of them, the score's and more) and
-   against the re-drape floor's re-drapes of P's mean material. The statistic is the change's mean over the
+   and an offset's direction, steps each of the registry's `step_parameters` in turn, an offset also along the
+   diagonals), forward only, and the change of each draw's pixel MSE is measured against every measured image,
+   against P's own predictive silhouettes (STEP_REFERENCES_MIN of them, the score's and more) and against the
+   re-drape floor's re-drapes of P's mean material. The statistic is the change's mean over the
    measured images minus its mean over the references (negative: the step brings the draws closer to the
    measurements than to what P itself drapes). Its null (step_specimen_test): under "P is right" the measured
    images are n re-drapes of one specimen drawn from P, so the statistic varies by the spread between specimens

@@ -57,13 +57,13 @@ TABLE_SHAPES = {"stretch": tables.STRETCH_SHAPE, "bend": tables.BEND_SHAPE}
 
 # ---------------------------------------------------------------- effects
 def effects():
-    """The effect registry: a list of {name, explanation, signature, dynamic_only, second_direction, parameters:
-    [{name, unit, off, lower, upper, prior_scale, moderate, structural, description}]} (the first parameter is the
-    primary one; dynamic_only: the effect acts only over a dynamic rollout's time steps, e.g. damping, and a static
-    drape ignores it; second_direction: {parameter: value} under which the diagnosis scores the primary again,
-    e.g. a tilt's azimuth turned by 90 degrees; step_parameters: the parameters the diagnosis's step test steps,
-    empty for the primary alone; step_diagonals: with two step_parameters, the step test also steps along the
-    diagonals of their plane)."""
+    """The effect registry: a list of {name, explanation, signature, dynamic_only, second_direction, step_parameters,
+    step_diagonals, parameters: [{name, unit, off, lower, upper, prior_scale, moderate, structural, description}]}
+    (the first parameter is the primary one; dynamic_only: the effect acts only over a dynamic rollout's time
+    steps, e.g. damping, and a static drape ignores it; second_direction: {parameter: value} under which the
+    diagnosis scores the primary again, e.g. a tilt's azimuth turned by 90 degrees; step_parameters: the parameters
+    the diagnosis's step test steps, empty for the primary alone; step_diagonals: with two step_parameters, the
+    step test also steps along the diagonals of their plane)."""
     return [dict(e) for e in native.effects()]
 
 
