@@ -55,9 +55,11 @@
    measurements than to what P itself drapes). Its null (step_specimen_test): under "P is right" the measured
    images are n re-drapes of one specimen drawn from P, so the statistic varies by the spread between specimens
    (the references' variance less the re-drapes') plus the spread between re-drapes over n; p integrates over
-   both variances' uncertainty and is Sidak-corrected over the effect's steps. (Until 2026-11-28 p came from
-   relabelling measured and reference images as if every measured image were a specimen of its own: too narrow
-   where P is uncertain, it passed a crease step on circle3 drapes without a crease; docs/diagnose.md.) A
+   both variances' uncertainty and is corrected for the choice among the effect's steps by their correlation
+   (step_family_p: Sidak's for independent steps, fewer chances for steps that move the draws alike). (Until
+   2026-11-28 p came from relabelling measured and reference images as if every measured image were a specimen of
+   its own: too narrow where P is uncertain, it passed a crease step on circle3 drapes without a crease;
+   docs/diagnose.md.) A
    candidate's p_value is min(1, 2 min(score p, step p)) (Bonferroni over its two tests); both are reported.
    Screened (a fine mesh or a whole library on a budget): when the budget pays for fewer than SCREEN_BELOW of the
    draws on every step, every candidate is screened on SCREEN_DRAWS of them, and those whose screen p is below
@@ -188,6 +190,8 @@ SCREEN_DRAWS = 4          # with a budget that does not pay for every draw on ev
 SCREEN_P_MAX = 0.2        # ... the screen's p below which a candidate is confirmed on fresh draws (module doc, 2b)
 SCREEN_BELOW = 0.5        # ... screened when the budget pays for fewer than this share of the draws on every step
 SPECIMEN_QUADRATURE = (60, 99)  # the specimen null's chi-square cells: log-spaced per tail, uniform between
+STEP_FAMILY_DRAWS = 200000   # the step test's family p: normal draws of the steps' correlation (step_family_p)
+STEP_FAMILY_CONFIDENCE = 0.99  # ... whose hit rate enters by this one-sided Clopper-Pearson upper bound
 STEP_PERMUTATIONS_MAX = 20000  # labellings enumerated up to this count (six images, 12 references: 18564), else drawn
                                # (the relabelling test: the fallback without references, and p_value_permutation)
 
@@ -617,9 +621,11 @@ def step_specimen_test(deltas, n, n_references, n_redrapes=0):
     the probability of a change at most m - r averaged over the two variances' posteriors (scaled inverse
     chi-square, B + W at least W), by quadrature: Phi((m - r) / sqrt(B + W / n + (B + W) / J)). Measured on
     simulated Gaussian nulls (5000-20000 each): rejection rates at 0.001 of 0.0009-0.0018 where B >= W, fewer
-    where B is smaller (conservative). The effect's p is its smallest step's, Sidak-corrected over its S steps (the choice of
-    step is part of the statistic). Returns (step index, statistic m - r, p, z: the same change over the plug-in
-    sd sqrt(max(v_r - v_w, 0) + v_w / n + v_r / J))."""
+    where B is smaller (conservative). The effect's p is its smallest step's corrected for the choice among its S
+    steps (the choice of step is part of the statistic): step_family_p, with the steps' correlation from the
+    plug-in covariance of their statistics (neighbouring steps, an offset's eight directions, move the draws
+    alike, and Sidak over S would treat them as S chances). Returns (step index, statistic m - r, p, z: the same
+    change over the plug-in sd sqrt(max(v_r - v_w, 0) + v_w / n + v_r / J))."""
     from scipy import stats
 
     d = np.atleast_2d(np.asarray(deltas, dtype=float))
@@ -653,8 +659,48 @@ def step_specimen_test(deltas, n, n_references, n_redrapes=0):
         p_steps[s] = float(np.sum(weight * stats.norm.cdf(observed[s] / np.sqrt(var))) / np.sum(weight))
         z[s] = observed[s] / math.sqrt(plug)
     best = int(np.argmin(p_steps))
-    p = float(-np.expm1(s_count * np.log1p(-min(float(p_steps[best]), 1.0 - 1e-16))))
+    if s_count == 1:
+        return best, float(observed[best]), max(float(p_steps[best]), np.finfo(float).tiny), float(z[best])
+    cov_r = np.atleast_2d(np.cov(r, ddof=1))
+    if v_w is None:
+        cov = cov_r * (1.0 + 1.0 / j)
+    else:
+        cov_w = sum(np.atleast_2d(np.cov(g, ddof=1)) * (g.shape[1] - 1) for g in (q, m) if g.shape[1] >= 2) / nu_w
+        lam, vec = np.linalg.eigh(cov_r - cov_w)
+        cov = (vec * np.maximum(lam, 0.0)) @ vec.T + cov_w / n + cov_r / j
+    p = step_family_p(p_steps, cov)
     return best, float(observed[best]), min(1.0, max(p, np.finfo(float).tiny)), float(z[best])
+
+
+def step_family_p(p_steps, cov, draws=None, seed=0):
+    """The p-value of the smallest of one effect's step p's `p_steps` [S] (each against its own null), corrected for
+    the choice among the S steps: P(min_s U_s <= min p) when the steps' statistics are jointly normal with the
+    covariance `cov` [S, S] (their plug-in covariance), U_s = Phi(Z_s), Z ~ N(0, corr(cov)): the share of
+    `draws` (STEP_FAMILY_DRAWS) such draws whose smallest U is at most min p, taken at its one-sided
+    STEP_FAMILY_CONFIDENCE Clopper-Pearson upper bound, and never above Bonferroni's S min p. Independent steps
+    give Sidak's 1 - (1 - p)^S, steps that move the draws alike fewer chances (identical ones: p itself), opposite
+    ones (+- a parameter: one helps where the other hurts) up to S p. A step without spread (p 1, variance 0) is
+    taken as independent of the others."""
+    from scipy import stats
+
+    p_steps = np.asarray(p_steps, dtype=float)
+    s_count = p_steps.size
+    p_min = float(np.min(p_steps))
+    bonferroni = min(1.0, s_count * p_min)
+    if s_count == 1 or p_min >= 1.0:
+        return min(1.0, p_min)
+    c = np.array(cov, dtype=float).reshape(s_count, s_count)
+    sd = np.sqrt(np.clip(np.diag(c), 0.0, None))
+    ok = sd > 0
+    corr = np.eye(s_count)
+    corr[np.ix_(ok, ok)] = c[np.ix_(ok, ok)] / np.outer(sd[ok], sd[ok])
+    lam, vec = np.linalg.eigh(0.5 * (corr + corr.T))
+    root = vec * np.sqrt(np.maximum(lam, 0.0))
+    n_draws = int(draws or STEP_FAMILY_DRAWS)
+    z = np.random.default_rng(seed).standard_normal((n_draws, s_count)) @ root.T
+    hits = int(np.count_nonzero(z.min(axis=1) <= stats.norm.ppf(p_min)))
+    upper = 1.0 if hits >= n_draws else float(stats.beta.ppf(STEP_FAMILY_CONFIDENCE, hits + 1, n_draws - hits))
+    return float(max(p_min, min(bonferroni, upper)))
 
 
 def _in_lanes(run, lanes):
@@ -1386,7 +1432,8 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                                            "against n re-drapes of one specimen drawn from P (the variance "
                                            "between specimens from the references, within one from the re-drapes "
                                            "and the measured images, integrated over both estimates' uncertainty; "
-                                           "Sidak over the steps); "
+                                           "the smallest step's p corrected for the choice "
+                                           "of step by the steps' correlation); "
                                            "p_value = min(1, 2 min(score p, step p))"
                                            + ("" if screen_info is None else
                                               f"; screened on {k_screen} draws, the candidates with screen p below "

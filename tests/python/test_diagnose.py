@@ -710,3 +710,30 @@ def test_line_search_finds_the_minimum_along_the_step_and_turns_a_two_parameter_
     assert all(p["turn_rad"] == pytest.approx(math.pi / 4) for p in points[3:])
     assert best["cos2"] == pytest.approx(target[0], abs=1e-6) and best["sin2"] == pytest.approx(target[1], abs=1e-6)
     assert len(points) <= diagnose.search_evaluations(aniso)
+
+
+def test_step_family_p_counts_the_steps_by_their_correlation(monkeypatch):
+    # an offset's eight directions move the draws alike: correlated steps are fewer chances than Sidak's S, and the
+    # level holds (simulated specimen nulls with B = W, eight steps sharing 80 % of their variance)
+    monkeypatch.setattr(diagnose, "STEP_FAMILY_DRAWS", 20000)
+    rng = np.random.default_rng(21)
+    n, refs, redrapes, steps, share = 6, 24, 12, 8, 0.8
+
+    def correlated(shift=0.0):
+        common = _specimen_sets(rng, 1.0, 1.0, n, refs, redrapes, shift=shift)
+        own = _specimen_sets(rng, 1.0, 1.0, n, refs, redrapes, shift=shift, steps=steps)
+        return np.sqrt(share) * common + np.sqrt(1.0 - share) * own
+
+    p_null = np.array([diagnose.step_specimen_test(correlated(), n, refs, redrapes)[2] for _ in range(200)])
+    assert 0.01 <= np.mean(p_null < 0.05) <= 0.09
+    d = correlated(shift=-2.5)
+    best, _, p, _ = diagnose.step_specimen_test(d, n, refs, redrapes)
+    p_single = diagnose.step_specimen_test(d[best:best + 1], n, refs, redrapes)[2]
+    assert p_single <= p < -np.expm1(steps * np.log1p(-p_single))  # between the one step's p and Sidak's
+    # independent steps: Sidak (within the draws' upper bound, never above Bonferroni); identical steps: one chance;
+    # opposite steps (+- a parameter): up to two
+    many = 400000
+    assert diagnose.step_family_p([1e-3] + [0.5] * 7, np.eye(8), many) == pytest.approx(1 - (1 - 1e-3) ** 8, rel=0.05)
+    assert diagnose.step_family_p([1e-3] + [0.5] * 7, np.ones((8, 8)), many) == pytest.approx(1e-3, rel=0.25)
+    assert diagnose.step_family_p([1e-3, 0.9], [[1.0, -1.0], [-1.0, 1.0]], many) == pytest.approx(2e-3, rel=0.05)
+    assert diagnose.step_family_p([2e-3], [[1.0]]) == 2e-3
