@@ -192,6 +192,8 @@ SCREEN_BELOW = 0.5        # ... screened when the budget pays for fewer than thi
 SPECIMEN_QUADRATURE = (60, 99)  # the specimen null's chi-square cells: log-spaced per tail, uniform between
 STEP_FAMILY_DRAWS = 200000   # the step test's family p: normal draws of the steps' correlation (step_family_p)
 STEP_FAMILY_CONFIDENCE = 0.99  # ... whose hit rate enters by this one-sided Clopper-Pearson upper bound
+STEP_FAMILY_DRAWN = (1e-5, 0.05)  # ... drawn only where Bonferroni's p lies above the first and the smallest p below
+#                                   the second: elsewhere no decision turns on it (Bonferroni's / Sidak's p instead)
 STEP_PERMUTATIONS_MAX = 20000  # labellings enumerated up to this count (six images, 12 references: 18564), else drawn
                                # (the relabelling test: the fallback without references, and p_value_permutation)
 
@@ -680,7 +682,8 @@ def step_family_p(p_steps, cov, draws=None, seed=0):
     STEP_FAMILY_CONFIDENCE Clopper-Pearson upper bound, and never above Bonferroni's S min p. Independent steps
     give Sidak's 1 - (1 - p)^S, steps that move the draws alike fewer chances (identical ones: p itself), opposite
     ones (+- a parameter: one helps where the other hurts) up to S p. A step without spread (p 1, variance 0) is
-    taken as independent of the others."""
+    taken as independent of the others. Drawn only between STEP_FAMILY_DRAWN's bounds (0.15 s an effect), where
+    a decision can turn on it; below, Bonferroni's p; above, Sidak's."""
     from scipy import stats
 
     p_steps = np.asarray(p_steps, dtype=float)
@@ -689,6 +692,10 @@ def step_family_p(p_steps, cov, draws=None, seed=0):
     bonferroni = min(1.0, s_count * p_min)
     if s_count == 1 or p_min >= 1.0:
         return min(1.0, p_min)
+    if bonferroni <= STEP_FAMILY_DRAWN[0]:
+        return bonferroni
+    if p_min >= STEP_FAMILY_DRAWN[1]:
+        return float(-np.expm1(s_count * np.log1p(-p_min)))
     c = np.array(cov, dtype=float).reshape(s_count, s_count)
     sd = np.sqrt(np.clip(np.diag(c), 0.0, None))
     ok = sd > 0
