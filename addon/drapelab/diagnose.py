@@ -637,10 +637,15 @@ def step_specimen_test(deltas, n, n_references, n_redrapes=0):
         raise ValueError(f"step_specimen_test: {n} measured, {j} references and {f} re-drapes of {total} images")
     m, r, q = d[:, :n], d[:, n:n + j], d[:, n + j:]
     observed = m.mean(axis=1) - r.mean(axis=1)
-    v_r = r.var(axis=1, ddof=1)
-    parts = [(g.var(axis=1, ddof=1), g.shape[1] - 1) for g in (q, m) if g.shape[1] >= 2]
-    nu_w = sum(k for _, k in parts)
-    v_w = sum(v * k for v, k in parts) / nu_w if parts else None
+    # the steps' covariances over the references (B + W) and pooled over the re-drapes and measured images (W);
+    # their diagonals are each step's variances, the whole matrices correlate the steps (step_family_p)
+    cov_r = np.atleast_2d(np.cov(r, ddof=1))
+    within_groups = [g for g in (q, m) if g.shape[1] >= 2]
+    nu_w = sum(g.shape[1] - 1 for g in within_groups)
+    cov_w = (sum(np.atleast_2d(np.cov(g, ddof=1)) * (g.shape[1] - 1) for g in within_groups) / nu_w
+             if within_groups else None)
+    v_r = np.diag(cov_r)
+    v_w = None if cov_w is None else np.diag(cov_w)
     x_r, w_r = _chi2_nodes(j - 1)
     if v_w is not None:
         x_w, w_w = _chi2_nodes(nu_w)
@@ -661,13 +666,9 @@ def step_specimen_test(deltas, n, n_references, n_redrapes=0):
         p_steps[s] = float(np.sum(weight * stats.norm.cdf(observed[s] / np.sqrt(var))) / np.sum(weight))
         z[s] = observed[s] / math.sqrt(plug)
     best = int(np.argmin(p_steps))
-    if s_count == 1:
-        return best, float(observed[best]), max(float(p_steps[best]), np.finfo(float).tiny), float(z[best])
-    cov_r = np.atleast_2d(np.cov(r, ddof=1))
-    if v_w is None:
+    if cov_w is None:
         cov = cov_r * (1.0 + 1.0 / j)
     else:
-        cov_w = sum(np.atleast_2d(np.cov(g, ddof=1)) * (g.shape[1] - 1) for g in (q, m) if g.shape[1] >= 2) / nu_w
         lam, vec = np.linalg.eigh(cov_r - cov_w)
         cov = (vec * np.maximum(lam, 0.0)) @ vec.T + cov_w / n + cov_r / j
     p = step_family_p(p_steps, cov)
