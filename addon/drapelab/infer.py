@@ -921,6 +921,15 @@ def write_preset(path, preset):
 
 def _float_array(value, source, what):
     """A JSON table as a float array; InputError naming `what` when it is not a table of numbers."""
+    def numbers_only(v):
+        if isinstance(v, (list, tuple)):
+            return all(numbers_only(x) for x in v)
+        if isinstance(v, np.ndarray):
+            return v.dtype.kind in "iuf"
+        return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, (bool, np.bool_))
+
+    if not numbers_only(value):  # a string "0" or a true in a table is a mistake, not a number to coerce
+        raise InputError(f"{source}: {what} must be a table of numbers")
     try:
         return np.asarray(value, dtype=float)
     except (TypeError, ValueError, OverflowError):
@@ -976,8 +985,8 @@ def validate_preset(preset, source="preset"):
             raise InputError(f"{source}: posterior bend {key} must be a 3 x 5 table, got shape {arr.shape}")
         if not np.all(np.isfinite(arr)):
             raise InputError(f"{source}: posterior bend {key} contains NaN or infinity")
-    if np.any(np.asarray(bend["log_std"]) < 0):
-        raise InputError(f"{source}: posterior bend log_std must be >= 0")
+        if key == "log_std" and np.any(arr < 0):
+            raise InputError(f"{source}: posterior bend log_std must be >= 0")
     g = _json_number(bend.get("global_log_std", 0.0))
     if g is None or not 0 <= g <= 5:
         raise InputError(f"{source}: posterior bend global_log_std must be a number in [0, 5], "
