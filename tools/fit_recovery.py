@@ -18,6 +18,7 @@ Usage (from the repository root):
 import argparse
 import copy
 import json
+import math
 import os
 import sys
 import time
@@ -66,7 +67,8 @@ def run_rows(run, epochs, tag="fit"):
         mse, dc = evaluate(fitted, images, seed + DIAGNOSE_SEED_OFFSET, samples, config, level)
         r = {"run": run, "effect": name, "seed": seed, "truth": row["truth"], "truth_strength": row["truth_strength"],
              "refit_strength": row["recovered_strength"],
-             **recovery_table.judge_strength(row["truth"], fitted["active_effects"][name], row["truth_strength"]),
+             **recovery_table.judge_strength(row["truth"], fitted["active_effects"][name], row["truth_strength"],
+                                             row["direction"]),
              "base_mse": row["base_mse"], "refit_mse": row["refit_mse"], "fit_mse": mse,
              "control_mse": row["control_mse"], "base_dc_error": row["base_dc_error"],
              "refit_dc_error": row["refit_dc_error"], "fit_dc_error": dc, "control_dc_error": row["control_dc_error"],
@@ -90,10 +92,12 @@ def markdown(rows):
              "|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         iv = r["interval90"]
+        direction = (f" (direction {math.degrees(r['direction_error']):+.0f} deg)"
+                     if r.get("direction_error") is not None else "")
         lines.append(
             f"| {r['effect']} | {r['seed']} | {r['truth_strength']:.3g} | {r['refit_strength']:.3g} | "
             f"{r['recovered_strength']:.3g} | {f'{iv[0]:.3g} .. {iv[1]:.3g}' if iv else '-'} | "
-            f"{r['relative_error']:+.0%} | {r['base_mse']:.4f} / {r['refit_mse']:.4f} / {r['fit_mse']:.4f} / "
+            f"{r['relative_error']:+.0%}{direction} | {r['base_mse']:.4f} / {r['refit_mse']:.4f} / {r['fit_mse']:.4f} / "
             f"{f(r['control_mse'], '{:.4f}')} ({f(r['mse_fall'], '{:.2f}')}) | {r['base_dc_error']:.4f} / "
             f"{r['fit_dc_error']:.4f} / {f(r['control_dc_error'], '{:.4f}')} "
             f"({f(r['dc_fall'], '{:.2f}') if r['dc_fall'] is not None else 'no gap'}) | "

@@ -27,29 +27,69 @@ def _load(path):
         return json.load(f)
 
 
-def strength(truth, values):
+def direction_parameter(name):
+    """The parameter that turns effect `name`'s primary around the vertical (the registry's `second_direction`: the
+    tilt's azimuth), or None. Needs the native module; without it, None."""
+    try:
+        from drapelab import sim
+    except Exception:  # noqa: BLE001 (a lab tool reading old runs without a build)
+        return None
+    reg = {e["name"]: e for e in sim.effects()}
+    second = (reg.get(name) or {}).get("second_direction") or {}
+    return next(iter(second), None)
+
+
+def _wrap(angle):
+    return (angle + math.pi) % (2.0 * math.pi) - math.pi
+
+
+def _canonical(values, primary, direction):
+    """(amplitude >= 0, direction) of a primary signed along a direction: (a, phi) and (-a, phi + pi) are one tilt."""
+    a, phi = values.get(primary, 0.0), values.get(direction, 0.0)
+    return (a, phi) if a >= 0 else (-a, phi + math.pi)
+
+
+def strength(truth, values, direction=None):
     """The effect's strength as one number, over the parameters the truth sets: the primary's value when it sets
-    one; the amplitude (root sum of squares) when it sets an axis by two (confusion_table: bending_anisotropy's
-    cos2, sin2 along a random axis)."""
+    one; |primary| when the other is its direction (`direction`, the tilt's azimuth); the amplitude (root sum of
+    squares) when it sets an axis by two (confusion_table: bending_anisotropy's cos2, sin2 along a random axis)."""
     if len(truth) == 1:
         return values.get(next(iter(truth)), 0.0)
+    if direction in truth:
+        primary = next(q for q in truth if q != direction)
+        return _canonical(values, primary, direction)[0]
     return math.hypot(*(values.get(q, 0.0) for q in truth))
 
 
-def judge_strength(truth, block, truth_strength):
+def judge_strength(truth, block, truth_strength, direction=None):
     """How a preset's effect block (active_effects[name]) recovers the truth ({parameter: value}): recovered
     values and strength, the primary's 90 % interval, whether the truth lies inside it (None for an axis set by two
     parameters: one parameter's interval says nothing of the amplitude), the relative error and whether the
-    strength target is met (inside the interval or within WITHIN)."""
-    primary = next(iter(truth))
-    interval = block[primary].get("interval90")
+    strength target is met (inside the interval or within WITHIN). With `direction` (the tilt's azimuth) among
+    the truth's parameters, (-a, phi) is the tilt (a, phi + pi): the strength is |a|, a negative fitted angle's
+    interval is negated with it, and direction_error is the fitted direction's difference from the truth's (rad,
+    wrapped to +-pi)."""
     recovered = {q: block[q]["value"] for q in block}
-    got = strength(truth, recovered)
-    inside = (interval is not None and interval[0] <= truth[primary] <= interval[1]
-              if len(truth) == 1 else None)  # an interval of one of an axis' two parameters: none
+    extra = {}
+    if direction in truth and len(truth) == 2:
+        primary = next(q for q in truth if q != direction)
+        interval = block[primary].get("interval90")
+        a_true, phi_true = _canonical(truth, primary, direction)
+        a_got, phi_got = _canonical(recovered, primary, direction)
+        if interval is not None and recovered.get(primary, 0.0) < 0:
+            interval = [-interval[1], -interval[0]]
+        inside = interval is not None and interval[0] <= a_true <= interval[1]
+        got = a_got
+        extra["direction_error"] = _wrap(phi_got - phi_true)
+    else:
+        primary = next(iter(truth))
+        interval = block[primary].get("interval90")
+        got = strength(truth, recovered)
+        inside = (interval is not None and interval[0] <= truth[primary] <= interval[1]
+                  if len(truth) == 1 else None)  # an interval of one of an axis' two parameters: none
     error = (got - truth_strength) / truth_strength
     return {"recovered": recovered, "recovered_strength": got, "primary": primary, "interval90": interval,
-            "inside": inside, "relative_error": error, "strength_met": bool(inside or abs(error) <= WITHIN)}
+            "inside": inside, "relative_error": error, "strength_met": bool(inside or abs(error) <= WITHIN), **extra}
 
 
 def targets_met(row):
@@ -78,17 +118,18 @@ def rows_of(run):
             continue
         folder = os.path.join(run, f"seed{r['seed']}", name)
         truth_values = r["truth"][name]
+        direction = direction_parameter(name)
         d = _load(os.path.join(folder, "report", "diagnosis.json"))
         control = controls.get(r["seed"])
         entry = next((e for e in d["ranking"] if e["effect"] == name), None)
         row = {"run": run, "effect": name, "seed": r["seed"], "truth": truth_values,
-               "truth_strength": strength(truth_values, truth_values), "refitted": bool(entry and entry.get("refit")),
+               "truth_strength": strength(truth_values, truth_values, direction), "direction": direction, "refitted": bool(entry and entry.get("refit")),
                "base_mse": d["base"]["mse"], "base_dc_error": d["base"]["dc_error"],
                "control_mse": control and control["mse"], "control_dc_error": control and control["dc_error"]}
         if row["refitted"]:
             refit = entry["refit"]
             preset = _load(os.path.join(folder, "report", refit["preset"]))
-            row.update(judge_strength(truth_values, preset["active_effects"][name], row["truth_strength"]))
+            row.update(judge_strength(truth_values, preset["active_effects"][name], row["truth_strength"], direction))
             row.update({"kept_start": refit.get("kept_start"), "epochs": refit.get("epochs"),
                         "refit_mse": refit["mse"], "refit_dc_error": refit["dc_error"],
                         "mse_fall": _fall(row["base_mse"], refit["mse"], row["control_mse"]),
