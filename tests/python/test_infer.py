@@ -313,6 +313,7 @@ def test_gradient_clipping_scales_only_the_data_term_and_follows_the_median():
     assert job.clip_threshold() is None
 
 
+@pytest.mark.dataset  # the provenance check reads the training images' files where the dataset is present
 def test_shipped_presets_load_and_carry_their_settings_and_evaluation():
     folder = os.path.join(ROOT, "assets", "presets")
     names = sorted(f for f in os.listdir(folder) if f.endswith("_bdp.json"))

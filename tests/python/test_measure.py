@@ -244,6 +244,7 @@ def test_compare_mesh_with_its_silhouette():
         M.compare_mesh_image(OBJ, JPG, camera="fisheye")
 
 
+@pytest.mark.dataset
 @pytest.mark.skipif(CUSICK is None, reason=paths.NO_DATASET_REASON)
 def test_real_data_drape_coefficients_match_the_readme_table():
     dcs = {f: [] for f in README_DC}
