@@ -64,7 +64,8 @@
    Screened (a fine mesh or a whole library on a budget): when the budget pays for fewer than SCREEN_BELOW of the
    draws on every step, every candidate is screened on SCREEN_DRAWS of them, and those whose screen p is below
    SCREEN_P_MAX are confirmed on fresh draws (the next of the K), as many as the budget left pays for at the
-   screen's measured drape time, less one evaluation per refit that may follow (the least promising dropped while
+   screen's measured drape time, less one evaluation per refit that may follow (refits_reserved: one per candidate
+   the score test already makes significant, at least one; the least promising dropped while
    the confirmation would not double the draws): nothing is refitted unless something is significant, and on a
    fine mesh only the confirmation makes the fold-pattern effects significant. A confirmed candidate's step test is the full test on all its draws,
    exactly what it would be had every candidate been draped on them (tested); the others' step p is the screen's,
@@ -542,6 +543,19 @@ def step_draws(k, left, forward, references, n_steps):
     usual, most = (int((share * left - references * forward) / per_draw)
                    for share in (STEP_BUDGET_SHARE, STEP_BUDGET_SHARE_MAX))
     return max(0, min(k, usual if usual >= MIN_SAMPLES else min(MIN_SAMPLES, most)))
+
+
+def refits_reserved(score_p, threshold, max_refits):
+    """How many refit evaluations a screened step test's confirmation leaves time for (module doc, 2b): one per
+    candidate already significant by its score test alone (its combined p, at most twice its score p, below
+    `threshold`; `score_p` {effect: p or None}), at least one (the refit of what the confirmation may make
+    significant), at most `max_refits`. Until 2026-11-29 it kept `max_refits` evaluations: on circle3 with the whole
+    library in 10 minutes that left the confirmation no time on fabrics 3-5, so nothing the score missed could become
+    significant, no refit ran, and the reserve went unused (docs/diagnose.md)."""
+    if max_refits <= 0:
+        return 0
+    already = sum(1 for p in score_p.values() if p is not None and 2.0 * p < threshold)
+    return int(min(max_refits, max(1, already)))
 
 
 def confirmation_plan(screen, steps_of, room, forward, fresh, screened, test_s=0.0):
@@ -1404,8 +1418,10 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                 for st in tests.values():
                     st["draws"] = len(used)
                 if k_screen is not None:  # confirm the promising on fresh draws, within the screen's share
+                    reserved = refits_reserved({e["effect"]: e["p_value"] for e in result["ranking"]}, threshold,
+                                               int(max_refits))
                     room = (left - (time.monotonic() - ts) - REPORT_RESERVE_S
-                            - int(max_refits) * k * forward_step * EVALUATION_OVERHEAD)
+                            - reserved * k * forward_step * EVALUATION_OVERHEAD)
                     confirmed, m = confirmation_plan(tests, {n: len(v) for n, v in steps.items()}, room, forward_step,
                                                      len(done) - k_screen, k_screen, test_s)
                     screen_info = {"draws": k_screen, "p_max": SCREEN_P_MAX, "passed": sorted(

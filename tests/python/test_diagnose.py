@@ -562,6 +562,19 @@ def test_confirmation_plan_keeps_the_most_promising_the_time_pays_for():
     assert diagnose.confirmation_plan(screen, steps_of, 40.0, 1.0, 12, 4, 0.25) == (["tilt", "camera"], 4)
 
 
+def test_the_confirmation_keeps_time_for_the_refits_the_score_already_makes_likely():
+    # nothing significant by its score alone (combined p = 2 x score p at best): one refit evaluation is kept, for
+    # what the confirmation may make significant, not max_refits of them (fabrics 3-5 on circle3: the reserve for
+    # three left the confirmation no time, and nothing was refitted)
+    assert diagnose.refits_reserved({"camera": 0.049, "tilt": 0.17, "offset": None}, 0.001, 3) == 1
+    # two candidates already below the threshold by their score: two evaluations; never more than max_refits
+    assert diagnose.refits_reserved({"camera": 1e-5, "offset": 2e-6, "tilt": 0.3}, 0.001, 3) == 2
+    assert diagnose.refits_reserved({"a": 1e-9, "b": 1e-9, "c": 1e-9, "d": 1e-9}, 0.001, 3) == 3
+    # a score p just under the threshold is not yet significant combined (2 x 0.0006 > 0.001); no refits: none kept
+    assert diagnose.refits_reserved({"camera": 0.0006}, 0.001, 3) == 1
+    assert diagnose.refits_reserved({"camera": 1e-9}, 0.001, 0) == 0
+
+
 def test_alternatives_are_the_refits_within_half_the_redrape_floor_of_the_recommended():
     def entry(name, mse):
         return {"effect": name, "refit": {"mse": mse}}
