@@ -27,16 +27,14 @@ def _load(path):
         return json.load(f)
 
 
-def direction_parameter(name):
-    """The parameter that turns effect `name`'s primary around the vertical (the registry's `second_direction`: the
-    tilt's azimuth), or None. Needs the native module; without it, None."""
+def direction_parameters():
+    """{effect: the parameter that turns its primary around the vertical} (diagnose.second_directions: the tilt's
+    azimuth). Needs the native module; without it, {}."""
     try:
-        from drapelab import sim
+        from drapelab import diagnose, fit_effects
     except Exception:  # noqa: BLE001 (a lab tool reading old runs without a build)
-        return None
-    reg = {e["name"]: e for e in sim.effects()}
-    second = (reg.get(name) or {}).get("second_direction") or {}
-    return next(iter(second), None)
+        return {}
+    return {name: next(iter(d)) for name, d in diagnose.second_directions(fit_effects.registry()).items()}
 
 
 def _wrap(angle):
@@ -70,21 +68,19 @@ def judge_strength(truth, block, truth_strength, direction=None):
     interval is negated with it, and direction_error is the fitted direction's difference from the truth's (rad,
     wrapped to +-pi)."""
     recovered = {q: block[q]["value"] for q in block}
+    got = strength(truth, recovered, direction)
     extra = {}
     if direction in truth and len(truth) == 2:
         primary = next(q for q in truth if q != direction)
         interval = block[primary].get("interval90")
         a_true, phi_true = _canonical(truth, primary, direction)
-        a_got, phi_got = _canonical(recovered, primary, direction)
         if interval is not None and recovered.get(primary, 0.0) < 0:
             interval = [-interval[1], -interval[0]]
         inside = interval is not None and interval[0] <= a_true <= interval[1]
-        got = a_got
-        extra["direction_error"] = _wrap(phi_got - phi_true)
+        extra["direction_error"] = _wrap(_canonical(recovered, primary, direction)[1] - phi_true)
     else:
         primary = next(iter(truth))
         interval = block[primary].get("interval90")
-        got = strength(truth, recovered)
         inside = (interval is not None and interval[0] <= truth[primary] <= interval[1]
                   if len(truth) == 1 else None)  # an interval of one of an axis' two parameters: none
     error = (got - truth_strength) / truth_strength
@@ -106,6 +102,7 @@ def _fall(base, got, control, gap_min=1e-12):
 
 def rows_of(run):
     conf = _load(os.path.join(run, "confusion.json"))["rows"]
+    directions = direction_parameters()
     controls = {}
     for r in conf:
         if r["case"] == "control":
@@ -118,12 +115,13 @@ def rows_of(run):
             continue
         folder = os.path.join(run, f"seed{r['seed']}", name)
         truth_values = r["truth"][name]
-        direction = direction_parameter(name)
+        direction = directions.get(name)
         d = _load(os.path.join(folder, "report", "diagnosis.json"))
         control = controls.get(r["seed"])
         entry = next((e for e in d["ranking"] if e["effect"] == name), None)
         row = {"run": run, "effect": name, "seed": r["seed"], "truth": truth_values,
-               "truth_strength": strength(truth_values, truth_values, direction), "direction": direction, "refitted": bool(entry and entry.get("refit")),
+               "truth_strength": strength(truth_values, truth_values, direction), "direction": direction,
+               "refitted": bool(entry and entry.get("refit")),
                "base_mse": d["base"]["mse"], "base_dc_error": d["base"]["dc_error"],
                "control_mse": control and control["mse"], "control_dc_error": control and control["dc_error"]}
         if row["refitted"]:

@@ -118,7 +118,6 @@ def test_preset_with_mutations_loads_or_says_why(tmp_path, data):
     assert (checked is None) == (on_disk is None)  # the file loads exactly when the value validates
 
 
-
 @pytest.mark.parametrize("value", ["0", True, [0.1], None])
 def test_a_preset_table_entry_that_is_not_a_number_is_named(value):
     """The fuzzer's find (CI, 2026-11-28): a string "0" in log_std was coerced by one check and compared raw by
@@ -127,6 +126,7 @@ def test_a_preset_table_entry_that_is_not_a_number_is_named(value):
     preset["posterior"]["bend"]["log_std"][0][0] = value
     with pytest.raises(InputError, match="posterior bend log_std"):
         infer.validate_preset(preset, "mutated")
+
 
 # ---------------------------------------------------------------- manifests
 # CSV-like text: characters and whole tokens (column names, numbers' spellings, a BOM, NUL, a 300-character
