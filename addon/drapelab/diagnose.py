@@ -545,6 +545,37 @@ def step_draws(k, left, forward, references, n_steps):
     return max(0, min(k, usual if usual >= MIN_SAMPLES else min(MIN_SAMPLES, most)))
 
 
+def steps_within(steps, score_p, k, left, forward, references):
+    """(steps, draws, dropped): the step test's steps cut down to what the budget pays for at MIN_SAMPLES draws,
+    when all of them are not (`step_draws` below MIN_SAMPLES; `steps` as effect_steps gives them, `score_p` {effect:
+    score p or None}, the other arguments step_draws's). First the plane diagonals go (an effect stepped along its
+    diagonals keeps its four axis steps, 90 degrees apart), then whole candidates, the least promising first (largest
+    score p; untested ones count as p = 1; ties: the later in the library goes first). `dropped` lists the dropped
+    step labels as "effect:label", in the order dropped. Until 2026-11-29 the step test was not run at all when
+    the full library's 29 steps did not fit: on circle3 the real fabrics' diagnoses ended with most of their 10
+    minutes unused and nothing only the step test sees could become significant (docs/diagnose.md)."""
+    steps = {n: list(v) for n, v in steps.items()}
+    dropped = []
+
+    def draws():
+        return step_draws(k, left, forward, references, sum(len(v) for v in steps.values()))
+
+    if draws() >= MIN_SAMPLES:
+        return steps, draws(), dropped
+    for n, v in steps.items():  # the diagonals: the steps that set two stepped parameters at once
+        diagonal = [(label, values) for label, values in v if label.count("=") > 1 and "@" not in label]
+        if diagonal and len(v) - len(diagonal) >= 2:
+            steps[n] = [s for s in v if s not in diagonal]
+            dropped += [f"{n}:{label}" for label, _ in diagonal]
+    order = sorted(steps, key=lambda n: (score_p.get(n) if score_p.get(n) is not None else 1.0,
+                                         -list(steps).index(n)), reverse=True)
+    for n in order:
+        if draws() >= MIN_SAMPLES or len(steps) <= 1:
+            break
+        dropped += [f"{n}:{label}" for label, _ in steps.pop(n)]
+    return steps, draws(), dropped
+
+
 def refits_reserved(score_p, threshold, max_refits):
     """How many refit evaluations a screened step test's confirmation leaves time for (module doc, 2b): one per
     candidate already significant by its score test alone (its combined p, at most twice its score p, below
@@ -1376,18 +1407,25 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
         # a forward drape's wall time: measured on the re-drape floor's drapes, else estimated from the draws
         forward = forward_measured or per_draw * STEP_FORWARD_SHARE / lanes
         left = None
+        steps_dropped = []  # "effect:label" of the steps the budget did not pay for (steps_within)
         if time_budget is not None and n_steps:  # the extra references and the step drapes within a share
             left = float(time_budget) - (time.monotonic() - t0)
-            k_step = step_draws(k_step, left, forward, max(0, j_step - len(pseudo)), n_steps)
+            full = n_steps
+            steps, k_step, steps_dropped = steps_within(steps, {e["effect"]: e["p_value"] for e in result["ranking"]},
+                                                        k_step, left, forward, max(0, j_step - len(pseudo)))
+            n_steps = sum(len(v) for v in steps.values())
+            if steps_dropped:
+                _progress(progress, "steps", f"step test: the budget pays for {MIN_SAMPLES} draws on {n_steps} of "
+                                             f"{full} steps; dropped {', '.join(steps_dropped)}")
             if MIN_SAMPLES <= k_step and k_step < SCREEN_BELOW * len(done):  # thin: screen, then confirm
                 k_screen = min(k_step, SCREEN_DRAWS)
         tests = {}
         # (the specimen test's p is continuous, so any number of images can reach the threshold: until 2026-11-28
         # the relabelling test was not run where its smallest p, 2 / C(n + J, n), could not)
         if n_steps and k_step < MIN_SAMPLES:
-            result["step_test"] = {"draws": 0, "references": 0,
+            result["step_test"] = {"draws": 0, "references": 0, "dropped_steps": steps_dropped,
                                    "rule": f"not run: the time budget left room for {k_step} draws per step "
-                                           f"({MIN_SAMPLES} needed)"}
+                                           f"({MIN_SAMPLES} needed) on {n_steps} step(s)"}
         if n_steps and k_step >= MIN_SAMPLES and not result["cancelled"]:
             ts = time.monotonic()
             k_first = k_screen or k_step
@@ -1450,6 +1488,7 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
             result["seconds"]["steps"] = time.monotonic() - ts
             result["step_test"] = {"draws": len(used), "references": len(references), "redrapes": len(redrapes),
                                    "screen": screen_info, "forward_s": forward_step, "test_s": test_s,
+                                   "steps": n_steps, "dropped_steps": steps_dropped,
                                    "rule": "per candidate the primary parameter at +- its moderate strength (and "
                                            "turned, for the tilt); the change of the draws' mean pixel MSE against "
                                            "the measured images minus against P's own predictive silhouettes; p "
@@ -1462,10 +1501,17 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                                            + ("" if screen_info is None else
                                               f"; screened on {k_screen} draws, the candidates with screen p below "
                                               f"{SCREEN_P_MAX:g} confirmed on fresh draws as the budget allows (their "
-                                              "step p from all their draws)")}
+                                              "step p from all their draws)")
+                                           + ("" if not steps_dropped else
+                                              f"; {len(steps_dropped)} step(s) the budget did not pay for at "
+                                              f"{MIN_SAMPLES} draws dropped (dropped_steps: the plane diagonals "
+                                              "first, then the candidates with the largest score p)")}
         for entry in result["ranking"]:
             st = tests.get(entry["effect"])
             if st is None:
+                if tests and any(d.startswith(entry["effect"] + ":") for d in steps_dropped):
+                    entry["explanation"] += (" Not step-tested: the time budget paid for the step test on the "
+                                             "more promising candidates only (its score p is among the largest).")
                 continue
             entry["step"] = st
             entry["p_value_score"] = entry["p_value"]
