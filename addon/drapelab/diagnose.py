@@ -70,7 +70,10 @@
    fine mesh only the confirmation makes the fold-pattern effects significant. A confirmed candidate's step test is the full test on all its draws,
    exactly what it would be had every candidate been draped on them (tested); the others' step p is the screen's,
    raised to SCREEN_P_MAX where it is below (dropped for time), so screening can only withhold significance, never
-   add it: P(reported step p < t) <= P(full test's p < t) for t < SCREEN_P_MAX. (Measured before it, on circle3 the whole library left 2-3 draws per step:
+   add it: P(reported step p < t) <= P(full test's p < t) for t < SCREEN_P_MAX. When even the screen's minimum
+   (MIN_SAMPLES draws on every step) is more than the budget pays for, the step test runs on fewer steps
+   (steps_within: the offset's diagonals first, then the candidates with the largest score p; the dropped ones keep
+   their score p alone). (Measured before it, on circle3 the whole library left 2-3 draws per step:
    no step test, so the fold-pattern effects the score misses could not be found; docs/diagnose.md.)
 3. Refits. When at least one candidate is below the threshold (the data differ from P), the candidates with p
    below REFIT_P_MAX are refitted, up to MAX_REFITS of them in refit_order (the significant ones first, each group
