@@ -66,7 +66,8 @@
    SCREEN_P_MAX are confirmed on fresh draws (the next of the K), as many as the budget left pays for at the
    screen's measured drape time, less one evaluation per refit that may follow (refits_reserved: one per candidate
    the score test already makes significant, at least one; the least promising dropped while
-   the confirmation would not double the draws): nothing is refitted unless something is significant, and on a
+   the confirmation would not double the draws; no confirmation drape starts once the reserved evaluations would no
+   longer fit, and only draws draped on every confirmed step count): nothing is refitted unless something is significant, and on a
    fine mesh only the confirmation makes the fold-pattern effects significant. A confirmed candidate's step test is the full test on all its draws,
    exactly what it would be had every candidate been draped on them (tested); the others' step p is the screen's,
    raised to SCREEN_P_MAX where it is below (dropped for time), so screening can only withhold significance, never
@@ -781,21 +782,50 @@ def _forward_silhouette(m, p, v0, pred, config, cancel_event):
     return infer._hard_image(pred.camera, infer._observed(m, x, p), m.faces)
 
 
-def _step_drapes(pred, models, drawn, steps, used, config, lanes, progress, cancel_event):
-    """Hard images of the scored draws `used` (the same material draws, P's effect draws and placement noise) with
-    each step's effect switched on: {(effect, step index): [image or None per used draw]}. Forward drapes only."""
+def step_tasks(steps, n_used):
+    """The step drapes' order: [(effect, step index, values, draw index)], draw after draw, every step of a draw
+    before the next draw's, so that the draws draped by a deadline are complete (_step_drapes)."""
     jobs = [(n, si, values) for n, st in steps.items() for si, (_, values) in enumerate(st)]
-    out = {(n, si): [None] * len(used) for n, si, _ in jobs}
-    tasks = [(n, si, values, u) for n, si, values in jobs for u in range(len(used))]
+    return [(n, si, values, u) for u in range(n_used) for n, si, values in jobs]
+
+
+def complete_draws(images, n_used):
+    """How many of the leading draws have an attempted drape on every step: the first u whose images (the step
+    drapes {key: [image, None (failed or not draped), or the marker False (not draped)] per draw}) hold the marker
+    ends the count."""
+    for u in range(n_used):
+        if any(v[u] is False for v in images.values()):
+            return u
+    return n_used
+
+
+def _step_drapes(pred, models, drawn, steps, used, config, lanes, progress, cancel_event, deadline=None):
+    """Hard images of the scored draws `used` (the same material draws, P's effect draws and placement noise) with
+    each step's effect switched on: {(effect, step index): [image or None per used draw]}. Forward drapes only.
+    With a `deadline` (time.monotonic() seconds) no drape starts after it; the draws are draped one after the other
+    (step_tasks), and a draw not draped on every step is left out: its images are dropped, so the lists are as long
+    as the complete draws (complete_draws). A budget is a promise: the screen's confirmation runs to its deadline
+    and not past it (measured on circle3 before it: 16-43 s past its plan, the refit evaluation it had reserved
+    left unpaid, docs/diagnose.md)."""
+    tasks = step_tasks(steps, len(used))
+    out = {(n, si): [False] * len(used) for n, si, _, _ in tasks}  # False: not draped (yet)
     done = [0]
+    cursor = [0]  # the next task, shared by the lanes: draws complete in order
     lock = threading.Lock()
     t0 = time.monotonic()
 
     def run(lane):
         m = models[lane]
-        for n, si, values, u in tasks[lane::lanes]:
+        while True:
             if cancel_event is not None and cancel_event.is_set():
                 return
+            if deadline is not None and time.monotonic() >= deadline:
+                return
+            with lock:
+                if cursor[0] >= len(tasks):
+                    return
+                n, si, values, u = tasks[cursor[0]]
+                cursor[0] += 1
             i = used[u]
             base = drawn["effects"][i] if drawn["effects"] else {}
             p = m.parameters(stretch=pred.stretch, bend=drawn["bend"][i], effects={**base, **drawn["offs"], n: values})
@@ -810,7 +840,8 @@ def _step_drapes(pred, models, drawn, steps, used, config, lanes, progress, canc
                               done=done[0], total=len(tasks))
 
     _in_lanes(run, lanes)
-    return out
+    complete = complete_draws(out, len(used))
+    return {key: v[:complete] for key, v in out.items()}
 
 
 def step_tests(base_images, step_images, steps, observed, references, redrapes=()):
@@ -1476,10 +1507,21 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                                                      "draws")
                         fresh = done[k_screen:k_screen + m]
                         sub = {n: steps[n] for n in confirmed}
-                        more = _step_drapes(pred, models, drawn, sub, fresh, config, lanes, progress, cancel_event)
+                        n_sub = sum(len(v) for v in sub.values())
+                        # no drape starts once the reserved evaluations, the report's reserve, the tests' own time
+                        # and one drape in flight per lane would no longer fit (a plan is an estimate; this holds it)
+                        deadline = (t0 + float(time_budget) - REPORT_RESERVE_S
+                                    - reserved * k * forward_step * EVALUATION_OVERHEAD
+                                    - (test_s or 0.0) * n_sub * (k_screen + m) - forward_step * lanes)
+                        more = _step_drapes(pred, models, drawn, sub, fresh, config, lanes, progress, cancel_event,
+                                            deadline=deadline)
+                        fresh = fresh[:len(next(iter(more.values()), []))]
+                        screen_info["confirmation_draws"] = len(fresh)
+                        if len(fresh) < m:
+                            screen_info["confirmation_planned"] = m
                         if cancel_event is not None and cancel_event.is_set():  # the screen's tests stand
                             result["cancelled"] = True
-                        else:
+                        elif fresh:
                             both = used + fresh
                             merged = {key: images_k[key] + more[key] for key in more}
                             for n, st in step_tests([shapes[i]["image"] for i in both], merged, sub, observed,

@@ -4,6 +4,7 @@ import copy
 import types
 import json
 import math
+import time
 import os
 
 import numpy as np
@@ -574,6 +575,43 @@ def test_steps_within_drops_the_diagonals_then_the_least_promising_candidates():
     # no time at all: one candidate is left, and too few draws (the caller does not run the test)
     kept, k, dropped = diagnose.steps_within(steps, p, 16, 10.0, forward, refs)
     assert list(kept) == ["offset"] and k < diagnose.MIN_SAMPLES
+
+
+def test_step_drapes_run_draw_after_draw_and_stop_at_their_deadline(monkeypatch):
+    steps = {"tilt": [("a", {"angle_rad": 0.1}), ("b", {"angle_rad": -0.1})], "camera": [("c", {"scale_error": 0.03})]}
+    tasks = diagnose.step_tasks(steps, 3)
+    assert [(n, si, u) for n, si, _, u in tasks] == [(n, si, u) for u in range(3)
+                                                     for n, si in (("tilt", 0), ("tilt", 1), ("camera", 0))]
+    # complete_draws: the marker False (not draped) ends the count; None (a failed drape) does not
+    assert diagnose.complete_draws({"x": [1, None, False], "y": [1, 1, 1]}, 3) == 2
+    assert diagnose.complete_draws({"x": [1, 1, 1], "y": [False, 1, 1]}, 3) == 0
+    assert diagnose.complete_draws({"x": [1, None]}, 2) == 2
+
+    started = []
+
+    class Model:
+        def parameters(self, **kw):
+            return kw
+
+    def fake_forward(m, p, v0, pred, config, cancel_event):
+        started.append(time.monotonic())
+        time.sleep(0.1)
+        return np.ones((2, 2))
+
+    monkeypatch.setattr(diagnose, "_forward_silhouette", fake_forward)
+    pred = type("P", (), {"stretch": None})()
+    drawn = {"bend": [None] * 8, "effects": None, "offs": {}, "velocities": [None] * 8}
+    used = list(range(8))
+    full = diagnose._step_drapes(pred, [Model(), Model()], drawn, steps, used, {}, 2, None, None)
+    assert {len(v) for v in full.values()} == {8} and all(im is not None for v in full.values() for im in v)
+    started.clear()
+    deadline = time.monotonic() + 0.5  # 24 drapes of 0.1 s on two lanes take 1.2 s
+    cut = diagnose._step_drapes(pred, [Model(), Model()], drawn, steps, used, {}, 2, None, None, deadline=deadline)
+    lengths = {len(v) for v in cut.values()}
+    assert len(lengths) == 1 and 0 < lengths.pop() < 8  # complete draws only, fewer than all
+    assert started and max(started) < deadline  # no drape started after the deadline
+    past = diagnose._step_drapes(pred, [Model()], drawn, steps, used, {}, 1, None, None, deadline=time.monotonic())
+    assert all(v == [] for v in past.values())
 
 
 def test_confirmation_plan_keeps_the_most_promising_the_time_pays_for():
