@@ -502,13 +502,14 @@ def alternatives_words(alts, recommended, k):
         f"(differences under {ALTERNATIVE_WITHIN:g} of the floor count as noise)")
 
 
-def effect_steps(reg, names, second=None):
+def effect_steps(reg, names, second=None, diagonals=True):
     """{effect: [(label, {parameter: value})]}: the finite steps of the step test (module doc, 2b) for the
     candidates that are not switches: each stepped parameter (the registry's `step_parameters`, else the primary)
     at its registry moderate strength, and at minus it when its bounds allow, the effect's other parameters off;
     for an effect with a second direction (the tilt's azimuth) the same again with the direction parameter turned.
     bending_anisotropy steps cos2 and sin2: its 2-fold axis at 0, 90, 45 and 135 degrees; offset dx and dy, and
-    (the registry's `step_diagonals`) both at once along the diagonals: eight directions 45 degrees apart."""
+    (the registry's `step_diagonals`) both at once along the diagonals: eight directions 45 degrees apart
+    (`diagonals` False: the four axis steps only, 90 degrees apart; steps_within)."""
     second = second_directions(reg) if second is None else second
     out = {}
     for n in names:
@@ -527,7 +528,7 @@ def effect_steps(reg, names, second=None):
                 values.append(-q["moderate"])
             out[n] += [(f"{q['name']}={v:+.3g}{tag}", {**off, **turn, q["name"]: v})
                        for turn, tag in turns for v in values]
-        if entry.get("step_diagonals") and len(stepped) == 2:  # the plane's diagonals, each at the moderate length
+        if diagonals and entry.get("step_diagonals") and len(stepped) == 2:  # the plane's diagonals, each at the moderate length
             a, b = stepped
             for sa, sb in ((1, 1), (-1, -1), (-1, 1), (1, -1)):
                 va, vb = (float(np.clip(sgn * q["moderate"] / math.sqrt(2.0), q["lower"], q["upper"]))
@@ -549,11 +550,12 @@ def step_draws(k, left, forward, references, n_steps):
     return max(0, min(k, usual if usual >= MIN_SAMPLES else min(MIN_SAMPLES, most)))
 
 
-def steps_within(steps, score_p, k, left, forward, references):
+def steps_within(steps, axes, score_p, k, left, forward, references):
     """(steps, draws, dropped): the step test's steps cut down to what the budget pays for at MIN_SAMPLES draws,
-    when all of them are not (`step_draws` below MIN_SAMPLES; `steps` as effect_steps gives them, `score_p` {effect:
-    score p or None}, the other arguments step_draws's). First the plane diagonals go (an effect stepped along its
-    diagonals keeps its four axis steps, 90 degrees apart), then whole candidates, the least promising first (largest
+    when all of them are not (`step_draws` below MIN_SAMPLES; `steps` as effect_steps gives them, `axes` the same
+    without the plane diagonals (effect_steps(..., diagonals=False)), `score_p` {effect: score p or None}, the
+    other arguments step_draws's). First the plane diagonals go (an effect stepped along its diagonals keeps its
+    four axis steps, 90 degrees apart), then whole candidates, the least promising first (largest
     score p; untested ones count as p = 1; ties: the later in the library goes first). `dropped` lists the dropped
     step labels as "effect:label", in the order dropped. Until 2026-11-29 the step test was not run at all when
     the full library's 29 steps did not fit: on circle3 the real fabrics' diagnoses ended with most of their 10
@@ -566,13 +568,13 @@ def steps_within(steps, score_p, k, left, forward, references):
 
     if draws() >= MIN_SAMPLES:
         return steps, draws(), dropped
-    for n, v in steps.items():  # the diagonals: the steps that set two stepped parameters at once
-        diagonal = [(label, values) for label, values in v if label.count("=") > 1 and "@" not in label]
-        if diagonal and len(v) - len(diagonal) >= 2:
-            steps[n] = [s for s in v if s not in diagonal]
-            dropped += [f"{n}:{label}" for label, _ in diagonal]
-    order = sorted(steps, key=lambda n: (score_p.get(n) if score_p.get(n) is not None else 1.0,
-                                         -list(steps).index(n)), reverse=True)
+    for n, v in steps.items():  # the diagonals: the steps effect_steps adds to the axis steps
+        kept = [label for label, _ in axes[n]]
+        dropped += [f"{n}:{label}" for label, _ in v if label not in kept]
+        steps[n] = list(axes[n])
+    position = {n: i for i, n in enumerate(steps)}
+    order = sorted(steps, key=lambda n: (score_p.get(n) if score_p.get(n) is not None else 1.0, -position[n]),
+                   reverse=True)
     for n in order:
         if draws() >= MIN_SAMPLES or len(steps) <= 1:
             break
@@ -791,7 +793,7 @@ def step_tasks(steps, n_used):
 
 def complete_draws(images, n_used):
     """How many of the leading draws have an attempted drape on every step: the first u whose images (the step
-    drapes {key: [image, None (failed or not draped), or the marker False (not draped)] per draw}) hold the marker
+    drapes {key: [image, None (the drape failed), or the marker False (not draped)] per draw}) hold the marker
     ends the count."""
     for u in range(n_used):
         if any(v[u] is False for v in images.values()):
@@ -808,7 +810,7 @@ def _step_drapes(pred, models, drawn, steps, used, config, lanes, progress, canc
     and not past it (measured on circle3 before it: 16-43 s past its plan, the refit evaluation it had reserved
     left unpaid, docs/diagnose.md)."""
     tasks = step_tasks(steps, len(used))
-    out = {(n, si): [False] * len(used) for n, si, _, _ in tasks}  # False: not draped (yet)
+    out = {(n, si): [False] * len(used) for n, st in steps.items() for si in range(len(st))}  # False: not draped
     done = [0]
     cursor = [0]  # the next task, shared by the lanes: draws complete in order
     lock = threading.Lock()
@@ -1445,7 +1447,8 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
         if time_budget is not None and n_steps:  # the extra references and the step drapes within a share
             left = float(time_budget) - (time.monotonic() - t0)
             full = n_steps
-            steps, k_step, steps_dropped = steps_within(steps, {e["effect"]: e["p_value"] for e in result["ranking"]},
+            steps, k_step, steps_dropped = steps_within(steps, effect_steps(reg, names, second, diagonals=False),
+                                                        {e["effect"]: e["p_value"] for e in result["ranking"]},
                                                         k_step, left, forward, max(0, j_step - len(pseudo)))
             n_steps = sum(len(v) for v in steps.values())
             if steps_dropped:
@@ -1492,8 +1495,8 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                 if k_screen is not None:  # confirm the promising on fresh draws, within the screen's share
                     reserved = refits_reserved({e["effect"]: e["p_value"] for e in result["ranking"]}, threshold,
                                                int(max_refits))
-                    room = (left - (time.monotonic() - ts) - REPORT_RESERVE_S
-                            - reserved * k * forward_step * EVALUATION_OVERHEAD)
+                    kept_back = REPORT_RESERVE_S + reserved * k * forward_step * EVALUATION_OVERHEAD
+                    room = left - (time.monotonic() - ts) - kept_back
                     confirmed, m = confirmation_plan(tests, {n: len(v) for n, v in steps.items()}, room, forward_step,
                                                      len(done) - k_screen, k_screen, test_s)
                     screen_info = {"draws": k_screen, "p_max": SCREEN_P_MAX, "passed": sorted(
@@ -1510,8 +1513,7 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                         n_sub = sum(len(v) for v in sub.values())
                         # no drape starts once the reserved evaluations, the report's reserve, the tests' own time
                         # and one drape in flight per lane would no longer fit (a plan is an estimate; this holds it)
-                        deadline = (t0 + float(time_budget) - REPORT_RESERVE_S
-                                    - reserved * k * forward_step * EVALUATION_OVERHEAD
+                        deadline = (t0 + float(time_budget) - kept_back
                                     - (test_s or 0.0) * n_sub * (k_screen + m) - forward_step * lanes)
                         more = _step_drapes(pred, models, drawn, sub, fresh, config, lanes, progress, cancel_event,
                                             deadline=deadline)

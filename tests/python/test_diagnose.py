@@ -544,6 +544,7 @@ def test_step_draws_take_a_larger_share_only_to_reach_the_minimum():
 def test_steps_within_drops_the_diagonals_then_the_least_promising_candidates():
     reg = fit_effects.registry()
     steps = diagnose.effect_steps(reg, list(reg))
+    axes = diagnose.effect_steps(reg, list(reg), diagonals=False)
     full = sum(len(v) for v in steps.values())
     # fabric 4's re-run on circle3 (2026-11-29): about 350 s left after the score tests, 2.4 s a forward drape, 18
     # extra references; the whole library paid for 2 draws a step and no step test ran
@@ -551,14 +552,14 @@ def test_steps_within_drops_the_diagonals_then_the_least_promising_candidates():
     assert diagnose.step_draws(16, left, forward, refs, full) < diagnose.MIN_SAMPLES
     p = {n: 0.5 for n in steps}
     p.update(offset=0.002, camera=0.006, tilt=None)
-    kept, k, dropped = diagnose.steps_within(steps, p, 16, left, forward, refs)
+    kept, k, dropped = diagnose.steps_within(steps, axes, p, 16, left, forward, refs)
     assert k == diagnose.MIN_SAMPLES == diagnose.step_draws(16, left, forward, refs, sum(len(v) for v in kept.values()))
     # only the offset's four diagonals went: its axis steps, 90 degrees apart, stay; every candidate is still tested
     assert set(kept) == set(steps) and kept["offset"] == steps["offset"][:4]
     assert dropped == [f"offset:{label}" for label, _ in steps["offset"][4:]]
     assert all(kept[n] == steps[n] for n in steps if n != "offset")
     # less time: whole candidates go, the largest score p first (untested as p = 1), the promising stay
-    kept, k, dropped = diagnose.steps_within(steps, p, 16, 250.0, forward, refs)
+    kept, k, dropped = diagnose.steps_within(steps, axes, p, 16, 250.0, forward, refs)
     assert k == diagnose.MIN_SAMPLES
     assert {"offset", "camera"} <= set(kept) and "tilt" not in kept
     assert dropped.index(f"tilt:{steps['tilt'][0][0]}") < min(
@@ -570,10 +571,10 @@ def test_steps_within_drops_the_diagonals_then_the_least_promising_candidates():
     last = dropped[-1].split(":")[0]
     assert diagnose.step_draws(16, 250.0, forward, refs, n_kept + len(steps[last])) < diagnose.MIN_SAMPLES
     # enough time: nothing dropped, the inputs untouched
-    kept, k, dropped = diagnose.steps_within(steps, p, 16, 1e5, forward, refs)
+    kept, k, dropped = diagnose.steps_within(steps, axes, p, 16, 1e5, forward, refs)
     assert kept == steps and dropped == [] and k == 16
     # no time at all: one candidate is left, and too few draws (the caller does not run the test)
-    kept, k, dropped = diagnose.steps_within(steps, p, 16, 10.0, forward, refs)
+    kept, k, dropped = diagnose.steps_within(steps, axes, p, 16, 10.0, forward, refs)
     assert list(kept) == ["offset"] and k < diagnose.MIN_SAMPLES
 
 
