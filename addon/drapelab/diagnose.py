@@ -37,7 +37,8 @@
    with the same factor). The threshold is alpha = 0.01, Bonferroni-corrected over the candidates tested. A
    parameter without gradient at the off point (a tilt's azimuth at zero angle) drops out of the rank; the
    tilt's angle is therefore also scored with the azimuth turned by 90 degrees (the registry's
-   `second_direction`: one more rollout per draw), so both tilt directions are seen.
+   `second_direction`), so both tilt directions are seen: the same rollout (the angle is off), its adjoint
+   evaluated at both azimuths (ClothModel.backward's alternatives).
    The material is a nuisance: what a change of its overall bending scale explains (a drape coefficient off the
    measured one pulls on every effect that moves it) is projected out of each draw's score first (the efficient
    score, with the information estimated by the outer product of the per-draw gradients; one dof lost).
@@ -207,8 +208,8 @@ def second_directions(reg):
     """{effect: {parameter: value}} from the registry's `second_direction`: effects whose primary parameter acts
     along a direction parameter that has no gradient at the off value (a tilt's azimuth at zero angle). The
     primary's score is also taken with the direction parameter at this value (still the base model, the primary
-    being off), so that the test sees the effect in every direction, at the cost of one more recorded rollout and
-    backward per draw. Key in the gradients: "tilt.angle_rad@azimuth_rad"."""
+    being off), so that the test sees the effect in every direction; the rollout is the same, so its one adjoint
+    gives both (ClothModel.backward's alternatives). Key in the gradients: "tilt.angle_rad@azimuth_rad"."""
     entries = reg.values() if isinstance(reg, dict) else reg
     return {e["name"]: dict(e["second_direction"]) for e in entries if e.get("second_direction")}
 FOLD_WORDS = {
@@ -1007,9 +1008,7 @@ def _joint_drapes(preset, observations, names, k, seed, config, threads, templat
     renderers = [render.SoftRenderer(pred.camera, sigma=config["render_sigma_px"]) for _ in range(lanes)]
     second = second_directions(reg)
     turned = {n: {**offs[n], **second[n]} for n in names if n in second}
-    turned_models = [infer.sim.ClothModel(mesh, heterogeneous=True, density=preset["density_kg_m2"],
-                                          effects={**p_active, **turned}, px_per_m=pred.calibration.px_per_m)
-                     for _ in range(lanes)] if turned else None
+    turned_keys = [f"{n}.{reg[n]['parameters'][0]['name']}" for n in turned]
     draws = infer.preset_bend_samples(preset, models[0].num_bending_edges, np.random.default_rng(seed), k)
     keys = [f"{n}.{p['name']}" for n in names for p in reg[n]["parameters"]]
     sigma_obs = float(config["sigma_obs"])
@@ -1038,15 +1037,21 @@ def _joint_drapes(preset, observations, names, k, seed, config, threads, templat
     pseudo_pairs = _pairs(len(pseudo))
     observed_pairs = _pairs(len(observed))
 
-    def scores(m, r, x, p, image_grads, bend, prefix_keys):
-        out = []
+    def scores(m, r, x, p, image_grads, bend, pt):
+        """Per image gradient, the candidates' scores at p and, with `pt` (the turned directions' parameters: the
+        same rollout, the primary being off), the turned primaries' from the same adjoint."""
+        out, out_turned = [], []
         for w in image_grads:
-            g = infer._observed_backward(m, x, p, r.backward(w), cancel_event)
-            d = {key: float(g[key]) for key in prefix_keys}
+            g = infer._observed_backward(m, x, p, r.backward(w), cancel_event,
+                                         alternatives=None if pt is None else [pt])
+            if pt is not None:
+                g, gt = g
+                out_turned.append({key: float(gt[key]) for key in turned_keys})
+            d = {key: float(g[key]) for key in keys}
             # the nuisance direction: the material's overall bending scale, d data / d log(scale)
             d["bend.log_scale"] = float(np.sum(np.asarray(g["bend"]) * bend))
             out.append(d)
-        return out
+        return out, (out_turned or [None] * len(out))
 
     def run(lane):
         m, r = models[lane], renderers[lane]
@@ -1070,26 +1075,19 @@ def _joint_drapes(preset, observations, names, k, seed, config, threads, templat
             # draws 2m and 2m + 1 share a scatter image: the cross products of their scatter scores estimate the
             # covariance through the mean adjoint (score_test)
             scatter = _scatter_image(i // 2, pseudo, observed, pseudo_pairs, observed_pairs) * scale
+            # the turned directions (registry second_direction, e.g. a tilt's azimuth by 90 degrees): the same model
+            # and rollout, the direction parameter turned, scored from the same adjoint (ClothModel.backward's
+            # alternatives; until 2026-11-29 a second recorded rollout and backward per draw)
+            pt = (m.parameters(stretch=pred.stretch, bend=draws[i],
+                               effects={**(base_effects[i] if base_effects else {}), **turned}) if turned else None)
             try:
-                g, gu = scores(m, r, x, p, [excess, scatter], draws[i], keys)
+                (g, gu), (gt, gtu) = scores(m, r, x, p, [excess, scatter], draws[i], pt)
             except Cancelled:
                 return
             shapes[i] = {"x": x, "image": hard, "dc": measure.drape_coefficient(hard, pred.calibration.px_per_m),
                          "nodes": nodes.count, "amplitude": nodes.amplitude_m}
             g["scatter"] = gu
-            if turned:  # the same base drape on a model whose gradient-less directions are turned
-                mt = turned_models[lane]
-                pt = mt.parameters(stretch=pred.stretch, bend=draws[i],
-                                   effects={**(base_effects[i] if base_effects else {}), **turned})
-                try:
-                    xt = mt.simulate(pt, mode="dynamic", record=True, velocities0=v0, cancel_event=cancel_event,
-                                     **config["dynamic"])
-                    r.render(infer._observed(mt, xt, pt), mt.faces)
-                    turned_keys = [f"{n}.{reg[n]['parameters'][0]['name']}" for n in turned]
-                    gt, gtu = scores(mt, r, xt, pt, [excess, scatter], draws[i], turned_keys)
-                except Cancelled:
-                    shapes[i] = None
-                    return
+            if turned:
                 for n in turned:
                     primary = reg[n]["parameters"][0]["name"]
                     for q in second[n]:

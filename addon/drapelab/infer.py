@@ -244,13 +244,19 @@ def _observed(model, x, params):
     return model.observe(x, params) if model.has_observation else x
 
 
-def _observed_backward(model, x, params, g_observed, cancel_event=None):
+def _observed_backward(model, x, params, g_observed, cancel_event=None, alternatives=None):
     """Parameter gradients (a split dict) of a loss of the rendered positions _observed(model, x, params), given
-    its gradient there: back through the measurement transforms (camera, offset), then the drape's adjoint."""
+    its gradient there: back through the measurement transforms (camera, offset), then the drape's adjoint.
+    `alternatives` (parameter vectors at which the rollout and the measurement's position map are the same, as
+    ClothModel.backward takes them): a list of split dicts, at `params` and then at each alternative."""
     if not model.has_observation:
-        return model.backward(g_observed, cancel_event=cancel_event)
+        return model.backward(g_observed, cancel_event=cancel_event, alternatives=alternatives)
     g_x, g_direct = model.observe_backward(x, params, g_observed, flat=True)
-    return model.split(model.backward(g_x, flat=True, cancel_event=cancel_event) + g_direct)
+    if alternatives is None:
+        return model.split(model.backward(g_x, flat=True, cancel_event=cancel_event) + g_direct)
+    gs = model.backward(g_x, flat=True, cancel_event=cancel_event, alternatives=alternatives)
+    directs = [g_direct] + [model.observe_backward(x, q, g_observed, flat=True)[1] for q in alternatives]
+    return [model.split(g + d) for g, d in zip(gs, directs)]
 
 
 class FitJob:

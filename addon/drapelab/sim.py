@@ -704,25 +704,40 @@ class ClothModel:
             self._last = mode if (mode == "static" or record) else None
         return np.asarray(x).reshape(-1, 3)
 
-    def backward(self, dL_dpositions, flat=False, progress=None, cancel_event=None):
+    def backward(self, dL_dpositions, flat=False, progress=None, cancel_event=None, alternatives=None):
         """Gradient of a loss L(final positions) with respect to the parameters of the last ``simulate``.
 
         dL_dpositions: (V, 3). Returns a dict block name -> gradient shaped like ``split`` (or the flat
         vector when flat=True).
+
+        alternatives: parameter vectors (flat, as ``parameters`` gives them) at which the dynamic rollout's step
+        map is the same function of the state as at the simulated parameters: a direction parameter whose
+        amplitude is off (a tilt's azimuth at zero angle). That is the caller's promise; only the density is
+        checked. Then returns a list: the gradient at the simulated parameters, then one per alternative, all from
+        the one adjoint (the terms that read a differing parameter are evaluated at both; dynamic mode without
+        contact only).
         """
         g = self._positions(dL_dpositions, "dL_dpositions").ravel()
+        alts = None
+        if alternatives is not None:
+            alts = [self._params(q, "alternatives") for q in alternatives]
         sink = _progress_sink(progress, cancel_event, "backward")
         with self._lock:
             if self._last is None:
                 raise InputError("backward: run simulate(...) first (dynamic mode with record=True)")
             if self._last == "dynamic":
-                gp = self._dynamic.backward(g, progress=sink)["parameters"]
+                out = self._dynamic.backward(g, progress=sink, alternatives=alts)
+                gp = out["parameters"]
                 if "timing" in self.last_result:  # with the backward's split (backward_*)
                     self.last_result["timing"] = dict(self._dynamic.timing)
+            elif alts is not None:
+                raise InputError("backward: alternatives need a dynamic rollout (the static adjoint has none)")
             else:
                 gp = self._static.adjoint(g)
-        gp = np.asarray(gp)
-        return gp if flat else self.split(gp)
+        shape = (lambda v: np.asarray(v)) if flat else (lambda v: self.split(np.asarray(v)))
+        if alts is None:
+            return shape(gp)
+        return [shape(gp)] + [shape(v) for v in out["alternatives"]]
 
 
 def simulate(model, params, mode="dynamic", steps=DEFAULT_STEPS, time_step=DEFAULT_TIME_STEP, progress=None,

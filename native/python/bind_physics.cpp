@@ -368,21 +368,34 @@ void bind_physics(py::module_& m) {
           "relative residual; above 1e-10 only with record=False (an animation that is not differentiated).")
       .def(
           "backward",
-          [](PyImplicitEuler& s, const Vector& dL_dx, std::optional<Vector> dL_dv, std::shared_ptr<PyProgress> progress) {
+          [](PyImplicitEuler& s, const Vector& dL_dx, std::optional<Vector> dL_dv, std::shared_ptr<PyProgress> progress,
+             std::optional<std::vector<Vector>> alternatives) {
             RolloutGradient g;
+            std::vector<Eigen::VectorXd> alts, alt_grads;
+            if (alternatives)
+              for (const auto& q : *alternatives) alts.emplace_back(q);
             {
               py::gil_scoped_release no_gil;
               std::lock_guard<std::mutex> lock(s.mutex);
-              g = s.solver.backward(dL_dx, dL_dv ? &*dL_dv : nullptr, progress_sink_of(progress));
+              g = s.solver.backward(dL_dx, dL_dv ? &*dL_dv : nullptr, progress_sink_of(progress),
+                                    alternatives ? &alts : nullptr, alternatives ? &alt_grads : nullptr);
             }
             py::dict out;
             out["parameters"] = g.parameters;
             out["positions0"] = g.positions0;
             out["velocities0"] = g.velocities0;
+            if (alternatives) {
+              py::list a;
+              for (const auto& q : alt_grads) a.append(Vector(q));
+              out["alternatives"] = a;
+            }
             return out;
           },
           py::arg("dL_dx"), py::arg("dL_dv") = py::none(), py::arg("progress") = nullptr,
-          "dL/d(parameters, x0, v0) of the last forward (record=True): dict of flat arrays.")
+          py::arg("alternatives") = py::none(),
+          "dL/d(parameters, x0, v0) of the last forward (record=True): dict of flat arrays. alternatives: parameter "
+          "vectors at which the step map is the same function of the state (a tilt's azimuth at zero angle; the "
+          "caller's promise); their dL/dp from the same adjoint under 'alternatives'.")
       .def_property_readonly("positions", [](PyImplicitEuler& s) {
         std::lock_guard<std::mutex> lock(s.mutex);
         return Vector(s.solver.positions());

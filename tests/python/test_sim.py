@@ -195,6 +195,37 @@ def test_backward_errors():
         m.backward(np.zeros((297, 3)))
 
 
+
+def test_backward_alternatives_score_a_turned_tilt_from_one_adjoint():
+    # the diagnosis's second direction: the tilt's angle off, its azimuth turned by 90 degrees; the rollout is the
+    # same, so one adjoint gives the gradient at both (against a rollout of its own at the turned azimuth)
+    m = sim.ClothModel(sim.cusick_specimen(1), effects={"tilt": {}, "offset": {}, "camera": {}})
+    p = m.parameters()
+    q = m.parameters(effects={"tilt": {"azimuth_rad": np.pi / 2}})
+    v0 = 0.05 * np.random.default_rng(3).standard_normal((m.num_vertices, 3))
+    seed = np.random.default_rng(4).standard_normal((m.num_vertices, 3))
+    x = m.simulate(p, steps=8, velocities0=v0)
+    plain = m.backward(seed, flat=True)
+    at_p, at_q = m.backward(seed, flat=True, alternatives=[q])
+    assert np.array_equal(at_p, plain)
+    assert np.array_equal(m.simulate(q, steps=8, velocities0=v0), x)
+    direct = m.backward(seed, flat=True)
+    assert np.abs(at_q - direct).max() <= 1e-10 * np.abs(direct).max()
+    turned = m.split(at_q)["tilt.angle_rad"]
+    assert abs(float(turned) - float(m.split(plain)["tilt.angle_rad"])) > 1e-3 * abs(float(turned))
+    # split dicts unless flat; a changed density, a wrong size and a static drape are clear errors
+    m.simulate(p, steps=8, velocities0=v0)
+    blocks = m.backward(seed, alternatives=[q])
+    assert isinstance(blocks, list) and len(blocks) == 2 and "tilt.angle_rad" in blocks[1]
+    with pytest.raises(ValueError, match="density"):
+        m.backward(seed, alternatives=[m.parameters(density=0.2, effects={"tilt": {"azimuth_rad": 1.0}})])
+    with pytest.raises(ValueError, match="alternatives"):
+        m.backward(seed, alternatives=[p[:-1]])
+    m.simulate(p, mode="static")
+    with pytest.raises(ValueError, match="dynamic"):
+        m.backward(seed, alternatives=[q])
+
+
 # ---------------------------------------------------------------- physics sanity
 def test_energy_gradient_matches_differences(model):
     p = model.parameters()

@@ -40,6 +40,12 @@ class BendTerm : public ElementTerm<BendTerm, 4, 15, 1> {
   int num_elements() const { return static_cast<int>(verts_.size()); }
   const std::array<int, 4>& element_vertices(int e) const { return verts_[e]; }
   int parameter_offset(int e) const { return offset_ + (shared_ ? 0 : 15 * e); }
+  // The energy modulation's and the rest angles' parameters (stiffness maps, rest curvature) besides the table.
+  std::vector<int> extra_parameter_indices() const {
+    std::vector<int> out = modulation_.indices;
+    out.insert(out.end(), rest_.indices.begin(), rest_.indices.end());
+    return out;
+  }
 
   // Signed dihedral angle: 0 when flat, vertices (a, b, c, d) as in BendingEdge.
   template <class T>

@@ -57,6 +57,19 @@ class ElementTerm : public Term {
  public:
   static constexpr int D = 3 * kVertices;
 
+  // The element parameters (parameter_offset / parameter_indices) and, in terms that read more (the base
+  // terms' changes: physics/base_term_changes.hpp), extra_parameter_indices().
+  bool reads_parameters(const std::vector<char>& mask) const override {
+    for (int i : self().extra_parameter_indices())
+      if (mask[i]) return true;
+    for (int e = 0; e < self().num_elements(); ++e)
+      for (int k = 0; k < kParams; ++k)
+        if (mask[parameter_index(e, k)]) return true;
+    return false;
+  }
+  // Parameters read besides the elements' own: none unless a term says so.
+  std::vector<int> extra_parameter_indices() const { return {}; }
+
   std::vector<std::vector<int>> stencils() const override {
     std::vector<std::vector<int>> s;
     s.reserve(self().num_elements());

@@ -59,6 +59,8 @@ class StretchTerm : public ElementTerm<StretchTerm, 3, 24, 9> {
   int num_elements() const { return static_cast<int>(faces_.size()); }
   const std::array<int, 3>& element_vertices(int e) const { return faces_[e]; }
   int parameter_offset(int e) const { return offset_ + (shared_ ? 0 : 24 * e); }
+  // The rest scaling's strains (prestrain) besides the table.
+  std::vector<int> extra_parameter_indices() const { return rest_.indices; }
 
   // F = Ds Di for a row-major 2 x 2 rest inverse Di (the face's, or a scaled one).
   template <class T, class D>

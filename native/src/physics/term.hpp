@@ -50,6 +50,10 @@ class Term {
   }
   virtual void add_hessian_product(const Eigen::VectorXd& x, const Eigen::VectorXd& p, const Eigen::VectorXd& dir,
                                    Eigen::VectorXd& out) const = 0;
+  // Whether anything the term computes reads a parameter i with mask[i] != 0 (mask: one entry per parameter).
+  // ImplicitEuler::backward's alternative parameter vectors recompute only the terms that do. The default, true,
+  // is always correct (the term is recomputed).
+  virtual bool reads_parameters(const std::vector<char>& /*mask*/) const { return true; }
   // gp += dE/dp
   virtual void add_energy_parameter_gradient(const Eigen::VectorXd& x, const Eigen::VectorXd& p,
                                              Eigen::VectorXd& gp) const = 0;

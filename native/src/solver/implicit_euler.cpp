@@ -174,7 +174,8 @@ Eigen::VectorXd ImplicitEuler::forward(const Eigen::VectorXd& p, const RolloutOp
 }
 
 RolloutGradient ImplicitEuler::backward(const Eigen::VectorXd& dL_dx, const Eigen::VectorXd* dL_dv,
-                                        ProgressSink* progress) {
+                                        ProgressSink* progress, const std::vector<Eigen::VectorXd>* alternatives,
+                                        std::vector<Eigen::VectorXd>* alternative_gradients) {
   const int n = model_.num_dofs();
   if (tape_.empty()) throw InputError("backward: run forward with record = true first");
   if (dL_dx.size() != n) throw InputError("backward: dL/dx has the wrong size");
@@ -190,6 +191,35 @@ RolloutGradient ImplicitEuler::backward(const Eigen::VectorXd& dL_dx, const Eige
   const int T = static_cast<int>(tape_.size());
   timing_.backward_solve = timing_.backward_refactorize = timing_.backward_terms = timing_.backward_start = 0;
   timing_.backward_refactorizations = 0;
+  // the alternatives (header): per alternative, the terms that read a parameter that differs, and their dL/dp
+  // contributions at the alternative (plus) and at the recorded parameters (minus)
+  const int num_alternatives = alternatives ? static_cast<int>(alternatives->size()) : 0;
+  if (num_alternatives > 0 && !alternative_gradients)
+    throw InputError("backward: alternatives need somewhere to put their gradients");
+  std::vector<std::vector<int>> alternative_terms(num_alternatives);
+  std::vector<Eigen::VectorXd> plus(num_alternatives), minus(num_alternatives);
+  for (int a = 0; a < num_alternatives; ++a) {
+    const Eigen::VectorXd& q = (*alternatives)[a];
+    if (q.size() != p_.size() || !q.allFinite())
+      throw InputError("backward: alternative parameters " + std::to_string(a) + " have the wrong size or are not "
+                       "finite");
+    std::vector<char> mask(p_.size(), 0);
+    for (Eigen::Index i = 0; i < p_.size(); ++i) mask[i] = q[i] != p_[i];
+    for (int i = density_block.offset; i < density_block.offset + density_block.size; ++i)
+      if (mask[i]) throw InputError("backward: an alternative's density differs from the rollout's (the masses)");
+    for (int k = 0; k < static_cast<int>(model_.terms().size()); ++k)
+      if (model_.terms()[k]->reads_parameters(mask)) alternative_terms[a].push_back(k);
+    plus[a].setZero(p_.size());
+    minus[a].setZero(p_.size());
+  }
+  if (num_alternatives > 0)
+    for (const auto& r : tape_)
+      if (r.contact) throw InputError("backward: alternative parameters are not supported with contact steps");
+  Eigen::VectorXd scratch_x, scratch_v;
+  if (num_alternatives > 0) {
+    scratch_x.setZero(n);
+    scratch_v.setZero(n);
+  }
   for (const auto& r : tape_)
     if (!r.iterates.empty()) {
       for (const auto& term : model_.terms())
@@ -237,6 +267,14 @@ RolloutGradient ImplicitEuler::backward(const Eigen::VectorXd& dL_dx, const Eige
         term->add_step_matrix(r.x, p_, h * h, K);
       }
     if (K.size() != 0) gv_prev -= symmetric_multiply(pattern, K, lambda);
+    for (int a = 0; a < num_alternatives; ++a)
+      for (int k : alternative_terms[a]) {  // only their dL/dp is kept; the scratch takes the rest
+        Term& term = *model_.terms()[k];
+        term.resume_step(r.x, (*alternatives)[a], h);
+        term.add_step_adjoint(r.x, (*alternatives)[a], lambda, v_next, h, scratch_x, scratch_v, plus[a]);
+        term.resume_step(r.x, p_, h);
+        term.add_step_adjoint(r.x, p_, lambda, v_next, h, scratch_x, scratch_v, minus[a]);
+      }
     timing_.backward_terms += seconds_since(t0);
     t0 = std::chrono::steady_clock::now();
     // Terms that depend on the step start x_t besides x (damping): the x_t-derivative of lambda . (h grad E +
@@ -251,6 +289,10 @@ RolloutGradient ImplicitEuler::backward(const Eigen::VectorXd& dL_dx, const Eige
     gx = std::move(gx_prev);
     gv = std::move(gv_prev);
     if (progress) progress->step(T - t, T);
+  }
+  if (num_alternatives > 0) {
+    alternative_gradients->resize(num_alternatives);
+    for (int a = 0; a < num_alternatives; ++a) (*alternative_gradients)[a] = gp + plus[a] - minus[a];
   }
   return {gp, gx, gv};
 }

@@ -78,8 +78,15 @@ class ImplicitEuler {
                           ProgressSink* progress = nullptr, const Eigen::VectorXd* x0 = nullptr,
                           const Eigen::VectorXd* v0 = nullptr);
   // dL/d(p, x0, v0) given dL/dx_T (and optionally dL/dv_T) of the last forward (record = true).
+  // `alternatives`: parameter vectors at which the step map is the same function of the state as at the recorded
+  // parameters (a direction parameter while its amplitude is off: a tilt's azimuth at zero angle), so that the
+  // rollout and its adjoint are the same; the caller's promise, checked only for the density (the masses). Their
+  // dL/dp go to `alternative_gradients` from this one adjoint: the terms that read a parameter that differs
+  // (Term::reads_parameters) are evaluated at both and their difference added. Not with contact steps.
   RolloutGradient backward(const Eigen::VectorXd& dL_dx, const Eigen::VectorXd* dL_dv = nullptr,
-                           ProgressSink* progress = nullptr);
+                           ProgressSink* progress = nullptr,
+                           const std::vector<Eigen::VectorXd>* alternatives = nullptr,
+                           std::vector<Eigen::VectorXd>* alternative_gradients = nullptr);
 
   const Eigen::VectorXd& positions() const { return x_; }
   const Eigen::VectorXd& velocities() const { return v_; }

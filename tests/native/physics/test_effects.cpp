@@ -396,3 +396,94 @@ TEST(EffectRegistry, BadNamesAndValuesAreErrorsNamingTheField) {
     EXPECT_NE(std::string(e.what()).find(q.name), std::string::npos) << e.what();
   }
 }
+
+namespace {
+
+// Every registered effect without contact terms, on at `values` (or at its off values where `values` has none):
+// the diagnosis's joint model.
+ModelOptions all_effects_without_contact(unsigned moderate_seed = 0) {
+  ModelOptions o;
+  for (const auto& e : effect_registry()) {
+    ModelOptions one;
+    one.effects[e.name] = {};
+    if (has_contact(Model(make_cusick_specimen(30), one))) continue;
+    o.effects[e.name] = moderate_seed ? moderate_effect_values(e, moderate_seed + 1)[e.name] : EffectValues::mapped_type{};
+  }
+  return o;
+}
+
+}  // namespace
+
+// Term::reads_parameters (the backward's alternatives recompute only the terms that say yes): a term whose energy,
+// force or step matrix changes with a parameter says it reads it. Every effect on at a moderate strength, every
+// parameter of the layout.
+TEST(EffectRegistry, TermsSayWhichParametersTheyRead) {
+  const Model model(make_cusick_specimen(40), all_effects_without_contact(41));
+  const Eigen::VectorXd p = model.default_parameters();
+  const Eigen::VectorXd x = perturbed_positions(model, 2e-3, 9);
+  Eigen::VectorXd start = x;
+  for (int i = 0; i < model.num_vertices(); ++i) start[3 * i] -= 1e-3 * std::sin(i);
+  for (const auto& t : model.terms()) t->begin_step(start, p, 0.05);
+  const int n = model.num_dofs(), nnz = static_cast<int>(model.pattern().nnz());
+  int read = 0;
+  for (int i = 0; i < p.size(); ++i) {
+    Eigen::VectorXd q = p;
+    q[i] += 1e-3 * std::max(1.0, std::abs(p[i]));
+    std::vector<char> mask(p.size(), 0);
+    mask[i] = 1;
+    for (const auto& term : model.terms()) {
+      Eigen::VectorXd gp = Eigen::VectorXd::Zero(n), gq = gp, kp = Eigen::VectorXd::Zero(nnz), kq = kp;
+      term->add_gradient(x, p, gp);
+      term->add_gradient(x, q, gq);
+      term->add_step_matrix(x, p, 1.0, kp);
+      term->add_step_matrix(x, q, 1.0, kq);
+      const bool changes = term->energy(x, p) != term->energy(x, q) || gp != gq || kp != kq;
+      if (changes) {
+        EXPECT_TRUE(term->reads_parameters(mask)) << term->name() << " changes with parameter " << i;
+        ++read;
+      }
+    }
+  }
+  EXPECT_GT(read, 0);
+}
+
+// ImplicitEuler::backward's alternatives, as the diagnosis uses them: the registry's second directions (a tilt's
+// azimuth at zero angle) scored from the one adjoint equal the adjoint of their own rollout, on the joint model
+// with every effect at its off value; the main gradient is unchanged bit for bit; a changed density is refused.
+TEST(EffectRegistry, SecondDirectionsFromOneAdjointMatchTheirOwnRollout) {
+  const Model model(make_cusick_specimen(60), all_effects_without_contact());
+  const Eigen::VectorXd p = model.default_parameters();
+  RolloutOptions ro;
+  ro.steps = 12;
+  const Eigen::VectorXd v0 = 0.05 * random_vector(model.num_dofs(), 7);
+  const Eigen::VectorXd seed = random_vector(model.num_dofs(), 8);
+  int tested = 0;
+  for (const auto& e : effect_registry()) {
+    if (e.second_direction.empty()) continue;
+    SCOPED_TRACE(e.name);
+    Eigen::VectorXd q = p;
+    for (const auto& [name, value] : e.second_direction)
+      q[model.layout().block(effect_block_name(e.name, name)).offset] = value;
+    ASSERT_NE(q, p);
+    ImplicitEuler at_p(model), at_q(model);
+    const Eigen::VectorXd xp = at_p.forward(p, ro, nullptr, nullptr, &v0);
+    ASSERT_EQ(xp, at_q.forward(q, ro, nullptr, nullptr, &v0)) << "the caller's promise: the same rollout";
+    const Eigen::VectorXd plain = at_p.backward(seed).parameters;
+    std::vector<Eigen::VectorXd> alternatives{q}, grads;
+    const RolloutGradient g = at_p.backward(seed, nullptr, nullptr, &alternatives, &grads);
+    EXPECT_EQ(g.parameters, plain);
+    const Eigen::VectorXd direct = at_q.backward(seed).parameters;
+    ASSERT_EQ(grads.size(), 1u);
+    EXPECT_LE((grads[0] - direct).norm(), 1e-10 * direct.norm());
+    const int primary = model.layout().block(effect_block_name(e.name, e.parameters.front().name)).offset;
+    EXPECT_NEAR(grads[0][primary], direct[primary], 1e-9 * std::abs(direct[primary]));
+    EXPECT_GT(std::abs(direct[primary] - plain[primary]), 1e-3 * std::abs(plain[primary]))
+        << "the turned direction scores differently";
+    Eigen::VectorXd heavier = q;
+    heavier[model.layout().block("density").offset] *= 1.1;
+    alternatives = {heavier};
+    EXPECT_THROW(at_p.backward(seed, nullptr, nullptr, &alternatives, &grads), InputError);
+    ++tested;
+  }
+  EXPECT_GT(tested, 0);
+}
