@@ -775,6 +775,31 @@ def _in_lanes(run, lanes):
 
 
 
+class _ForwardModels:
+    """Per lane, the lightest model a forward drape needs: P's own effects and, for a step, the one effect stepped.
+    The candidates at their off values are bit-for-bit no-ops (tests/native/physics/test_effects.cpp), so these
+    drape as the scoring model with every candidate on does (bit for bit with none stepped; with a step on, up to
+    the round-off of summing the terms in another order, 1e-15 m), and faster (on circle3 that model's forward
+    costs 10-25 % more, the candidates' terms evaluated at zero). Models are built when first asked (0.1 s each)."""
+
+    def __init__(self, mesh, density, p_active, px_per_m, lanes):
+        self._args = (mesh, density, dict(p_active), px_per_m)
+        self._models = {}
+        self._lock = threading.Lock()
+        self.plain = [self.get(lane) for lane in range(lanes)]
+
+    def get(self, lane, effect=None, off=None):
+        """Lane `lane`'s model with P's effects and `effect` on at `off` (its off values {param: value})."""
+        key = (lane, effect)
+        with self._lock:
+            if key not in self._models:
+                mesh, density, p_active, px_per_m = self._args
+                effects = dict(p_active, **({effect: dict(off or {})} if effect else {}))
+                self._models[key] = infer.sim.ClothModel(mesh, heterogeneous=True, density=density, effects=effects,
+                                                         px_per_m=px_per_m)
+            return self._models[key]
+
+
 def _forward_silhouette(m, p, v0, pred, config, cancel_event):
     """The hard silhouette of one forward drape (no record), or None when the drape fails; Cancelled passes."""
     try:
@@ -802,9 +827,10 @@ def complete_draws(images, n_used):
     return n_used
 
 
-def _step_drapes(pred, models, drawn, steps, used, config, lanes, progress, cancel_event, deadline=None):
+def _step_drapes(pred, drawn, steps, used, config, lanes, progress, cancel_event, deadline=None):
     """Hard images of the scored draws `used` (the same material draws, P's effect draws and placement noise) with
-    each step's effect switched on: {(effect, step index): [image or None per used draw]}. Forward drapes only.
+    each step's effect switched on: {(effect, step index): [image or None per used draw]}. Forward drapes only, each
+    on a model with P's effects and the stepped one (drawn["light"], _ForwardModels).
     With a `deadline` (time.monotonic() seconds) no drape starts after it; the draws are draped one after the other
     (step_tasks), and a draw not draped on every step is left out: its images are dropped, so the lists are as long
     as the complete draws (complete_draws). A budget is a promise: the screen's confirmation runs to its deadline
@@ -818,7 +844,6 @@ def _step_drapes(pred, models, drawn, steps, used, config, lanes, progress, canc
     t0 = time.monotonic()
 
     def run(lane):
-        m = models[lane]
         while True:
             if cancel_event is not None and cancel_event.is_set():
                 return
@@ -831,7 +856,8 @@ def _step_drapes(pred, models, drawn, steps, used, config, lanes, progress, canc
                 cursor[0] += 1
             i = used[u]
             base = drawn["effects"][i] if drawn["effects"] else {}
-            p = m.parameters(stretch=pred.stretch, bend=drawn["bend"][i], effects={**base, **drawn["offs"], n: values})
+            m = drawn["light"].get(lane, n, drawn["offs"][n])
+            p = m.parameters(stretch=pred.stretch, bend=drawn["bend"][i], effects={**base, n: values})
             try:
                 out[(n, si)][u] = _forward_silhouette(m, p, drawn["velocities"][i], pred, config, cancel_event)
             except Cancelled:
@@ -1018,7 +1044,8 @@ def _joint_drapes(preset, observations, names, k, seed, config, threads, templat
     velocities = [infer.placement_velocities(rest, np.random.default_rng([seed, i, 1]), amplitude, modes)
                   if amplitude > 0 else None for i in range(k)]
     # what the step test (_step_drapes) needs to drape the same draws with an effect switched on
-    drawn = {"bend": draws, "effects": base_effects, "offs": offs, "velocities": velocities}
+    light = _ForwardModels(mesh, preset["density_kg_m2"], p_active, pred.calibration.px_per_m, lanes)
+    drawn = {"bend": draws, "effects": base_effects, "offs": offs, "velocities": velocities, "light": light}
     done = [0]
     lock = threading.Lock()
     t0 = time.monotonic()
@@ -1026,7 +1053,7 @@ def _joint_drapes(preset, observations, names, k, seed, config, threads, templat
     # the null reference: P's own predictive silhouettes, as many as there are images (at least PSEUDO_MIN)
     observed = [o.mask for o in observations]
     j = max(PSEUDO_MIN, len(observed))
-    pseudo = _pseudo_observations(pred, preset, models, offs, j, seed, config, lanes, progress, cancel_event)
+    pseudo = _pseudo_observations(pred, preset, light.plain, {}, j, seed, config, lanes, progress, cancel_event)
     if len(pseudo) < PSEUDO_MIN:
         if cancel_event is not None and cancel_event.is_set():
             return pred, models, shapes, grads, time.monotonic() - t0, lanes, pseudo, drawn
@@ -1375,7 +1402,7 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                                        float(config["sigma_obs"]), SCORE_SIGMA_DC)
         # the re-drape floor: the draws against P's mean material re-draped (placement noise only)
         tr = time.monotonic()
-        redrapes = _pseudo_observations(pred, p, models, drawn["offs"], max(REDRAPE_FLOOR_MIN, len(observations)),
+        redrapes = _pseudo_observations(pred, p, drawn["light"].plain, {}, max(REDRAPE_FLOOR_MIN, len(observations)),
                                         seed, config, lanes, progress, cancel_event, stream=2, mean_material=True)
         forward_measured = (time.monotonic() - tr) / len(redrapes) if redrapes else None
         floor = _redrape_floor([shapes[i] for i in done], redrapes)
@@ -1469,11 +1496,11 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
             j_extra = j_step - len(pseudo)
             references = list(pseudo)
             if j_extra > 0:
-                references += _pseudo_observations(pred, p, models, drawn["offs"], j_extra, seed, config, lanes,
+                references += _pseudo_observations(pred, p, drawn["light"].plain, {}, j_extra, seed, config, lanes,
                                                    progress, cancel_event, stream=1)
             used = done[:k_first]
             tf = time.monotonic()
-            images_k = _step_drapes(pred, models, drawn, steps, used, config, lanes, progress, cancel_event)
+            images_k = _step_drapes(pred, drawn, steps, used, config, lanes, progress, cancel_event)
             # the latest forward drape time, on these models and lanes: what the confirmation and the refits'
             # evaluations are planned with (one estimate for both: 1.43 s a drape on circle3, as the floor's)
             forward_step = (time.monotonic() - tf) / max(1, len(used) * n_steps)
@@ -1513,7 +1540,7 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                         # and one drape in flight per lane would no longer fit (a plan is an estimate; this holds it)
                         deadline = (t0 + float(time_budget) - kept_back
                                     - (test_s or 0.0) * n_sub * (k_screen + m) - forward_step * lanes)
-                        more = _step_drapes(pred, models, drawn, sub, fresh, config, lanes, progress, cancel_event,
+                        more = _step_drapes(pred, drawn, sub, fresh, config, lanes, progress, cancel_event,
                                             deadline=deadline)
                         fresh = fresh[:len(next(iter(more.values()), []))]
                         screen_info["confirmation_draws"] = len(fresh)

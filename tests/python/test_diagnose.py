@@ -599,20 +599,52 @@ def test_step_drapes_run_draw_after_draw_and_stop_at_their_deadline(monkeypatch)
         time.sleep(0.1)
         return np.ones((2, 2))
 
+    class Light:  # _ForwardModels: one model per lane and stepped effect
+        def get(self, lane, effect=None, off=None):
+            return Model()
+
     monkeypatch.setattr(diagnose, "_forward_silhouette", fake_forward)
     pred = type("P", (), {"stretch": None})()
-    drawn = {"bend": [None] * 8, "effects": None, "offs": {}, "velocities": [None] * 8}
+    drawn = {"bend": [None] * 8, "effects": None, "offs": {"tilt": {}, "camera": {}}, "velocities": [None] * 8,
+             "light": Light()}
     used = list(range(8))
-    full = diagnose._step_drapes(pred, [Model(), Model()], drawn, steps, used, {}, 2, None, None)
+    full = diagnose._step_drapes(pred, drawn, steps, used, {}, 2, None, None)
     assert {len(v) for v in full.values()} == {8} and all(im is not None for v in full.values() for im in v)
     started.clear()
     deadline = time.monotonic() + 0.5  # 24 drapes of 0.1 s on two lanes take 1.2 s
-    cut = diagnose._step_drapes(pred, [Model(), Model()], drawn, steps, used, {}, 2, None, None, deadline=deadline)
+    cut = diagnose._step_drapes(pred, drawn, steps, used, {}, 2, None, None, deadline=deadline)
     lengths = {len(v) for v in cut.values()}
     assert len(lengths) == 1 and 0 < lengths.pop() < 8  # complete draws only, fewer than all
     assert started and max(started) < deadline  # no drape started after the deadline
-    past = diagnose._step_drapes(pred, [Model()], drawn, steps, used, {}, 1, None, None, deadline=time.monotonic())
+    past = diagnose._step_drapes(pred, drawn, steps, used, {}, 1, None, None, deadline=time.monotonic())
     assert all(v == [] for v in past.values())
+
+
+def test_forward_models_drape_as_the_scoring_model_with_every_candidate_does():
+    # the step test's and the references' drapes run on models with P's effects and the one stepped effect
+    # (_ForwardModels); the scored draws on one with every candidate at its off value: the drapes must be the same,
+    # up to the round-off of summing the terms in another order
+    reg = fit_effects.registry()
+    names = [n for n in reg if not diagnose._is_switch(reg[n])]
+    offs = {n: {q["name"]: q["off"] for q in reg[n]["parameters"]} for n in names}
+    mesh = sim.cusick_specimen(1)
+    joint = sim.ClothModel(mesh, heterogeneous=True, effects=offs)
+    light = diagnose._ForwardModels(mesh, sim.DEFAULT_DENSITY, {}, 720.0, 1)
+    v0 = 0.05 * np.random.default_rng(5).standard_normal((joint.num_vertices, 3))
+    steps = diagnose.effect_steps(reg, ["tilt", "offset", "camera", "prestrain"], diagnose.second_directions(reg))
+    cases = [(None, {})] + [(n, values) for n, st in steps.items() for _, values in st[:2]]
+    for n, values in cases:
+        m = light.plain[0] if n is None else light.get(0, n, offs[n])
+        assert m is (light.get(0) if n is None else light.get(0, n))  # built once
+        p = m.parameters(effects={n: values} if n else {})
+        pj = joint.parameters(effects={**offs, **({n: values} if n else {})})
+        x = m.simulate(p, steps=15, velocities0=v0, record=False)
+        xj = joint.simulate(pj, steps=15, velocities0=v0, record=False)
+        y, yj = infer._observed(m, x, p), infer._observed(joint, xj, pj)
+        if n is None:  # every candidate off: the same drape bit for bit
+            assert np.array_equal(y, yj)
+        else:  # a stepped effect on: its force summed with the others in another order (1e-15 m on circle1)
+            assert np.abs(y - yj).max() < 1e-12, (n, values)
 
 
 def test_confirmation_plan_keeps_the_most_promising_the_time_pays_for():
