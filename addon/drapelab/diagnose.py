@@ -122,7 +122,8 @@
    MSE it removes is at least MIN_FALL_OF_REDRAPE of the re-drape floor, else None. ``alternatives`` are the
    other refits that lower the error with a best-of-K MSE above the recommended's by less than
    ALTERNATIVE_WITHIN of the floor (the same line): differences that re-draping makes, so the images do not tell
-   them apart (the radial near twins, docs/diagnose.md seed 681). The re-drape floor
+   them apart (the radial near twins, docs/diagnose.md seed 681). ``not_refitted`` names, beside a recommendation,
+   the candidates with p below NEAR_THRESHOLD_FACTOR x the threshold whose refit did not run (unrefitted). The re-drape floor
    (base.redrape_mse) is the mean over REDRAPE_FLOOR_MIN re-drapes of P's mean material (placement noise only) of
    the same K draws' best-of-K MSE against each: what the base MSE would be if P were right about the specimen,
    i.e. how much re-draping alone changes a drape. (Until 2026-11-24 the references were posterior draws, whose
@@ -170,6 +171,8 @@ MAX_REFITS = 3            # refits of the most promising candidates (tilt, offse
 REFIT_P_MAX = 0.05        # once one candidate is significant, the others up to this p are refitted too (module doc, 3.)
 MIN_MSE_FALL = 0.05       # a recommended refit lowers the best-of-K MSE by at least this fraction of the base's
 MIN_FALL_OF_REDRAPE = 0.5  # ... and by at least this fraction of the re-drape floor (module doc, 3.)
+# A candidate without a refit whose p is below this x the threshold is named beside a recommendation (unrefitted)
+NEAR_THRESHOLD_FACTOR = 3.0
 ALTERNATIVE_WITHIN = MIN_FALL_OF_REDRAPE  # a refit whose MSE is within this x the floor of the recommended's: as good
 SCORE_CLIP_FACTOR = 1.5   # per-draw score norms capped at this x their median (the fit's cap is 3: module doc, 2.)
 HARMONIC_ORDERS = 6       # residual harmonics reported: k = 1..6
@@ -491,6 +494,29 @@ def alternatives(gaining, redrape):
             out.append({"effect": e["effect"], "mse": e["refit"]["mse"], "above": above,
                         "of_redrape": above / redrape})
     return out
+
+
+def unrefitted(ranking, threshold, exclude=()):
+    """The candidates these images single out, or nearly (p below NEAR_THRESHOLD_FACTOR x the threshold), whose refit
+    did not run (no time left, or MAX_REFITS reached): [{effect, p_value, significant}], smallest p first. A
+    recommendation names them, so that it is not read as the only effect the images point to (circle3, seed 731's
+    prestrain drapes: the softer rim was recommended while prestrain's own p, 1.6x the threshold, and the camera's,
+    significant, had no refit; docs/diagnose.md)."""
+    out = [{"effect": e["effect"], "p_value": e["p_value"], "significant": e["p_value"] < threshold}
+           for e in ranking if e.get("p_value") is not None and e["p_value"] < NEAR_THRESHOLD_FACTOR * threshold
+           and e.get("refit") is None and e["effect"] not in exclude]
+    return sorted(out, key=lambda u: u["p_value"])
+
+
+def unrefitted_words(items, recommended, cancelled=False):
+    """The verdict's sentence on `unrefitted` candidates beside a recommendation; empty without any."""
+    if not items:
+        return ""
+    reason = "the diagnosis was cancelled" if cancelled else "no time was left or the refits' number was reached"
+    names = ",".join([recommended] + [u["effect"] for u in items])
+    return (". Not refitted (" + reason + "): " + ", ".join(
+        f"{u['effect']} (p = {u['p_value']:.2g}, {'significant' if u['significant'] else 'near the threshold'})"
+        for u in items) + f"; to compare their refits with it, diagnose again with --candidates {names}")
 
 
 def alternatives_words(alts, recommended, k):
@@ -1794,6 +1820,8 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                                 else f"fit --effects {best['effect']}"))
         result["alternatives"] = alternatives([best] + [e for e in falling if e is not best], redrape)
         result["verdict"] += alternatives_words(result["alternatives"], best["effect"], k)
+        result["not_refitted"] = unrefitted(result["ranking"], threshold, exclude=(best["effect"],))
+        result["verdict"] += unrefitted_words(result["not_refitted"], best["effect"], result["cancelled"])
     else:
         tested = [e for e in result["ranking"] if e["p_value"] is not None]
         significant = [e for e in tested if e["p_value"] < threshold]

@@ -778,6 +778,25 @@ def test_refit_order_sums_the_ranks_of_both_tests():
     assert [e["effect"] for e in diagnose.refit_order(stepped)] == ["heterogeneity_map", "prestrain"]
 
 
+def test_a_recommendation_names_the_candidates_left_without_a_refit():
+    # circle3, seed 731's prestrain drapes (threshold 0.001): heterogeneity_map recommended; the camera significant
+    # and prestrain near the threshold had no refit (time); orientation is far from it
+    ranking = [{"effect": "heterogeneity_map", "p_value": 0.00088, "refit": {"mse": 0.0137}},
+               {"effect": "camera", "p_value": 0.00098, "refit": None},
+               {"effect": "prestrain", "p_value": 0.0016, "refit": None},
+               {"effect": "orientation", "p_value": 0.58, "refit": None},
+               {"effect": "disk_contact", "p_value": None, "refit": None}]
+    items = diagnose.unrefitted(ranking, 0.001, exclude=("heterogeneity_map",))
+    assert items == [{"effect": "camera", "p_value": 0.00098, "significant": True},
+                     {"effect": "prestrain", "p_value": 0.0016, "significant": False}]
+    words = diagnose.unrefitted_words(items, "heterogeneity_map")
+    assert "camera (p = 0.00098, significant)" in words and "prestrain (p = 0.0016, near the threshold)" in words
+    assert "--candidates heterogeneity_map,camera,prestrain" in words and "no time" in words
+    assert "cancelled" in diagnose.unrefitted_words(items, "heterogeneity_map", cancelled=True)
+    assert diagnose.unrefitted([dict(e, refit={"mse": 0.02}) for e in ranking[:3]], 0.001) == []
+    assert diagnose.unrefitted_words([], "tilt") == ""
+
+
 def test_refit_order_puts_the_significant_candidates_first():
     def entry(name, p, stat=None):
         return {"effect": name, "p_value": p, **({"step": {"statistic": stat}} if stat is not None else {})}
