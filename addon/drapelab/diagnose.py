@@ -508,11 +508,18 @@ def unrefitted(ranking, threshold, exclude=()):
     return sorted(out, key=lambda u: u["p_value"])
 
 
-def unrefitted_words(items, recommended, cancelled=False):
-    """The verdict's sentence on `unrefitted` candidates beside a recommendation; empty without any."""
+def not_refitted_reason(cancelled, max_refits):
+    """Why a candidate the refits would have taken has none (the verdict's words, with or without a
+    recommendation)."""
+    return ("the diagnosis was cancelled" if cancelled else
+            f"no time was left or only {int(max_refits)} are refitted")
+
+
+def unrefitted_words(items, recommended, reason):
+    """The verdict's sentence on `unrefitted` candidates beside a recommendation (`reason`: not_refitted_reason);
+    empty without any."""
     if not items:
         return ""
-    reason = "the diagnosis was cancelled" if cancelled else "no time was left or the refits' number was reached"
     names = ",".join([recommended] + [u["effect"] for u in items])
     return (". Not refitted (" + reason + "): " + ", ".join(
         f"{u['effect']} (p = {u['p_value']:.2g}, {'significant' if u['significant'] else 'near the threshold'})"
@@ -1821,7 +1828,8 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
         result["alternatives"] = alternatives([best] + [e for e in falling if e is not best], redrape)
         result["verdict"] += alternatives_words(result["alternatives"], best["effect"], k)
         result["not_refitted"] = unrefitted(result["ranking"], threshold, exclude=(best["effect"],))
-        result["verdict"] += unrefitted_words(result["not_refitted"], best["effect"], result["cancelled"])
+        result["verdict"] += unrefitted_words(result["not_refitted"], best["effect"],
+                                              not_refitted_reason(result["cancelled"], max_refits))
     else:
         tested = [e for e in result["ranking"] if e["p_value"] is not None]
         significant = [e for e in tested if e["p_value"] < threshold]
@@ -1837,8 +1845,7 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                 why.append(f"the refit with {', '.join(refitted)} did not lower the best-of-{k} MSE by "
                            f"{100 * MIN_MSE_FALL:.0f} %")
             if not_run:
-                reason = "the diagnosis was cancelled" if result["cancelled"] else "no time was left or only " \
-                         f"{int(max_refits)} are refitted"
+                reason = not_refitted_reason(result["cancelled"], max_refits)
                 why.append(f"{', '.join(not_run)} not refitted ({reason})")
             result["verdict"] = (f"No recommendation: {', '.join(e['effect'] for e in significant)} below the "
                                  f"threshold {threshold:.2g}, but {'; '.join(why)}.")

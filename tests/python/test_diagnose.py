@@ -789,12 +789,12 @@ def test_a_recommendation_names_the_candidates_left_without_a_refit():
     items = diagnose.unrefitted(ranking, 0.001, exclude=("heterogeneity_map",))
     assert items == [{"effect": "camera", "p_value": 0.00098, "significant": True},
                      {"effect": "prestrain", "p_value": 0.0016, "significant": False}]
-    words = diagnose.unrefitted_words(items, "heterogeneity_map")
+    words = diagnose.unrefitted_words(items, "heterogeneity_map", diagnose.not_refitted_reason(False, 3))
     assert "camera (p = 0.00098, significant)" in words and "prestrain (p = 0.0016, near the threshold)" in words
     assert "--candidates heterogeneity_map,camera,prestrain" in words and "no time" in words
-    assert "cancelled" in diagnose.unrefitted_words(items, "heterogeneity_map", cancelled=True)
+    assert "cancelled" in diagnose.unrefitted_words(items, "heterogeneity_map", diagnose.not_refitted_reason(True, 3))
     assert diagnose.unrefitted([dict(e, refit={"mse": 0.02}) for e in ranking[:3]], 0.001) == []
-    assert diagnose.unrefitted_words([], "tilt") == ""
+    assert diagnose.unrefitted_words([], "tilt", "any") == ""
 
 
 def test_refit_order_puts_the_significant_candidates_first():
