@@ -15,7 +15,10 @@ Time (fit --time-budget T covers the whole job: set-up, epochs, drape calibratio
     At run time only the calibration's first 3 sets are unconditional; every later set is made only if it and the
     sets it needs after it still fit at the longest set so far (else the secant steps stop and the slope at the
     fit's scale is reused), so drapes that get slower during the job (a shared machine) cost accuracy, not time.
-    The epochs stop when the next would not finish in their share (predicted by the longest epoch so far). The job
+    fit --init keeps back START_GUARD_MARGIN x what its start guard needs (two evaluations of start_guard.draws
+    draws, estimated from the same measured drapes) from the epochs, as far as they can spare it; the guard runs
+    when its estimate is still left. The epochs stop when the next would
+    not finish in their share (predicted by the longest epoch so far). The job
     thus ends by max(T + the last epoch, end of epochs + the first 3 sets) + the last set.
 Memory:
     A recorded rollout keeps one sparse Cholesky factor per step up to factor_memory_mb (sim.ClothModel.simulate);
@@ -42,6 +45,8 @@ MODEL_BYTES_PER_VERTEX = 20.0e3      # a model, its solver workspace and one dra
 MEMORY_FRACTION = 0.8                # of physical memory: leaves room for the OS and Blender's own scene
 EPOCH_DRAPE_FACTOR = 1.5             # an epoch's drape (recorded rollout + adjoint) / an unrecorded rollout
 DEFAULT_CALIBRATION_SHARE = 0.5      # fit.json time_budget.calibration_share when absent
+START_GUARD_MARGIN = 1.25            # fit --init's start guard: kept back x its estimate (it runs when the estimate
+#                                      is left: epochs that end a little past their share must not skip it)
 
 
 def physical_memory_bytes():
@@ -110,7 +115,7 @@ class FitPlan:
     """How a fit's time budget is split (all in seconds from the start of the job)."""
 
     def __init__(self, total, setup, set_seconds, sets_min, sets_full, share, drape_estimate, scale_drapes,
-                 epoch_drapes):
+                 epoch_drapes, start_guard=0.0):
         self.total = float(total)
         self.setup = float(setup)              # spent before the plan (loading, the timed round of drapes)
         self.set_seconds = float(set_seconds)  # one set of calibration drapes
@@ -122,7 +127,12 @@ class FitPlan:
         self.minimum = self.setup + self.calibration_min + self.scale_search + self.first_epoch
         room = self.total - self.setup - self.scale_search - self.first_epoch
         self.calibration = min(self.sets_full * self.set_seconds, max(self.calibration_min, share * self.total), room)
-        self.epochs = self.total - self.setup - self.calibration
+        # fit --init's start guard (its start and its end evaluated on the same draws): what it is estimated to
+        # need (start_guard_estimate), kept back from the epochs as far as they can spare it; at run time it runs
+        # only when the time left covers its estimate
+        self.start_guard_estimate = float(start_guard)
+        self.start_guard = min(START_GUARD_MARGIN * self.start_guard_estimate, max(0.0, room - self.calibration))
+        self.epochs = self.total - self.setup - self.calibration - self.start_guard
 
     def check(self):
         """Raises InputError (with attribute minimum_s, the budget suggested) when the budget is below the minimum."""
@@ -147,7 +157,8 @@ class FitPlan:
     def as_dict(self):
         return {"total_s": self.total, "setup_s": self.setup, "epochs_s": self.epochs,
                 "calibration_s": self.calibration, "calibration_set_s": self.set_seconds,
-                "calibration_sets": [self.sets_min, self.sets_full], "minimum_s": self.minimum}
+                "calibration_sets": [self.sets_min, self.sets_full], "minimum_s": self.minimum,
+                "start_guard_s": self.start_guard}
 
 
 def check_time_budget(time_budget):

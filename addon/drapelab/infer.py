@@ -87,6 +87,8 @@ START_SEARCH_STREAM = 3  # the effects' start search's placements: default_rng([
 DEFAULT_GRADIENT_CLIP = {"factor": 0.0, "window": 10, "min_epochs": 3}
 INIT_MIN_STD = 1e-4  # fit --init: a preset's posterior sd of 0 (a point estimate) starts a bdp sd here
 DEFAULT_INIT_PRESET = {"learning_rate_factor": 1.0}  # fit.json "init_preset" when it does not set it
+DEFAULT_START_GUARD = {"enabled": False, "draws": 8}  # fit.json init_preset.start_guard when it does not set it
+START_GUARD_SEED_OFFSET = 5000  # the start guard's draws: evaluate(seed + this), apart from the fit's own streams
 
 
 def load_config(path=None):
@@ -748,10 +750,11 @@ def _check_fit_memory(job):
                         "use fewer --threads, fewer or smaller images")
 
 
-def _plan_time_budget(job, total, t_start, calibrating, template_dir=None):
+def _plan_time_budget(job, total, t_start, calibrating, template_dir=None, guard_draws=0):
     """The split of a fit's time budget between epochs and drape calibration (see drapelab.budget), from one round
     of drapes on the calibration mesh timed now (the calibration's own lanes, forward and settings); without the
-    calibration, from one drape on the fit's mesh."""
+    calibration, from one drape on the fit's mesh. guard_draws > 0: fit --init's start guard evaluates two presets
+    on that many draws each, on the mesh the preset ends on (the calibration's, else the fit's)."""
     config = job.config
     lanes = len(job.workers)  # the start searches' drapes run on the job's lanes
     scale_drapes = math.ceil(len(config["init"].get("scale_search") or []) / lanes)
@@ -767,7 +770,9 @@ def _plan_time_budget(job, total, t_start, calibrating, template_dir=None):
         model.simulate(model.parameters(stretch=job.stretch, bend=bend if not job.family.per_element else np.broadcast_to(
             bend, (job.num_edges,) + BEND_SHAPE)), mode="dynamic", record=False, **config["dynamic"])
         drape = time.monotonic() - ts
-        return budget.FitPlan(total, time.monotonic() - t_start, 0.0, 0, 0, 0.0, drape, scale_drapes, epoch_drapes)
+        guard = 2 * math.ceil(guard_draws / len(job.workers)) * drape
+        return budget.FitPlan(total, time.monotonic() - t_start, 0.0, 0, 0, 0.0, drape, scale_drapes, epoch_drapes,
+                              guard)
     cal = config.get("calibration") or {}
     draws = int(cal.get("draws", 8))
     lanes = max(1, min(job.threads, draws))
@@ -790,8 +795,9 @@ def _plan_time_budget(job, total, t_start, calibrating, template_dir=None):
     sets_min, sets_full = budget.calibration_sets(cal)
     drape_fit = round_seconds * job.workers[0].model.num_vertices / models[0].num_vertices
     share = float((config.get("time_budget") or {}).get("calibration_share", budget.DEFAULT_CALIBRATION_SHARE))
+    guard = 2 * math.ceil(guard_draws / max(1, min(job.threads, guard_draws or 1))) * round_seconds
     return budget.FitPlan(total, time.monotonic() - t_start, math.ceil(draws / lanes) * round_seconds, sets_min,
-                          sets_full, share, drape_fit, scale_drapes, epoch_drapes)
+                          sets_full, share, drape_fit, scale_drapes, epoch_drapes, guard)
 
 
 def start_options(preset, options, effects=None):
@@ -822,6 +828,74 @@ def start_options(preset, options, effects=None):
     return out
 
 
+def start_guard_settings(config):
+    """fit.json init_preset.start_guard as {"enabled", "draws"} (DEFAULT_START_GUARD for what it does not set);
+    InputError naming the field when a value is not one."""
+    given = (config.get("init_preset") or {}).get("start_guard")
+    given = {} if given is None else given
+    if not isinstance(given, dict):
+        raise InputError(f"fit.json init_preset.start_guard: expected an object, got {given!r}")
+    out = dict(DEFAULT_START_GUARD, **given)
+    if not isinstance(out["enabled"], bool):
+        raise InputError(f"fit.json init_preset.start_guard.enabled: true or false, got {out['enabled']!r}")
+    draws = out["draws"]
+    if isinstance(draws, bool) or not isinstance(draws, int) or draws < 1:
+        raise InputError(f"fit.json init_preset.start_guard.draws: an integer >= 1, got {draws!r}")
+    return out
+
+
+def _start_guard(start, end, images, settings, seed, threads, template_dir, config, cancel_event, left, estimate,
+                 progress=None):
+    """fit --init's start guard: the preset the fit started from (`start`) and the one it ends with (`end`, after
+    the drape calibration) evaluated on the training images with the same draws (evaluate: `draws` posterior
+    draws, seed + START_GUARD_SEED_OFFSET, on the end's mesh); the start is kept when its best-of-N MSE is lower.
+    The fit's objective (the expected pixel term plus the drape-coefficient term) and the best-of-N MSE a preset is
+    judged by can disagree: from a diagnosis's prestrain refit, 15 epochs drifted steadily to four times the start's
+    MSE (docs/lab/effect-recovery.md). Skipped when the time left (`left`, None: no budget) is below `estimate`.
+    Returns (the preset to write, the record for training.init.start_guard). The kept start keeps its posterior,
+    effects, stretching and calibration; the training record (the epochs run) and provenance are this fit's, and
+    metrics.training_image holds the guard's best-of-N IoU and MSE."""
+    n = int(settings["draws"])
+    record = {"draws": n, "seed": seed + START_GUARD_SEED_OFFSET, "estimate_s": estimate}
+    if left is not None and estimate > left:
+        record["skipped"] = (f"time budget: {max(left, 0.0):.0f} s left, the start guard needs about "
+                             f"{estimate:.0f} s; the fit's end is kept")
+        record["kept"] = "end"
+        return end, record
+    if progress:
+        progress(dict(record, stage="start"))
+    ts = time.monotonic()
+    level = int(end["simulation"]["mesh_level"])
+    kw = dict(samples=n, seed=seed + START_GUARD_SEED_OFFSET, threads=threads, template_dir=template_dir,
+              mesh_level=level, config=config, cancel_event=cancel_event)
+    results = {}
+    for which, preset in (("start", start), ("end", end)):
+        try:
+            results[which] = evaluate(preset, images, **kw)["mean"]
+        except SolverError as e:  # every draw failed to drape: that side cannot be kept
+            results[which] = None
+            record[f"{which}_error"] = str(e)
+    if results["start"] is None and results["end"] is None:
+        raise SolverError(f"start guard: neither the start nor the fit's end drapes: {record['end_error']}")
+    for which in ("start", "end"):
+        if results[which] is not None:
+            record[f"{which}_mse"], record[f"{which}_iou"] = results[which]["mse"], results[which]["iou"]
+    keep_start = results["start"] is not None and (results["end"] is None
+                                                   or results["start"]["mse"] < results["end"]["mse"])
+    record.update(kept="start" if keep_start else "end", mesh_level=level, seconds=time.monotonic() - ts)
+    if progress:
+        progress(dict(record, stage="end"))
+    if not keep_start:
+        return end, record
+    kept = copy.deepcopy(start)
+    kept["fabric"] = end.get("fabric") or start.get("fabric") or {}
+    kept["training"] = end["training"]
+    kept["provenance"] = end["provenance"]
+    kept["metrics"] = {"training_image": {"iou": record["start_iou"], "mse": record["start_mse"],
+                                          "best_of": n}}
+    return validate_preset(kept), record
+
+
 def init_options(preset, options, effects=None):
     """fit --init: start_options, with every Adam step size (material, posterior sd, effects) scaled by fit.json
     init_preset.learning_rate_factor (a start near the answer); the fitted effect parameters the preset carries
@@ -841,7 +915,7 @@ def init_options(preset, options, effects=None):
 
 def fit(images, density=None, model=None, epochs=None, time_budget=None, seed=0, out=None, checkpoint=None,
         resume=None, progress=None, cancel_event=None, fabric=None, calibration_progress=None, plan_progress=None,
-        init=None, **options):
+        init=None, guard_progress=None, **options):
     """Fits and (when `out` is given) writes a preset. Returns the preset dict. `progress` receives each epoch's
     history entry, `calibration_progress` each drape-calibration evaluation (see calibrate_preset).
 
@@ -855,7 +929,10 @@ def fit(images, density=None, model=None, epochs=None, time_budget=None, seed=0,
     `init` (a preset path or dict; fit --init) starts the fit where that preset left off (init_options,
     FitJob.start_from), e.g. from a diagnosis's refit DIR/presets/NAME.json with `effects` {NAME: None}: the
     material and the effect are then fitted together from there. `model` and `density` default to the preset's
-    (without it: bdp, and the density must be given). The preset records it in training.init."""
+    (without it: bdp, and the density must be given). The preset records it in training.init. With fit.json
+    init_preset.start_guard enabled, the fit's end is then checked against its start (_start_guard: the start is
+    kept when its best-of-N MSE on the training images is lower; training.init.start_guard records both;
+    `guard_progress` receives the record when the guard starts and ends)."""
     t_start = time.monotonic()
     init_preset, init_path = None, None
     if init is not None:
@@ -880,16 +957,20 @@ def fit(images, density=None, model=None, epochs=None, time_budget=None, seed=0,
         measure.check_output_path(out, "preset")
     job = FitJob(images, density, model=model, seed=seed, **options)
     init_record = None
+    guard = None
     if init_preset is not None:
         init_record = {"preset": init_path, "fabric": (init_preset.get("fabric") or {}).get("name"),
                        "model": init_preset["model"], "effects_from_preset": job.start_from(init_preset)}
+        guard = start_guard_settings(job.config)
+        guard = guard if guard["enabled"] else None
     if resume:
         job.load_checkpoint(resume)
     calibrating = job.family.stochastic and (job.config.get("calibration") or {}).get("enabled", False)
     plan = None
     epoch_budget = time_budget
     if time_budget is not None:
-        plan = _plan_time_budget(job, time_budget, t_start, calibrating, options.get("template_dir")).check()
+        plan = _plan_time_budget(job, time_budget, t_start, calibrating, options.get("template_dir"),
+                                 guard["draws"] if guard else 0).check()
         if plan_progress:
             plan_progress(plan.as_dict())
         epoch_budget = plan.epochs - (time.monotonic() - t_start - plan.setup)
@@ -908,10 +989,16 @@ def fit(images, density=None, model=None, epochs=None, time_budget=None, seed=0,
         preset["training"]["init"] = init_record
     epochs_end = time.monotonic() - t_start
     if calibrating:
-        left = None if time_budget is None else time_budget - epochs_end
+        left = None if time_budget is None else time_budget - epochs_end - (plan.start_guard if guard else 0.0)
         preset = calibrate_preset(preset, images, seed=seed, threads=job.threads, template_dir=options.get("template_dir"),
                                   config=job.config, cancel_event=cancel_event, progress=calibration_progress,
                                   time_budget=left)
+    if guard is not None:
+        left = None if time_budget is None else time_budget - (time.monotonic() - t_start)
+        estimate = plan.start_guard_estimate if plan is not None else 0.0
+        preset, init_record["start_guard"] = _start_guard(
+            init_preset, preset, images, guard, seed, job.threads, options.get("template_dir"), job.config,
+            cancel_event, left, estimate, guard_progress)
     if time_budget is not None:
         preset["training"]["time_budget"] = dict(plan.as_dict(),
                                                  epochs_run=job.epoch - epochs_before, epochs_end_s=epochs_end,

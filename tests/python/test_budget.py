@@ -50,6 +50,19 @@ def test_the_plan_gives_the_calibration_its_share_within_its_minimum_and_maximum
         budget.FitPlan(60, 2, 8, 7, 21, 0.5, 0.5, 11, 1).check()
 
 
+def test_the_start_guard_is_kept_back_from_the_epochs_as_far_as_they_can_spare_it():
+    plan = budget.FitPlan(300, 2, 8, 7, 21, 0.5, 0.5, 11, 1, start_guard=16)
+    kept = budget.START_GUARD_MARGIN * 16  # a margin: it runs when its estimate is left
+    assert plan.start_guard == kept and plan.epochs == 148 - kept and plan.calibration == 150
+    assert plan.as_dict()["start_guard_s"] == kept
+    # a budget near the minimum: the calibration, the scale search and a first epoch first, the guard gets the rest
+    small = budget.FitPlan(70, 2, 8, 7, 21, 0.5, 0.5, 11, 1, start_guard=16).check()
+    assert small.start_guard == pytest.approx(70 - 2 - 56 - 5.5 - 0.5 * budget.EPOCH_DRAPE_FACTOR)
+    assert small.start_guard_estimate == 16 and small.calibration == 56
+    assert small.epochs == pytest.approx(small.scale_search + small.first_epoch)
+    assert small.minimum == budget.FitPlan(70, 2, 8, 7, 21, 0.5, 0.5, 11, 1).minimum  # never refuses a fit
+
+
 # ---------------------------------------------------------------- adherence
 def test_a_bdp_fit_with_calibration_ends_within_its_budget(tmp_path):
     # circle1 (fit and calibration): about 40 s on an idle 2-core machine, longer on a loaded one
@@ -215,3 +228,27 @@ def test_a_fit_too_large_for_memory_is_refused_before_its_first_drape(monkeypatc
     assert epochs == []
     assert budget.fit_memory_bytes(7496, 40, 100, 40, 256 * 256, 1) > 0.8 * 24 * 2 ** 30
     assert budget.fit_memory_bytes(7496, 2, 100, 1, 256 * 256, 2) < 3 * 2 ** 30  # the default fit is far below
+
+
+def test_a_fit_from_a_preset_keeps_back_its_start_guard_and_ends_within_its_budget(tmp_path):
+    # fit --init on circle1 without the calibration: the plan keeps the guard's two evaluations back from the epochs
+    start = infer.load_preset(SHIPPED_PRESET)
+    start["simulation"] = dict(start["simulation"], mesh_level=1)
+    cfg = small_config()
+    cfg["calibration"]["enabled"] = False
+    cfg["init_preset"] = dict(cfg["init_preset"], start_guard={"enabled": True, "draws": 4})
+    args = dict(model="bdp", config=cfg, threads=2, init=start)
+    budget_s = 2.0 * smallest_budget(**args) + 6.0  # several epochs: the last one's noise is a fraction of one
+    t0 = time.monotonic()
+    preset = infer.fit([ASSET_IMAGE], 0.192, time_budget=budget_s, **args)
+    wall = time.monotonic() - t0
+    b, g = preset["training"]["time_budget"], preset["training"]["init"]["start_guard"]
+    epochs = [h["seconds"] for h in preset["training"]["history"] if "seconds" in h]  # the kept start: its calibration
+    assert "skipped" not in g and g["estimate_s"] > 0
+    assert b["start_guard_s"] == pytest.approx(budget.START_GUARD_MARGIN * g["estimate_s"])
+    assert g["kept"] in ("start", "end") and {"start_mse", "end_mse"} <= set(g)
+    # the epochs stop when the next would not end within their share (budget - set-up - the guard), so the job
+    # ends by the budget + one epoch + what the guard took beyond its estimate
+    assert b["epochs_end_s"] <= b["setup_s"] + b["epochs_s"] + max(epochs)
+    assert b["end_s"] <= budget_s + max(epochs) + max(0.0, g["seconds"] - g["estimate_s"])
+    assert wall >= b["end_s"]

@@ -2,6 +2,7 @@
 level and effects), e.g. from a diagnosis's refit, with the effect then fitted together with the material."""
 import copy
 import json
+import time
 
 import numpy as np
 import pytest
@@ -69,13 +70,15 @@ def test_an_effect_the_preset_lacks_is_searched_from_off_and_the_presets_values_
     assert list(job.plan.start_candidates(job.theta["effect_mu"])[0][:2]) == [0.12, 0.4]
 
 
-def written_start(tmp_path):
-    """(the refit-like preset, its file, a circle1 config of one draw per epoch without the drape calibration)."""
+def written_start(tmp_path, guard=False):
+    """(the refit-like preset, its file, a circle1 config of one draw per epoch without the drape calibration and,
+    unless `guard`, without the start guard)."""
     p = refit_like_preset()
     start = tmp_path / "refit.json"
     infer.write_preset(str(start), p)
     cfg = small_config(samples_per_epoch=1)
     cfg["calibration"]["enabled"] = False
+    cfg["init_preset"] = dict(cfg["init_preset"], start_guard={"enabled": guard, "draws": 2})
     return p, start, cfg
 
 
@@ -145,3 +148,78 @@ def test_the_command_line_fits_from_a_preset_without_density_or_model(tmp_path, 
                                                                                       "tilt.azimuth_rad"]
     assert cli.main(["fit", "--images", ASSET_IMAGE, "--epochs", "1", "--out", str(tmp_path / "x.json")]) == 2
     assert "density: give" in capsys.readouterr().err and not (tmp_path / "x.json").exists()
+
+
+# ---------------------------------------------------------------- the start guard
+def scaled(preset, factor):
+    """`preset` with its mean bending table times `factor` (a material far from the drapes when factor is large)."""
+    p = copy.deepcopy(preset)
+    mu = np.asarray(p["posterior"]["bend"]["log_mean"]) + np.log(factor)
+    p["posterior"]["bend"].update(log_mean=mu.tolist(), median_N_m=np.exp(mu).tolist())
+    p["training"] = {"epochs": 3, "marker": "end"}
+    p["provenance"] = dict(p.get("provenance") or {}, marker="end")
+    return infer.validate_preset(p)
+
+
+def guard(start, end, left=None, estimate=0.0, draws=2):
+    cfg = small_config()
+    return infer._start_guard(start, end, [ASSET_IMAGE], {"enabled": True, "draws": draws}, 4, 1, None, cfg, None,
+                              left, estimate)
+
+
+def test_the_start_guard_keeps_the_better_of_start_and_end_on_the_same_draws():
+    p = infer.load_preset(SHIPPED_PRESET)
+    p["simulation"] = dict(p["simulation"], mesh_level=1)
+    stiff = scaled(p, 30.0)  # a drape that barely folds: far worse on the cotton's photo
+    kept, record = guard(p, stiff)
+    assert record["kept"] == "start" and record["start_mse"] < record["end_mse"]
+    assert record["draws"] == 2 and record["mesh_level"] == 1 and record["seed"] == 4 + infer.START_GUARD_SEED_OFFSET
+    # the start's posterior and calibration, this fit's training record and provenance
+    assert kept["posterior"]["bend"]["log_mean"] == p["posterior"]["bend"]["log_mean"]
+    assert kept["calibration"] == p["calibration"] and kept["training"]["marker"] == "end"
+    assert kept["provenance"]["marker"] == "end"
+    assert kept["metrics"]["training_image"] == {"iou": record["start_iou"], "mse": record["start_mse"], "best_of": 2}
+    # the other way round the end is kept, unchanged
+    kept, record = guard(stiff, p)
+    assert record["kept"] == "end" and record["end_mse"] < record["start_mse"] and kept is p
+    # the same preset on both sides: the same draws give the same MSE, and a tie keeps the end
+    kept, record = guard(p, copy.deepcopy(p))
+    assert record["start_mse"] == record["end_mse"] and record["kept"] == "end"
+
+
+def test_the_start_guard_is_skipped_when_the_time_left_cannot_pay_for_it():
+    p = infer.load_preset(SHIPPED_PRESET)
+    end = scaled(p, 30.0)
+    t0 = time.monotonic()
+    kept, record = guard(p, end, left=3.0, estimate=40.0)
+    assert time.monotonic() - t0 < 1.0  # nothing draped
+    assert kept is end and record["kept"] == "end" and "start_mse" not in record
+    assert record["skipped"].startswith("time budget: 3 s left, the start guard needs about 40 s")
+
+
+def test_a_fit_from_a_preset_records_its_start_guard(tmp_path, capsys):
+    _, start, cfg = written_start(tmp_path, guard=True)
+    config = tmp_path / "fit.json"
+    config.write_text(json.dumps(cfg))
+    out = tmp_path / "continued.json"
+    assert cli.main(["fit", "--images", ASSET_IMAGE, "--init", str(start), "--effects", "tilt", "--epochs", "1",
+                     "--mesh-level", "1", "--config", str(config), "--threads", "1", "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    preset = infer.load_preset(str(out))
+    g = preset["training"]["init"]["start_guard"]
+    assert g["draws"] == 2 and g["mesh_level"] == 1 and "skipped" not in g
+    assert g["kept"] == ("start" if g["start_mse"] < g["end_mse"] else "end")
+    assert f"best-of-2 MSE start {g['start_mse']:.4f}, end {g['end_mse']:.4f}" in text
+    started = infer.load_preset(str(start))
+    same = preset["active_effects"]["tilt"]["angle_rad"]["value"] == started["active_effects"]["tilt"]["angle_rad"]["value"]
+    assert same == (g["kept"] == "start")  # one epoch moves the tilt; the kept start has the preset's
+    assert preset["training"]["epochs"] == 1
+
+
+def test_bad_start_guard_settings_are_clear_errors(tmp_path):
+    _, start, cfg = written_start(tmp_path, guard=True)
+    for bad, field in (({"draws": 0}, "start_guard.draws"), ({"enabled": "yes"}, "start_guard.enabled"),
+                       ([], "start_guard")):
+        cfg["init_preset"] = dict(cfg["init_preset"], start_guard=bad)
+        with pytest.raises(InputError, match=field):
+            infer.fit([ASSET_IMAGE], None, epochs=1, config=cfg, threads=1, mesh_level=1, init=str(start))

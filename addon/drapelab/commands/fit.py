@@ -116,11 +116,22 @@ def run(args):
                      f"{p['calibration_sets'][1]} sets of drapes of {p['calibration_set_s']:.1f} s)")
         print(line, flush=True)
 
+    def guard_progress(g):
+        if g["stage"] == "start":
+            print(f"start guard: the start ({args.init}) and the fit's end on the same {g['draws']} draws per "
+                  f"image" + (f" (about {g['estimate_s']:.0f} s)" if g["estimate_s"] else ""), flush=True)
+            return
+        words = {"start": "the start is kept: the epochs made the training images' fit worse",
+                 "end": "the fit's end is kept"}[g["kept"]]
+        print(f"start guard ({g['seconds']:.1f} s): best-of-{g['draws']} MSE start "
+              + (f"{g['start_mse']:.4f}" if "start_mse" in g else "failed") + ", end "
+              + (f"{g['end_mse']:.4f}" if "end_mse" in g else "failed") + f": {words}", flush=True)
+
     try:
         preset = infer.fit(args.images, args.density, model=args.model, epochs=args.epochs, init=args.init,
                            time_budget=args.time_budget, seed=args.seed, out=args.out, checkpoint=checkpoint,
                            resume=args.resume, progress=progress, calibration_progress=calibration_progress,
-                           plan_progress=plan_progress,
+                           plan_progress=plan_progress, guard_progress=guard_progress,
                            cancel_event=cancel,
                            fabric={"name": args.name} if args.name else None, config=config,
                            camera="ortho", mesh_level=args.mesh_level, threads=args.threads, effects=effects)
@@ -145,6 +156,9 @@ def run(args):
               f"{c['nodes_predicted']:.1f} (observed {c['nodes_observed']:.1f}), stretching x{c['stretch_scale']:g}; "
               f"on circle{c['mesh_level']}" + (" (node search cut short by the time budget)"
                                                if c.get("node_search_stopped_by_time_budget") else ""))
+    g = (t.get("init") or {}).get("start_guard") or {}
+    if g.get("skipped"):
+        print(f"start guard skipped: {g['skipped']}")
     b = t.get("time_budget")
     if b:
         print(f"time budget {b['total_s']:g} s: done in {b['end_s']:.1f} s (epochs ended at {b['epochs_end_s']:.1f} s)")
