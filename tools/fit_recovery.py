@@ -13,7 +13,7 @@ run resumes).
 
 Usage (from the repository root):
     PYTHONPATH=addon:build/python OPENBLAS_NUM_THREADS=1 /usr/bin/python3 tools/fit_recovery.py DIR [DIR...] \
-        [--epochs 15] [--json OUT]
+        [--epochs 15] [--json OUT] [--tag TAG] [--no-start-guard]
 """
 import argparse
 import copy
@@ -40,12 +40,14 @@ def evaluate(preset, images, seed, samples, config, level):
     return float(r["mean"]["mse"]), float(np.mean(dc))
 
 
-def run_rows(run, epochs, tag="fit"):
+def run_rows(run, epochs, tag="fit", start_guard=True):
     settings = json.load(open(os.path.join(run, "confusion.json")))["settings"]
     level, samples = int(settings["mesh_level"]), int(settings["samples"])
     config = copy.deepcopy(infer.load_config())
     config["mesh_level"] = level
     config["calibration"]["enabled"] = False
+    config["init_preset"] = dict(config["init_preset"],
+                                 start_guard=dict(infer.start_guard_settings(config), enabled=start_guard))
     reference = infer.load_preset(os.path.join(run, "reference.json"))
     ref_log = np.asarray(reference["posterior"]["bend"]["log_mean"])
     out = []
@@ -76,7 +78,8 @@ def run_rows(run, epochs, tag="fit"):
              "dc_fall": recovery_table._fall(row["base_dc_error"], dc, row["control_dc_error"],
                                              recovery_table.DC_GAP_MIN),
              "material_shift": float(np.mean(np.asarray(fitted["posterior"]["bend"]["log_mean"]) - ref_log)),
-             "epochs": fitted["training"]["epochs"], "seconds": time.monotonic() - t0}
+             "epochs": fitted["training"]["epochs"], "seconds": time.monotonic() - t0,
+             "start_guard": (fitted["training"].get("init") or {}).get("start_guard")}
         r["met"] = recovery_table.targets_met(r)
         print(f"{name}@{seed}: truth {row['truth_strength']:.3g}, refit {row['recovered_strength']:.3g}, fit "
               f"{r['recovered_strength']:.3g} ({r['relative_error']:+.0%}), MSE {row['base_mse']:.4f} -> {mse:.4f} (control {row['control_mse']:.4f}), "
@@ -111,8 +114,10 @@ def main():
     ap.add_argument("--epochs", type=int, default=15)
     ap.add_argument("--json", default=None)
     ap.add_argument("--tag", default="fit", help="the fitted presets' name: REPORT/presets/NAME.TAG.json")
+    ap.add_argument("--no-start-guard", action="store_true",
+                    help="fit without fit.json's start guard (the fit's end is always kept)")
     args = ap.parse_args()
-    rows = [r for run in args.runs for r in run_rows(run, args.epochs, args.tag)]
+    rows = [r for run in args.runs for r in run_rows(run, args.epochs, args.tag, not args.no_start_guard)]
     print(markdown(rows))
     print(f"\nall targets met: {sum(r['met'] for r in rows)} of {len(rows)} refitted cases; strength: "
           f"{sum(r['strength_met'] for r in rows)}; MSE fall >= 0.6: {sum((r['mse_fall'] or 0) >= 0.6 for r in rows)}")
