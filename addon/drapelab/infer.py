@@ -932,7 +932,8 @@ def fit(images, density=None, model=None, epochs=None, time_budget=None, seed=0,
     (without it: bdp, and the density must be given). The preset records it in training.init. With fit.json
     init_preset.start_guard enabled, the fit's end is then checked against its start (_start_guard: the start is
     kept when its best-of-N MSE on the training images is lower; training.init.start_guard records both;
-    `guard_progress` receives the record when the guard starts and ends)."""
+    `guard_progress` receives the record when the guard starts and ends), unless the fit switches on an effect
+    parameter the start does not carry (the start would drop it: skipped, saying so)."""
     t_start = time.monotonic()
     init_preset, init_path = None, None
     if init is not None:
@@ -963,6 +964,11 @@ def fit(images, density=None, model=None, epochs=None, time_budget=None, seed=0,
                        "model": init_preset["model"], "effects_from_preset": job.start_from(init_preset)}
         guard = start_guard_settings(job.config)
         guard = guard if guard["enabled"] else None
+        new = [n for n in job.plan.names if n not in init_record["effects_from_preset"]]
+        if guard is not None and new:  # the start lacks what the user switched on: not a start to go back to
+            init_record["start_guard"] = {"skipped": f"the fit switches on {', '.join(new)}, which the start does "
+                                                     f"not carry; the fit's end is kept", "kept": "end"}
+            guard = None
     if resume:
         job.load_checkpoint(resume)
     calibrating = job.family.stochastic and (job.config.get("calibration") or {}).get("enabled", False)

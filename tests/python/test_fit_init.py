@@ -135,14 +135,20 @@ def test_bad_init_and_a_missing_density_are_clear_errors(tmp_path):
         infer.fit([ASSET_IMAGE], None, epochs=1, config=cfg, init=3)
 
 
-def test_the_command_line_fits_from_a_preset_without_density_or_model(tmp_path, capsys):
-    _, start, cfg = written_start(tmp_path)
+def fit_on_the_command_line(tmp_path, capsys, guard=False):
+    """`fit --init` (the refit-like preset) --effects tilt, one epoch on circle1: (the start's file, the written
+    preset's file, what it printed)."""
+    _, start, cfg = written_start(tmp_path, guard)
     config = tmp_path / "fit.json"
     config.write_text(json.dumps(cfg))
     out = tmp_path / "continued.json"
     assert cli.main(["fit", "--images", ASSET_IMAGE, "--init", str(start), "--effects", "tilt", "--epochs", "1",
                      "--mesh-level", "1", "--config", str(config), "--threads", "1", "--out", str(out)]) == 0
-    text = capsys.readouterr().out
+    return start, out, capsys.readouterr().out
+
+
+def test_the_command_line_fits_from_a_preset_without_density_or_model(tmp_path, capsys):
+    _, out, text = fit_on_the_command_line(tmp_path, capsys)
     assert "wrote" in text and ": bdp," in text and "effect tilt: angle_rad" in text and "effect offset" in text
     assert infer.load_preset(str(out))["training"]["init"]["effects_from_preset"] == ["tilt.angle_rad",
                                                                                       "tilt.azimuth_rad"]
@@ -198,13 +204,7 @@ def test_the_start_guard_is_skipped_when_the_time_left_cannot_pay_for_it():
 
 
 def test_a_fit_from_a_preset_records_its_start_guard(tmp_path, capsys):
-    _, start, cfg = written_start(tmp_path, guard=True)
-    config = tmp_path / "fit.json"
-    config.write_text(json.dumps(cfg))
-    out = tmp_path / "continued.json"
-    assert cli.main(["fit", "--images", ASSET_IMAGE, "--init", str(start), "--effects", "tilt", "--epochs", "1",
-                     "--mesh-level", "1", "--config", str(config), "--threads", "1", "--out", str(out)]) == 0
-    text = capsys.readouterr().out
+    start, out, text = fit_on_the_command_line(tmp_path, capsys, guard=True)
     preset = infer.load_preset(str(out))
     g = preset["training"]["init"]["start_guard"]
     assert g["draws"] == 2 and g["mesh_level"] == 1 and "skipped" not in g
@@ -214,6 +214,17 @@ def test_a_fit_from_a_preset_records_its_start_guard(tmp_path, capsys):
     same = preset["active_effects"]["tilt"]["angle_rad"]["value"] == started["active_effects"]["tilt"]["angle_rad"]["value"]
     assert same == (g["kept"] == "start")  # one epoch moves the tilt; the kept start has the preset's
     assert preset["training"]["epochs"] == 1
+
+
+def test_the_start_guard_never_drops_an_effect_the_fit_switched_on(tmp_path):
+    # prestrain is not in the start: going back to the start would drop what the user asked for
+    _, start, cfg = written_start(tmp_path, guard=True)
+    preset = infer.fit([ASSET_IMAGE], None, epochs=1, seed=2, config=cfg, threads=1, mesh_level=1, init=str(start),
+                       effects={"tilt": None, "prestrain": {"strain": None}})
+    g = preset["training"]["init"]["start_guard"]
+    assert g == {"skipped": "the fit switches on prestrain.strain, which the start does not carry; the fit's end "
+                            "is kept", "kept": "end"}
+    assert preset["active_effects"]["prestrain"]["strain"]["fitted"]
 
 
 def test_bad_start_guard_settings_are_clear_errors(tmp_path):
