@@ -17,8 +17,8 @@ Time (fit --time-budget T covers the whole job: set-up, epochs, drape calibratio
     fit's scale is reused), so drapes that get slower during the job (a shared machine) cost accuracy, not time.
     fit --init keeps back START_GUARD_MARGIN x what its start guard needs (two evaluations of start_guard.draws
     draws, estimated from the same measured drapes) from the epochs, as far as they can spare it; the guard runs
-    when its estimate is still left. The epochs stop when the next would
-    not finish in their share (predicted by the longest epoch so far). The job
+    when its estimate is still left. The epochs stop when the next would not finish in their share (predicted by
+    the longest epoch so far). The job
     thus ends by max(T + the last epoch, end of epochs + the first 3 sets) + the last set.
 Memory:
     A recorded rollout keeps one sparse Cholesky factor per step up to factor_memory_mb (sim.ClothModel.simulate);

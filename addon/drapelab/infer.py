@@ -770,7 +770,7 @@ def _plan_time_budget(job, total, t_start, calibrating, template_dir=None, guard
         model.simulate(model.parameters(stretch=job.stretch, bend=bend if not job.family.per_element else np.broadcast_to(
             bend, (job.num_edges,) + BEND_SHAPE)), mode="dynamic", record=False, **config["dynamic"])
         drape = time.monotonic() - ts
-        guard = 2 * math.ceil(guard_draws / len(job.workers)) * drape
+        guard = 2 * math.ceil(guard_draws / lanes) * drape
         return budget.FitPlan(total, time.monotonic() - t_start, 0.0, 0, 0, 0.0, drape, scale_drapes, epoch_drapes,
                               guard)
     cal = config.get("calibration") or {}
@@ -795,7 +795,7 @@ def _plan_time_budget(job, total, t_start, calibrating, template_dir=None, guard
     sets_min, sets_full = budget.calibration_sets(cal)
     drape_fit = round_seconds * job.workers[0].model.num_vertices / models[0].num_vertices
     share = float((config.get("time_budget") or {}).get("calibration_share", budget.DEFAULT_CALIBRATION_SHARE))
-    guard = 2 * math.ceil(guard_draws / max(1, min(job.threads, guard_draws or 1))) * round_seconds
+    guard = 2 * math.ceil(guard_draws / lanes) * round_seconds  # two evaluations, rounds of `lanes` drapes
     return budget.FitPlan(total, time.monotonic() - t_start, math.ceil(draws / lanes) * round_seconds, sets_min,
                           sets_full, share, drape_fit, scale_drapes, epoch_drapes, guard)
 
@@ -868,20 +868,16 @@ def _start_guard(start, end, images, settings, seed, threads, template_dir, conf
     level = int(end["simulation"]["mesh_level"])
     kw = dict(samples=n, seed=seed + START_GUARD_SEED_OFFSET, threads=threads, template_dir=template_dir,
               mesh_level=level, config=config, cancel_event=cancel_event)
-    results = {}
     for which, preset in (("start", start), ("end", end)):
         try:
-            results[which] = evaluate(preset, images, **kw)["mean"]
+            mean = evaluate(preset, images, **kw)["mean"]
         except SolverError as e:  # every draw failed to drape: that side cannot be kept
-            results[which] = None
             record[f"{which}_error"] = str(e)
-    if results["start"] is None and results["end"] is None:
+            continue
+        record[f"{which}_mse"], record[f"{which}_iou"] = mean["mse"], mean["iou"]
+    if "start_mse" not in record and "end_mse" not in record:
         raise SolverError(f"start guard: neither the start nor the fit's end drapes: {record['end_error']}")
-    for which in ("start", "end"):
-        if results[which] is not None:
-            record[f"{which}_mse"], record[f"{which}_iou"] = results[which]["mse"], results[which]["iou"]
-    keep_start = results["start"] is not None and (results["end"] is None
-                                                   or results["start"]["mse"] < results["end"]["mse"])
+    keep_start = "start_mse" in record and ("end_mse" not in record or record["start_mse"] < record["end_mse"])
     record.update(kept="start" if keep_start else "end", mesh_level=level, seconds=time.monotonic() - ts)
     if progress:
         progress(dict(record, stage="end"))
