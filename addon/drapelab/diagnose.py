@@ -98,7 +98,10 @@
    short refit's noisy material steps absorbed a 0.3 rad tilt (the fitted angle fell 0.15 -> 0.03 rad in 8
    epochs); held, it rose to 0.26 rad in 11 epochs. Only the effect's strength (and its bdp posterior sd) is
    fitted, with the pixel term alone. It starts at the step test's best step when that step brought the draws
-   closer to the measurements (statistic < 0): that choice is made on K drapes with placement noise, where the
+   closer to the measurements (statistic < 0), for a directional effect (a tilt's four steps, an offset's eight,
+   bending_anisotropy's four in its (cos2, sin2) plane) along the direction all its steps point to
+   (step_direction: the first harmonic of the steps' statistics around the circle; the best single step is off by
+   up to half the steps' spacing, and a tilt's search scales its angle only; since 2026-11-29); that choice is made on K drapes with placement noise, where the
    fit's own start search judges its candidates by one drape without it (measured on fabric 1, whose photos are
    2-fold: started at zero, bending_anisotropy's refit went the wrong way, best-of-16 MSE 0.058 -> 0.062).
    Before its epochs such a refit searches along the step (refit.search, ``line_search``): the stepped
@@ -919,7 +922,7 @@ def step_tests(base_images, step_images, steps, observed, references, redrapes=(
                      for b in base_images])
     out = {}
     for name, st in steps.items():
-        deltas, falls = [], []
+        deltas, falls, failed = [], [], set()
         for si in range(len(st)):
             imgs = step_images[(name, si)]
             e = np.array([[measure.pixel_mse(a, q) for q in images] if a is not None else [np.nan] * len(images)
@@ -928,17 +931,77 @@ def step_tests(base_images, step_images, steps, observed, references, redrapes=(
             if both.sum() < MIN_SAMPLES:
                 deltas.append(np.zeros(len(images)))
                 falls.append(0.0)
+                failed.add(si)
                 continue
             deltas.append(np.mean(e[both] - base[both], axis=0))
             falls.append(float(np.mean(np.min(base[both, :n], axis=0) - np.min(e[both, :n], axis=0))))
         deltas = np.asarray(deltas)
+        # per step: the change against the measured images less that against P's own drapes (the statistic the
+        # tests take per step; step_direction reads a direction from them)
+        per_step = deltas[:, :n].mean(axis=1) - (deltas[:, n:n + j].mean(axis=1) if j else 0.0)
         best, stat, p_perm = step_permutation_test(deltas[:, :n + j], n)
         p, z = p_perm, None  # fewer than three references (their drapes failed): the relabelling test's
         if j >= 3:
             best, stat, p, z = step_specimen_test(deltas, n, j, len(images) - n - j)
         out[name] = {"statistic": stat, "p_value": p, "z": z, "p_value_permutation": p_perm,
-                     "step": st[best][0], "values": dict(st[best][1]), "best_of_k_fall": falls[best]}
+                     "step": st[best][0], "values": dict(st[best][1]), "best_of_k_fall": falls[best],
+                     "per_step": [{"step": label, "statistic": None if si in failed else float(x)}
+                                  for si, ((label, _), x) in enumerate(zip(st, per_step))]}
     return out
+
+
+def step_direction(entry, second, steps, per_step):
+    """The refit's start direction from all of a directional effect's steps (module doc, 3.), or None. `entry`: the
+    registry entry; `second`: its second_direction ({parameter: value}) or None; `steps`: its step test's
+    [(label, values)]; `per_step`: their statistics (None where a step's draws failed). A directional effect is one
+    whose steps lie in a plane: two step_parameters (an offset's dx, dy; bending_anisotropy's cos2, sin2), or a
+    primary turned by a second direction (a tilt's angle at azimuth 0 and 90 degrees, signed: four directions).
+    To second order the change a step s makes to the draws' MSE against the measurements is s'Hs - 2 s'Ht for an
+    effect t in the data, so over steps of one length around the circle its first harmonic points away from Ht:
+    the least-squares fit statistic ~ c + g . u(phi) over the steps' unit directions u gives the direction -g,
+    which weighs every step (the best single step is off by up to half the steps' spacing: 45 degrees for a tilt).
+    Returns {"values": the effect's values at the steps' mean length along -g, "direction_rad": its angle in the
+    plane, "harmonic": |g|, "residual": the fit's rms residual} or None (fewer than three usable steps, or steps
+    that do not span the plane)."""
+    params = {q["name"]: q for q in entry["parameters"]}
+    stepped = stepped_parameters(entry)
+    if len(stepped) == 2:
+        a, b = stepped
+
+        def vec(v):
+            return float(v[a]) - float(params[a]["off"]), float(v[b]) - float(params[b]["off"])
+    elif second and len(second) == 1 and len(stepped) == 1:
+        prim, turn = stepped[0], next(iter(second))
+
+        def vec(v):
+            x, phi = float(v[prim]) - float(params[prim]["off"]), float(v[turn])
+            return x * math.cos(phi), x * math.sin(phi)
+    else:
+        return None
+    rows = [(vec(values), float(x)) for (_, values), x in zip(steps, per_step) if x is not None and math.isfinite(x)]
+    rows = [(xy, x) for xy, x in rows if math.hypot(*xy) > 0]
+    if len(rows) < 3:
+        return None
+    lengths = np.array([math.hypot(*xy) for xy, _ in rows])
+    u = np.array([xy for xy, _ in rows]) / lengths[:, None]
+    design = np.column_stack([np.ones(len(rows)), u])
+    if np.linalg.matrix_rank(design) < 3:
+        return None
+    y = np.array([x for _, x in rows])
+    coef, *_ = np.linalg.lstsq(design, y, rcond=None)
+    g = coef[1:]
+    if not np.all(np.isfinite(g)) or np.hypot(*g) == 0:
+        return None
+    phi = math.atan2(-g[1], -g[0])
+    length = float(np.mean(lengths))
+    off = {q: float(params[q]["off"]) for q in params}
+    if len(stepped) == 2:
+        values = {**off, a: params[a]["off"] + length * math.cos(phi), b: params[b]["off"] + length * math.sin(phi)}
+    else:
+        values = {**off, prim: params[prim]["off"] + length, turn: phi}
+    values = {q: float(np.clip(v, params[q]["lower"], params[q]["upper"])) for q, v in values.items()}
+    return {"values": values, "direction_rad": phi, "harmonic": float(np.hypot(*g)),
+            "residual": float(np.sqrt(np.mean((design @ coef - y) ** 2)))}
 
 
 def _outside_words(entry):
@@ -1618,6 +1681,10 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                     entry["explanation"] += (" Not step-tested: the time budget paid for the step test on the "
                                              "more promising candidates only (its score p is among the largest).")
                 continue
+            direction = step_direction(reg[entry["effect"]], second.get(entry["effect"]), steps[entry["effect"]],
+                                       [x["statistic"] for x in st["per_step"]])
+            if direction is not None:
+                st["direction"] = direction
             entry["step"] = st
             entry["p_value_score"] = entry["p_value"]
             entry["p_value"] = (st["p_value"] if entry["p_value"] is None
@@ -1657,8 +1724,12 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                                         "fixed in the refit (material learning rates x "
                                         f"{MATERIAL_LEARNING_RATE_FACTOR:g}); only the effect is fitted")
         def start_of(e):
+            """The refit's start: where the step test's best step brought the draws closer (statistic < 0), along
+            the direction all its steps point to (step_direction) for a directional effect, else that step."""
             st = e.get("step")
-            return st["values"] if st is not None and st["statistic"] < 0 else None
+            if st is None or st["statistic"] >= 0:
+                return None
+            return dict((st.get("direction") or {}).get("values") or st["values"])
 
         def evaluate(candidate, at_seed=seed):
             """(shapes, summary) of K draws of `candidate` (by default the base's seed and draws), or None when all

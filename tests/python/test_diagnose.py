@@ -851,6 +851,48 @@ def test_line_search_finds_the_minimum_along_the_step_and_turns_a_two_parameter_
     assert len(points) <= diagnose.search_evaluations(aniso)
 
 
+def test_step_direction_reads_the_direction_from_every_step():
+    reg = fit_effects.registry()
+    second = diagnose.second_directions(reg)
+    rng = np.random.default_rng(5)
+    for name in ("tilt", "offset", "bending_anisotropy"):
+        steps = diagnose.effect_steps(reg, [name])[name]
+        direction_of = {}
+        for psi in rng.uniform(-math.pi, math.pi, 4):
+            t = 0.8 * np.array([math.cos(psi), math.sin(psi)])
+            h = np.array([[1.0, 0.2], [0.2, 1.0]]) if name == "offset" else np.eye(2)
+
+            def stat(values):  # second order: s'Hs - 2 s'Ht, in units of the step's length
+                info = diagnose.step_direction(reg[name], second.get(name), [("s", values)] * 3, [0.0] * 3)
+                assert info is None  # three copies of one direction do not span the plane
+                params = {q["name"]: q for q in reg[name]["parameters"]}
+                if name == "tilt":
+                    a = values["angle_rad"] / params["angle_rad"]["moderate"]
+                    s = a * np.array([math.cos(values["azimuth_rad"]), math.sin(values["azimuth_rad"])])
+                else:
+                    a, b = diagnose.stepped_parameters(reg[name])
+                    s = np.array([values[a] / params[a]["moderate"], values[b] / params[b]["moderate"]])
+                return float(s @ h @ s - 2 * s @ h @ t)
+            info = diagnose.step_direction(reg[name], second.get(name), steps, [stat(v) for _, v in steps])
+            got = info["direction_rad"]
+            want = math.atan2(*(h @ t)[::-1])  # the first harmonic points along Ht (t itself where H is round)
+            assert math.cos(got - want) == pytest.approx(1.0, abs=1e-9), (name, psi)
+            direction_of[psi] = info["values"]
+            if name == "tilt":  # a positive angle at the moderate strength towards the direction
+                assert info["values"]["angle_rad"] == pytest.approx(0.15)
+                assert info["values"]["azimuth_rad"] == pytest.approx(got)
+            else:
+                a, b = diagnose.stepped_parameters(reg[name])
+                assert math.atan2(info["values"][b], info["values"][a]) == pytest.approx(got)
+        # a failed step (None) is left out; all but two failed: no direction
+        stats = [stat(v) for _, v in steps]
+        assert diagnose.step_direction(reg[name], second.get(name), steps,
+                                       [None] * (len(steps) - 2) + stats[-2:]) is None
+    # an effect without a direction: none
+    assert diagnose.step_direction(reg["prestrain"], None, diagnose.effect_steps(reg, ["prestrain"])["prestrain"],
+                                   [-1.0, 1.0]) is None
+
+
 def test_step_family_p_counts_the_steps_by_their_correlation(monkeypatch):
     # an offset's eight directions move the draws alike: correlated steps are fewer chances than Sidak's S, and the
     # level holds (simulated specimen nulls with B = W, eight steps sharing 80 % of their variance)
