@@ -209,7 +209,12 @@ def test_cli_writes_the_report_the_contract_and_a_refit(images, tmp_path, capsys
     stat = (entry.get("step") or {}).get("statistic")
     assert (search is not None) == (stat is not None and stat < 0)
     if search is not None:  # a refit from the step: the line search on draws of their own seed, the best kept
-        assert search["seed"] == 1 + diagnose.SEARCH_SEED_OFFSET and search["step"] == entry["step"]["values"]
+        # it starts along the direction of all four tilt steps where their first harmonic explains them, else at
+        # the best step
+        direction = entry["step"]["direction"]
+        assert math.isclose(direction["values"]["azimuth_rad"], direction["direction_rad"])
+        start = direction["values"] if direction["used"] else entry["step"]["values"]
+        assert search["seed"] == 1 + diagnose.SEARCH_SEED_OFFSET and search["step"] == start
         scored = [pt for pt in search["points"] if pt["mse"] is not None]
         assert 1 <= len(search["points"]) <= diagnose.search_evaluations(reg["tilt"])
         assert search["best"] == min(scored, key=lambda pt: pt["mse"])["values"]
@@ -878,6 +883,7 @@ def test_step_direction_reads_the_direction_from_every_step():
             want = math.atan2(*(h @ t)[::-1])  # the first harmonic points along Ht (t itself where H is round)
             assert math.cos(got - want) == pytest.approx(1.0, abs=1e-9), (name, psi)
             direction_of[psi] = info["values"]
+            assert info["r2"] > 0.95 and info["used"]  # first harmonic (and a little second where H is not round)
             if name == "tilt":  # a positive angle at the moderate strength towards the direction
                 assert info["values"]["angle_rad"] == pytest.approx(0.15)
                 assert info["values"]["azimuth_rad"] == pytest.approx(got)
@@ -888,6 +894,12 @@ def test_step_direction_reads_the_direction_from_every_step():
         stats = [stat(v) for _, v in steps]
         assert diagnose.step_direction(reg[name], second.get(name), steps,
                                        [None] * (len(steps) - 2) + stats[-2:]) is None
+    # steps the first harmonic does not explain (a second harmonic, as an offset's folds rearranging): not used
+    steps = diagnose.effect_steps(reg, ["offset"])["offset"]
+    angles = [math.atan2(v["dy_m"], v["dx_m"]) for _, v in steps]
+    info = diagnose.step_direction(reg["offset"], None, steps, [0.2 * math.cos(a) + math.cos(2 * a) for a in angles])
+    assert math.cos(info["direction_rad"] - math.pi) == pytest.approx(1.0)
+    assert info["r2"] == pytest.approx(0.02 / 0.52) and not info["used"]
     # an effect without a direction: none
     assert diagnose.step_direction(reg["prestrain"], None, diagnose.effect_steps(reg, ["prestrain"])["prestrain"],
                                    [-1.0, 1.0]) is None
