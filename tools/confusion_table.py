@@ -156,6 +156,8 @@ def main():
                    "p_values_step_permutation": {e["effect"]: e["step"].get("p_value_permutation")
                                                  for e in tested if e.get("step")},
                    "steps": {e["effect"]: e["step"]["step"] for e in tested if e.get("step")},
+                   "directions": {e["effect"]: e["step"]["direction"] for e in tested
+                                  if (e.get("step") or {}).get("direction")},
                    "seconds": time.monotonic() - t0}
             rows.append(row)
             print(f"seed {seed} {case}: first {row['first']} (p {row['first_p']}), recommended {row['recommended']}, "
