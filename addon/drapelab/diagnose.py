@@ -98,12 +98,13 @@
    short refit's noisy material steps absorbed a 0.3 rad tilt (the fitted angle fell 0.15 -> 0.03 rad in 8
    epochs); held, it rose to 0.26 rad in 11 epochs. Only the effect's strength (and its bdp posterior sd) is
    fitted, with the pixel term alone. It starts at the step test's best step when that step brought the draws
-   closer to the measurements (statistic < 0), for a directional effect (a tilt's four steps, an offset's eight,
-   bending_anisotropy's four in its (cos2, sin2) plane) along the direction all its steps point to
-   (step_direction: the first harmonic of the steps' statistics around the circle; the best single step is off by
-   up to half the steps' spacing, and a tilt's search scales its angle only; since 2026-11-29); that choice is made on K drapes with placement noise, where the
-   fit's own start search judges its candidates by one drape without it (measured on fabric 1, whose photos are
-   2-fold: started at zero, bending_anisotropy's refit went the wrong way, best-of-16 MSE 0.058 -> 0.062).
+   closer to the measurements (statistic < 0); a directional effect (a tilt's four steps, bending_anisotropy's four
+   in its (cos2, sin2) plane, an offset's eight) starts along the direction all its steps point to where their
+   statistics follow a first harmonic around the plane (step_direction, since 2026-11-29: the best single step is
+   off by up to half the steps' spacing, and a tilt's search scales only its angle). That choice is made on K
+   drapes with placement noise, where the fit's own start search judges its candidates by one drape without it
+   (measured on fabric 1, whose photos are 2-fold: started at zero, bending_anisotropy's refit went the wrong way,
+   best-of-16 MSE 0.058 -> 0.062).
    Before its epochs such a refit searches along the step (refit.search, ``line_search``): the stepped
    parameters' distance from off times 0.5, 1, 1.5 and 2 (an effect that steps two parameters first turns its
    step by +-45 degrees in their plane; 3x / 0.25x when the best is at an end), then the parabola's vertex
@@ -1804,6 +1805,11 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                 step_only = mode == "step"
             ts = time.monotonic()
             search = None
+            direction = entry["step"].get("direction") if entry.get("step") else None
+            if start is not None and direction and direction["used"]:
+                entry["explanation"] += (f" Its steps' statistics follow a first harmonic around their plane (r2 "
+                                         f"{direction['r2']:.2f}) pointing at {math.degrees(direction['direction_rad']):.0f}"
+                                         " degrees: the refit starts along it, not at the best single step.")
             if start is not None and not step_only:  # the line search along the step, on its own draws (module doc, 3.)
                 name = entry["effect"]
                 search_seed = seed + SEARCH_SEED_OFFSET
