@@ -98,7 +98,8 @@
    short refit's noisy material steps absorbed a 0.3 rad tilt (the fitted angle fell 0.15 -> 0.03 rad in 8
    epochs); held, it rose to 0.26 rad in 11 epochs. Only the effect's strength (and its bdp posterior sd) is
    fitted, with the pixel term alone. It starts at the step test's best step when that step brought the draws
-   closer to the measurements (statistic < 0); a directional effect (a tilt's four steps, bending_anisotropy's four
+   closer to the measurements (statistic < 0; the step with the most negative statistic, refit_start, since
+   2026-11-29: until then the one with the smallest p); a directional effect (a tilt's four steps, bending_anisotropy's four
    in its (cos2, sin2) plane, an offset's eight) starts along the direction all its steps point to where their
    statistics follow a first harmonic around the plane (step_direction, since 2026-11-29: the best single step is
    off by up to half the steps' spacing, and a tilt's search scales only its angle). That choice is made on K
@@ -949,8 +950,9 @@ def step_tests(base_images, step_images, steps, observed, references, redrapes=(
             best, stat, p, z = step_specimen_test(deltas, n, j, len(images) - n - j)
         out[name] = {"statistic": stat, "p_value": p, "z": z, "p_value_permutation": p_perm,
                      "step": st[best][0], "values": dict(st[best][1]), "best_of_k_fall": falls[best],
-                     "per_step": [{"step": label, "statistic": None if si in failed else float(x)}
-                                  for si, ((label, _), x) in enumerate(zip(st, per_step))]}
+                     "per_step": [{"step": label, "values": dict(values),
+                                   "statistic": None if si in failed else float(x)}
+                                  for si, ((label, values), x) in enumerate(zip(st, per_step))]}
     return out
 
 
@@ -1013,6 +1015,28 @@ def step_direction(entry, second, steps, per_step):
     r2 = 1.0 - residual ** 2 / spread if spread > 0 else 0.0
     return {"values": values, "direction_rad": phi, "harmonic": float(np.hypot(*g)), "residual": residual,
             "r2": r2, "used": bool(r2 >= DIRECTION_R2_MIN)}
+
+
+def refit_start(st):
+    """(values, how) where a refit starts from its effect's step test `st` (step_tests' entry, with its
+    `direction` where step_direction gave one), or (None, None) when no step brought the draws closer to the
+    measurements (every step's statistic >= 0). how: "harmonic" (a directional effect whose steps follow a first
+    harmonic: along it) or "statistic" (the step with the most negative statistic). The start is a point estimate of
+    where the data lie, so it goes by the change itself, not by the step test's p (which also weighs each step's
+    spread and picks the reported step): at seed 761 a prestrain of +0.031 was stepped at +-0.03, the +0.03 step
+    changed the draws by -0.043 and the -0.03 one by -0.039 with the smaller p, and the refit that started at -0.03
+    stayed on the wrong side (docs/diagnose.md). Without per-step statistics: the reported step when its statistic
+    is negative."""
+    per = [(x["statistic"], i) for i, x in enumerate(st.get("per_step") or []) if x.get("statistic") is not None]
+    if not per:
+        return (dict(st["values"]), "statistic") if st["statistic"] < 0 else (None, None)
+    lowest, i = min(per)
+    if lowest >= 0:
+        return None, None
+    direction = st.get("direction") or {}
+    if direction.get("used"):
+        return dict(direction["values"]), "harmonic"
+    return dict(st["per_step"][i]["values"]), "statistic"
 
 
 def _outside_words(entry):
@@ -1735,13 +1759,8 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                                         "fixed in the refit (material learning rates x "
                                         f"{MATERIAL_LEARNING_RATE_FACTOR:g}); only the effect is fitted")
         def start_of(e):
-            """The refit's start: where the step test's best step brought the draws closer (statistic < 0), along
-            the direction all its steps point to (step_direction) for a directional effect, else that step."""
-            st = e.get("step")
-            if st is None or st["statistic"] >= 0:
-                return None
-            direction = st.get("direction") or {}
-            return dict(direction["values"] if direction.get("used") else st["values"])
+            """The refit's start (refit_start), None without a step that brought the draws closer."""
+            return refit_start(e["step"])[0] if e.get("step") else None
 
         def evaluate(candidate, at_seed=seed):
             """(shapes, summary) of K draws of `candidate` (by default the base's seed and draws), or None when all
@@ -1805,11 +1824,18 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                 step_only = mode == "step"
             ts = time.monotonic()
             search = None
-            direction = entry["step"].get("direction") if entry.get("step") else None
-            if start is not None and direction and direction["used"]:
-                entry["explanation"] += (f" Its steps' statistics follow a first harmonic around their plane (r2 "
-                                         f"{direction['r2']:.2f}) pointing at {math.degrees(direction['direction_rad']):.0f}"
-                                         " degrees: the refit starts along it, not at the best single step.")
+            if start is not None:
+                st = entry["step"]
+                how = refit_start(st)[1]
+                if how == "harmonic":
+                    entry["explanation"] += (f" Its steps' statistics follow a first harmonic around their plane (r2 "
+                                             f"{st['direction']['r2']:.2f}) pointing at "
+                                             f"{math.degrees(st['direction']['direction_rad']):.0f} degrees: the refit "
+                                             "starts along it, not at the best single step.")
+                elif start != st["values"]:
+                    label = next(x["step"] for x in st["per_step"] if x["values"] == start)
+                    entry["explanation"] += (f" The refit starts at the step that brought the draws closest ({label}), "
+                                             f"not at the step with the smallest p ({st['step']}).")
             if start is not None and not step_only:  # the line search along the step, on its own draws (module doc, 3.)
                 name = entry["effect"]
                 search_seed = seed + SEARCH_SEED_OFFSET

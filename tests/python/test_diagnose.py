@@ -213,8 +213,10 @@ def test_cli_writes_the_report_the_contract_and_a_refit(images, tmp_path, capsys
         # the best step
         direction = entry["step"]["direction"]
         assert math.isclose(direction["values"]["azimuth_rad"], direction["direction_rad"])
-        start = direction["values"] if direction["used"] else entry["step"]["values"]
-        assert search["seed"] == 1 + diagnose.SEARCH_SEED_OFFSET and search["step"] == start
+        assert search["seed"] == 1 + diagnose.SEARCH_SEED_OFFSET
+        assert search["step"] == diagnose.refit_start(entry["step"])[0]
+        if direction["used"]:
+            assert search["step"] == direction["values"]
         scored = [pt for pt in search["points"] if pt["mse"] is not None]
         assert 1 <= len(search["points"]) <= diagnose.search_evaluations(reg["tilt"])
         assert search["best"] == min(scored, key=lambda pt: pt["mse"])["values"]
@@ -903,6 +905,31 @@ def test_step_direction_reads_the_direction_from_every_step():
     # an effect without a direction: none
     assert diagnose.step_direction(reg["prestrain"], None, diagnose.effect_steps(reg, ["prestrain"])["prestrain"],
                                    [-1.0, 1.0]) is None
+
+
+def test_refit_start_goes_by_the_change_not_the_p():
+    plus, minus = {"strain": 0.03, "warp_minus_weft": 0.0}, {"strain": -0.03, "warp_minus_weft": 0.0}
+    # seed 761's prestrain: the -0.03 step had the smaller p (the reported step), +0.03 the larger fall
+    st = {"statistic": -0.039, "values": minus, "step": "strain=-0.03",
+          "per_step": [{"step": "strain=+0.03", "values": plus, "statistic": -0.043},
+                       {"step": "strain=-0.03", "values": minus, "statistic": -0.039}]}
+    assert diagnose.refit_start(st) == (plus, "statistic")
+    # a failed step (None) is left out; no step closer: no start
+    st["per_step"][0]["statistic"] = None
+    assert diagnose.refit_start(st) == (minus, "statistic")
+    st["per_step"][1]["statistic"] = 0.002
+    assert diagnose.refit_start(st) == (None, None)
+    # a directional effect whose steps follow a first harmonic: along it
+    tilt = {"angle_rad": 0.15, "azimuth_rad": -1.9}
+    st = {"statistic": -0.01, "values": {"angle_rad": -0.15, "azimuth_rad": math.pi / 2},
+          "per_step": [{"step": "a", "values": {}, "statistic": -0.01}],
+          "direction": {"values": tilt, "direction_rad": -1.9, "used": True}}
+    assert diagnose.refit_start(st) == (tilt, "harmonic")
+    st["direction"]["used"] = False
+    assert diagnose.refit_start(st) == ({}, "statistic")
+    # without per-step statistics: the reported step when its statistic is negative
+    assert diagnose.refit_start({"statistic": -0.01, "values": minus}) == (minus, "statistic")
+    assert diagnose.refit_start({"statistic": 0.01, "values": minus}) == (None, None)
 
 
 def test_step_family_p_counts_the_steps_by_their_correlation(monkeypatch):
