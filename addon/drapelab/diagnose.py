@@ -956,10 +956,10 @@ def step_tests(base_images, step_images, steps, observed, references, redrapes=(
     return out
 
 
-def step_direction(entry, second, steps, per_step):
+def step_direction(entry, second, per_step):
     """The refit's start direction from all of a directional effect's steps (module doc, 3.), or None. `entry`: the
-    registry entry; `second`: its second_direction ({parameter: value}) or None; `steps`: its step test's
-    [(label, values)]; `per_step`: their statistics (None where a step's draws failed). A directional effect is one
+    registry entry; `second`: its second_direction ({parameter: value}) or None; `per_step`: its step test's steps
+    [{values, statistic}] (step_tests' per_step; statistic None where a step's draws failed). A directional effect is one
     whose steps lie in a plane: two step_parameters (an offset's dx, dy; bending_anisotropy's cos2, sin2), or a
     primary turned by a second direction (a tilt's angle at azimuth 0 and 90 degrees, signed: four directions).
     To second order the change a step s makes to the draws' MSE against the measurements is s'Hs - 2 s'Ht for an
@@ -988,7 +988,8 @@ def step_direction(entry, second, steps, per_step):
             return x * math.cos(phi), x * math.sin(phi)
     else:
         return None
-    rows = [(vec(values), float(x)) for (_, values), x in zip(steps, per_step) if x is not None and math.isfinite(x)]
+    rows = [(vec(x["values"]), float(x["statistic"])) for x in per_step
+            if x["statistic"] is not None and math.isfinite(x["statistic"])]
     rows = [(xy, x) for xy, x in rows if math.hypot(*xy) > 0]
     if len(rows) < 3:
         return None
@@ -1018,10 +1019,10 @@ def step_direction(entry, second, steps, per_step):
 
 
 def refit_start(st):
-    """(values, how) where a refit starts from its effect's step test `st` (step_tests' entry, with its
-    `direction` where step_direction gave one), or (None, None) when no step brought the draws closer to the
+    """(values, how, label) where a refit starts from its effect's step test `st` (step_tests' entry, with its
+    `direction` where step_direction gave one), or (None, None, None) when no step brought the draws closer to the
     measurements (every step's statistic >= 0). how: "harmonic" (a directional effect whose steps follow a first
-    harmonic: along it) or "statistic" (the step with the most negative statistic). The start is a point estimate of
+    harmonic: along it; label None) or "statistic" (the step with the most negative statistic, label its step). The start is a point estimate of
     where the data lie, so it goes by the change itself, not by the step test's p (which also weighs each step's
     spread and picks the reported step): at seed 761 a prestrain of +0.031 was stepped at +-0.03, the +0.03 step
     changed the draws by -0.043 and the -0.03 one by -0.039 with the smaller p, and the refit that started at -0.03
@@ -1029,14 +1030,14 @@ def refit_start(st):
     is negative."""
     per = [(x["statistic"], i) for i, x in enumerate(st.get("per_step") or []) if x.get("statistic") is not None]
     if not per:
-        return (dict(st["values"]), "statistic") if st["statistic"] < 0 else (None, None)
+        return (dict(st["values"]), "statistic", st["step"]) if st["statistic"] < 0 else (None, None, None)
     lowest, i = min(per)
     if lowest >= 0:
-        return None, None
+        return None, None, None
     direction = st.get("direction") or {}
     if direction.get("used"):
-        return dict(direction["values"]), "harmonic"
-    return dict(st["per_step"][i]["values"]), "statistic"
+        return dict(direction["values"]), "harmonic", None
+    return dict(st["per_step"][i]["values"]), "statistic", st["per_step"][i]["step"]
 
 
 def _outside_words(entry):
@@ -1716,8 +1717,7 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                     entry["explanation"] += (" Not step-tested: the time budget paid for the step test on the "
                                              "more promising candidates only (its score p is among the largest).")
                 continue
-            direction = step_direction(reg[entry["effect"]], second.get(entry["effect"]), steps[entry["effect"]],
-                                       [x["statistic"] for x in st["per_step"]])
+            direction = step_direction(reg[entry["effect"]], second.get(entry["effect"]), st["per_step"])
             if direction is not None:
                 st["direction"] = direction
             entry["step"] = st
@@ -1760,7 +1760,7 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                                         f"{MATERIAL_LEARNING_RATE_FACTOR:g}); only the effect is fitted")
         def start_of(e):
             """The refit's start (refit_start), None without a step that brought the draws closer."""
-            return refit_start(e["step"])[0] if e.get("step") else None
+            return refit_start(e["step"])[0] if e.get("step") else None  # as the refit loop takes it
 
         def evaluate(candidate, at_seed=seed):
             """(shapes, summary) of K draws of `candidate` (by default the base's seed and draws), or None when all
@@ -1809,7 +1809,7 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
 
         for idx, entry in enumerate(promising):
             budget = None
-            start = start_of(entry)
+            start, how, start_step = refit_start(entry["step"]) if entry.get("step") else (None, None, None)
             step_only = False
             if time_budget is not None:
                 budget = refit_budget(idx)
@@ -1826,15 +1826,13 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
             search = None
             if start is not None:
                 st = entry["step"]
-                how = refit_start(st)[1]
                 if how == "harmonic":
                     entry["explanation"] += (f" Its steps' statistics follow a first harmonic around their plane (r2 "
                                              f"{st['direction']['r2']:.2f}) pointing at "
                                              f"{math.degrees(st['direction']['direction_rad']):.0f} degrees: the refit "
                                              "starts along it, not at the best single step.")
-                elif start != st["values"]:
-                    label = next(x["step"] for x in st["per_step"] if x["values"] == start)
-                    entry["explanation"] += (f" The refit starts at the step that brought the draws closest ({label}), "
+                elif start_step != st["step"]:
+                    entry["explanation"] += (f" The refit starts at the step that brought the draws closest ({start_step}), "
                                              f"not at the step with the smallest p ({st['step']}).")
             if start is not None and not step_only:  # the line search along the step, on its own draws (module doc, 3.)
                 name = entry["effect"]

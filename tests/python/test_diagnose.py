@@ -859,6 +859,8 @@ def test_line_search_finds_the_minimum_along_the_step_and_turns_a_two_parameter_
 
 
 def test_step_direction_reads_the_direction_from_every_step():
+    def per_step(values, stats):  # step_tests' per_step entries
+        return [{"values": v, "statistic": x} for v, x in zip(values, stats)]
     reg = fit_effects.registry()
     second = diagnose.second_directions(reg)
     rng = np.random.default_rng(5)
@@ -870,7 +872,7 @@ def test_step_direction_reads_the_direction_from_every_step():
             h = np.array([[1.0, 0.2], [0.2, 1.0]]) if name == "offset" else np.eye(2)
 
             def stat(values):  # second order: s'Hs - 2 s'Ht, in units of the step's length
-                info = diagnose.step_direction(reg[name], second.get(name), [("s", values)] * 3, [0.0] * 3)
+                info = diagnose.step_direction(reg[name], second.get(name), per_step([values] * 3, [0.0] * 3))
                 assert info is None  # three copies of one direction do not span the plane
                 params = {q["name"]: q for q in reg[name]["parameters"]}
                 if name == "tilt":
@@ -880,7 +882,8 @@ def test_step_direction_reads_the_direction_from_every_step():
                     a, b = diagnose.stepped_parameters(reg[name])
                     s = np.array([values[a] / params[a]["moderate"], values[b] / params[b]["moderate"]])
                 return float(s @ h @ s - 2 * s @ h @ t)
-            info = diagnose.step_direction(reg[name], second.get(name), steps, [stat(v) for _, v in steps])
+            info = diagnose.step_direction(reg[name], second.get(name),
+                                           per_step([v for _, v in steps], [stat(v) for _, v in steps]))
             got = info["direction_rad"]
             want = math.atan2(*(h @ t)[::-1])  # the first harmonic points along Ht (t itself where H is round)
             assert math.cos(got - want) == pytest.approx(1.0, abs=1e-9), (name, psi)
@@ -894,17 +897,18 @@ def test_step_direction_reads_the_direction_from_every_step():
                 assert math.atan2(info["values"][b], info["values"][a]) == pytest.approx(got)
         # a failed step (None) is left out; all but two failed: no direction
         stats = [stat(v) for _, v in steps]
-        assert diagnose.step_direction(reg[name], second.get(name), steps,
-                                       [None] * (len(steps) - 2) + stats[-2:]) is None
+        assert diagnose.step_direction(reg[name], second.get(name),
+                                       per_step([v for _, v in steps], [None] * (len(steps) - 2) + stats[-2:])) is None
     # steps the first harmonic does not explain (a second harmonic, as an offset's folds rearranging): not used
     steps = diagnose.effect_steps(reg, ["offset"])["offset"]
     angles = [math.atan2(v["dy_m"], v["dx_m"]) for _, v in steps]
-    info = diagnose.step_direction(reg["offset"], None, steps, [0.2 * math.cos(a) + math.cos(2 * a) for a in angles])
+    info = diagnose.step_direction(reg["offset"], None, per_step([v for _, v in steps],
+                                                                 [0.2 * math.cos(a) + math.cos(2 * a) for a in angles]))
     assert math.cos(info["direction_rad"] - math.pi) == pytest.approx(1.0)
     assert info["r2"] == pytest.approx(0.02 / 0.52) and not info["used"]
     # an effect without a direction: none
-    assert diagnose.step_direction(reg["prestrain"], None, diagnose.effect_steps(reg, ["prestrain"])["prestrain"],
-                                   [-1.0, 1.0]) is None
+    assert diagnose.step_direction(reg["prestrain"], None, per_step(
+        [v for _, v in diagnose.effect_steps(reg, ["prestrain"])["prestrain"]], [-1.0, 1.0])) is None
 
 
 def test_refit_start_goes_by_the_change_not_the_p():
@@ -913,23 +917,23 @@ def test_refit_start_goes_by_the_change_not_the_p():
     st = {"statistic": -0.039, "values": minus, "step": "strain=-0.03",
           "per_step": [{"step": "strain=+0.03", "values": plus, "statistic": -0.043},
                        {"step": "strain=-0.03", "values": minus, "statistic": -0.039}]}
-    assert diagnose.refit_start(st) == (plus, "statistic")
+    assert diagnose.refit_start(st) == (plus, "statistic", "strain=+0.03")
     # a failed step (None) is left out; no step closer: no start
     st["per_step"][0]["statistic"] = None
-    assert diagnose.refit_start(st) == (minus, "statistic")
+    assert diagnose.refit_start(st) == (minus, "statistic", "strain=-0.03")
     st["per_step"][1]["statistic"] = 0.002
-    assert diagnose.refit_start(st) == (None, None)
+    assert diagnose.refit_start(st) == (None, None, None)
     # a directional effect whose steps follow a first harmonic: along it
     tilt = {"angle_rad": 0.15, "azimuth_rad": -1.9}
     st = {"statistic": -0.01, "values": {"angle_rad": -0.15, "azimuth_rad": math.pi / 2},
           "per_step": [{"step": "a", "values": {}, "statistic": -0.01}],
           "direction": {"values": tilt, "direction_rad": -1.9, "used": True}}
-    assert diagnose.refit_start(st) == (tilt, "harmonic")
+    assert diagnose.refit_start(st) == (tilt, "harmonic", None)
     st["direction"]["used"] = False
-    assert diagnose.refit_start(st) == ({}, "statistic")
+    assert diagnose.refit_start(st) == ({}, "statistic", "a")
     # without per-step statistics: the reported step when its statistic is negative
-    assert diagnose.refit_start({"statistic": -0.01, "values": minus}) == (minus, "statistic")
-    assert diagnose.refit_start({"statistic": 0.01, "values": minus}) == (None, None)
+    assert diagnose.refit_start({"statistic": -0.01, "values": minus, "step": "m"}) == (minus, "statistic", "m")
+    assert diagnose.refit_start({"statistic": 0.01, "values": minus, "step": "m"}) == (None, None, None)
 
 
 def test_step_family_p_counts_the_steps_by_their_correlation(monkeypatch):
