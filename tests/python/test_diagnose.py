@@ -858,6 +858,35 @@ def test_line_search_finds_the_minimum_along_the_step_and_turns_a_two_parameter_
     assert len(points) <= diagnose.search_evaluations(aniso)
 
 
+def test_line_search_keeps_the_vertex_within_the_tolerance_of_the_best_point():
+    tilt = fit_effects.registry()["tilt"]
+    step = {"angle_rad": 0.2, "azimuth_rad": 0.0}
+    # a smooth landscape with its minimum at 0.23 rad plus one lucky draw at the step (0.2 rad): the points at
+    # 0.1, 0.2, 0.3, 0.4 rad, then the vertex of the parabola through 0.1, 0.2 and 0.3
+    noise = {0.2: -0.002}
+
+    def mse_of(v):
+        a = round(v["angle_rad"], 9)
+        return 0.01 + (a - 0.23) ** 2 + noise.get(a, 0.0)
+    best, points = diagnose.line_search(tilt, step, mse_of)  # no tolerance: the smallest point, the lucky step
+    vertex = [p for p in points if p["vertex"]]
+    assert len(vertex) == 1 and [p["vertex"] for p in points].count(True) == 1
+    assert vertex[0]["mse"] > min(p["mse"] for p in points)
+    assert best["angle_rad"] == pytest.approx(0.2)
+    # within 0.002 of it the vertex is kept: it lies between the lucky point and the landscape's minimum
+    gap = vertex[0]["mse"] - min(p["mse"] for p in points)
+    best2, points2 = diagnose.line_search(tilt, step, mse_of, vertex_within=gap + 1e-12)
+    assert points2 == points and best2 == vertex[0]["values"] and 0.2 < best2["angle_rad"] < 0.23
+    best3, _ = diagnose.line_search(tilt, step, mse_of, vertex_within=0.5 * gap)
+    assert best3["angle_rad"] == pytest.approx(0.2)
+    # no vertex (the minimum at the grid's end) or a failed vertex: the smallest point whatever the tolerance
+    best4, points4 = diagnose.line_search(tilt, step, lambda v: (v["angle_rad"] - 0.6) ** 2, vertex_within=1.0)
+    assert not any(p["vertex"] for p in points4) and best4["angle_rad"] == 0.5
+    best5, points5 = diagnose.line_search(tilt, step, lambda v: None if round(v["angle_rad"], 9) not in (0.1, 0.2, 0.3, 0.4)
+                                          else mse_of(v), vertex_within=1.0)
+    assert points5[-1]["vertex"] and points5[-1]["mse"] is None and best5["angle_rad"] == pytest.approx(0.2)
+
+
 def test_step_direction_reads_the_direction_from_every_step():
     def per_step(values, stats):  # step_tests' per_step entries
         return [{"values": v, "statistic": x} for v, x in zip(values, stats)]
