@@ -146,6 +146,9 @@ def main():
                    "falls_of_redrape": {e["effect"]: e.get("fall_of_redrape") for e in d["ranking"]
                                         if e.get("fall_of_redrape") is not None},
                    "redrape_change_mse": d["base"].get("redrape_change_mse"),
+                   # the base on the draws the refits were compared on (refit_mse is over those draws)
+                   "comparison": ({k: d["comparison"].get(k) for k in ("mse", "samples", "redrape_mse")}
+                                  if d.get("comparison") else None),
                    "refits": {e["effect"]: {k: e["refit"].get(k) for k in ("mse", "epochs", "values",
                                                                            "strength_of_moderate", "effect_change_mse",
                                                                            "kept_start", "end", "path", "search")}
@@ -181,7 +184,11 @@ def report(rows, names):
         closed = []
         for r in rs:
             c = control_mse.get(r["seed"])
-            if r["refit_mse"] is None or c is None or abs(r["base_mse"] - c) < 1e-12:
+            cmp = r.get("comparison") or {}
+            if r["refit_mse"] is not None and cmp.get("samples") and cmp.get("mse") != r["base_mse"]:
+                # compared on more draws than the control's base: the refit's fall in re-drape floors instead
+                closed.append(f"{(cmp['mse'] - r['refit_mse']) / cmp['redrape_mse']:.2f} floors")
+            elif r["refit_mse"] is None or c is None or abs(r["base_mse"] - c) < 1e-12:
                 closed.append("-")
             else:
                 closed.append(f"{(r['base_mse'] - r['refit_mse']) / (r['base_mse'] - c):.2f}")

@@ -121,9 +121,16 @@
    sign-sized first steps on one noisy batch each can undo a good step (measured on fabric 1: from cos2 =
    +0.75, whose step brought the draws 0.009 closer, 4 epochs went to (1.19, 0.43) and a best-of-16 MSE above
    the base's). One more evaluation (K forward drapes) per warm-started refit.
-   Each refit is evaluated like the base (same seed, K draws, P's camera and P's global log sd) and written as
-   DIR/presets/<effect>.json. mse_fall = (base best-of-K MSE - refit's) / base's: the same draws' noise on both
-   sides, so the comparison is paired. The final ranking puts the refits that lower the error first (largest
+   Each refit is evaluated like the base (same seed, P's camera and P's global log sd) and written as
+   DIR/presets/<effect>.json. The comparison (result.comparison, since 2026-11-29 late) is on k_eval draws: the
+   base is draped again on them, forward only, and the re-drape floor measured against them, where the time
+   left when the refits begin pays for it (COMPARISON_SHARE of it for the base's and every refit's end and start
+   evaluations; at least K, at most COMPARISON_SAMPLES_MAX), else on the base's own K. Why: a best-of-16 MSE
+   differs by 0.003 between two seeds of the same preset, as much as the radial near twins differ; on 64 draws x 3
+   seeds the density refits of seeds 761 and 771 beat the camera refits that had been ranked above them on 16
+   (0.0138 / 0.0126 against 0.0153 / 0.0143) and seed 761's camera refit beat the density one (0.0140 against
+   0.0147). An evaluation is forward drapes only (about 0.13 s a draw on circle1). mse_fall = (base best-of-k_eval
+   MSE - refit's) / base's: the same draws' noise on both sides, so the comparison is paired. The final ranking puts the refits that lower the error first (largest
    fall first), then the rest in the score tests' order. ``recommended`` = the first of them when its fall is at
    least MIN_MSE_FALL and some candidate was significant (or it is a switch named with --candidates), and the
    MSE it removes is at least MIN_FALL_OF_REDRAPE of the re-drape floor, else None. ``alternatives`` are the
@@ -200,6 +207,8 @@ REDRAPE_FLOOR_MIN = 12    # re-drapes the re-drape floor is measured on (at leas
 PSEUDO_MIN = 4            # predictive silhouettes drawn as the null reference (at least; as many as images)
 PSEUDO_SEED_OFFSET = 100000  # their placement seeds: [seed, offset + j, 1], apart from the scored draws' [seed, i, 1]
 STEP_REFERENCES_MIN = 24  # predictive silhouettes the step test compares with (at least; 4 per image beyond six)
+COMPARISON_SAMPLES_MAX = 64  # the base and the refits are compared on up to this many draws (module doc, 3.) ...
+COMPARISON_SHARE = 0.25   # ... as many as this share of the time left when the refits begin pays for, at least K
 EVALUATION_OVERHEAD = 1.1  # an evaluation's K drapes (a fresh model each) over K measured forward drapes (step test, else floor)
 STEP_FORWARD_SHARE = 0.4  # a forward drape's share of a draw with backward (measured; as the refits' evaluation)
 STEP_BUDGET_SHARE = 0.4   # at most this share of the budget left after the score tests goes to the step drapes,
@@ -1773,16 +1782,17 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
             """The refit's start (refit_start), None without a step that brought the draws closer."""
             return refit_start(e["step"])[0] if e.get("step") else None  # as the refit loop takes it
 
-        def evaluate(candidate, at_seed=seed):
-            """(shapes, summary) of K draws of `candidate` (by default the base's seed and draws), or None when all
-            fail."""
+        def evaluate(candidate, at_seed=seed, n=None):
+            """(shapes, summary) of n draws of `candidate` (by default the comparison's k_eval draws of the base's
+            seed), or None when all fail."""
+            n = k_eval if n is None else n
             rp = infer._Predictive(candidate, observations[0].mask.shape, lanes, config, template_dir, pred.level,
                                    "dynamic")
             te = time.monotonic()
-            draws = infer.preset_bend_samples(candidate, rp.num_edges, np.random.default_rng(at_seed), k)
+            draws = infer.preset_bend_samples(candidate, rp.num_edges, np.random.default_rng(at_seed), n)
             rshapes = rp.drape(draws, at_seed, cancel_event=cancel_event)
             if not (cancel_event is not None and cancel_event.is_set()):
-                evaluations_s.append(time.monotonic() - te)
+                evaluations_s.append((time.monotonic() - te) / n)
             if not any("error" not in r for r in rshapes):
                 return None
             rbase, _, _ = _summary(rshapes, observations, rp.calibration, float(config["sigma_obs"]), SCORE_SIGMA_DC)
@@ -1792,23 +1802,28 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
         # `forward`, estimated from the draws)
         forward_known = forward_step or forward_measured
         estimated = k * (forward_known * EVALUATION_OVERHEAD if forward_known else forward)
-        evaluations_s = []  # measured evaluations: once there is one, their mean plans the rest
-        result["refit_evaluations_measured_s"] = evaluations_s
+        evaluations_s = []  # measured evaluations, seconds per draw: once there is one, their mean plans the rest
+        result["refit_evaluations_measured_s_per_draw"] = evaluations_s
+        k_eval = k  # the comparison's draws (set below, once the refits to run are known)
 
-        def evaluation_s():
-            return float(np.mean(evaluations_s)) if evaluations_s else estimated
+        def evaluation_s(n=None):
+            """Seconds an evaluation of n draws (default the comparison's k_eval) takes."""
+            n = k_eval if n is None else n
+            return n * (float(np.mean(evaluations_s)) if evaluations_s else estimated / k)
 
         def evaluations_of(e, searched=False):
-            """Evaluations refit e still needs: its search's (unless `searched`), its end's and its start's."""
-            return ((2 + (0 if searched else search_evaluations(reg[e["effect"]]))) if start_of(e) is not None
-                    else 1)
+            """Seconds of the evaluations refit e still needs: its search's (unless `searched`, K draws each), its
+            end's and its start's (k_eval draws each)."""
+            if start_of(e) is None:
+                return evaluation_s()
+            return 2 * evaluation_s() + (0 if searched else search_evaluations(reg[e["effect"]]) * evaluation_s(k))
 
         def refit_budget(idx, searched=False):
             """Seconds for refit idx's epochs: what is left, less the evaluations still to come (this refit's
             search unless `searched`) and the report's reserve, shared equally by the refits still to run."""
             left = float(time_budget) - (time.monotonic() - t0)
             evaluations = sum(evaluations_of(e, searched and i == idx) for i, e in enumerate(promising) if i >= idx)
-            return (left - REPORT_RESERVE_S - evaluations * evaluation_s()) / (len(promising) - idx)
+            return (left - REPORT_RESERVE_S - evaluations) / (len(promising) - idx)
 
         if time_budget is not None:  # the least promising go first when the budget cannot pay one evaluation each
             left = float(time_budget) - (time.monotonic() - t0)
@@ -1817,6 +1832,29 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                 dropped["explanation"] += (f" Not refitted: the time budget left ({left:.0f} s) paid for "
                                            f"{len(promising)} refit evaluation(s) of about {estimated:.0f} s.")
             result["refit_evaluation_s"] = estimated
+        if promising:
+            # the comparison (module doc, 3.): the base and every refit's end and start on k_eval draws, as many as
+            # COMPARISON_SHARE of the time left pays for (at least K, at most COMPARISON_SAMPLES_MAX)
+            finals = 1 + sum(2 if start_of(e) is not None else 1 for e in promising)
+            if time_budget is None:
+                k_eval = max(k, COMPARISON_SAMPLES_MAX)
+            else:
+                left = float(time_budget) - (time.monotonic() - t0)
+                k_eval = int(min(max(k, COMPARISON_SAMPLES_MAX),
+                                 max(k, COMPARISON_SHARE * left / (finals * evaluation_s(1)))))
+            comparison, paired = dict(base, samples=k), shapes  # paired: the base's draws, index by index
+            if k_eval > k:
+                _progress(progress, "refit", f"the base on {k_eval} draws (the refits' comparison)")
+                got = evaluate(p)
+                if got is None:
+                    k_eval = k
+                else:
+                    cmp_ok = [s_ for s_ in got[0] if "error" not in s_]
+                    comparison, paired = dict(got[1], samples=k_eval), got[0]
+                    floor_eval = _redrape_floor(cmp_ok, redrapes)
+                    if floor_eval is not None:
+                        comparison["redrape_mse"], comparison["redrape_mse_sd"] = floor_eval
+            result["comparison"] = comparison
 
         for idx, entry in enumerate(promising):
             budget = None
@@ -1827,8 +1865,7 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                 # what this refit may spend when each later one gets a single evaluation (its step, or its end)
                 spare = (float(time_budget) - (time.monotonic() - t0) - REPORT_RESERVE_S
                          - (len(promising) - idx - 1) * evaluation_s())
-                mode = refit_mode(budget, spare, evaluation_s(), evaluations_of(entry) * evaluation_s(),
-                                  start is not None)
+                mode = refit_mode(budget, spare, evaluation_s(), evaluations_of(entry), start is not None)
                 if mode is None:
                     entry["explanation"] += " Not refitted: the time budget was spent."
                     continue
@@ -1850,7 +1887,7 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                 search_seed = seed + SEARCH_SEED_OFFSET
 
                 def mse_of(values, name=name, search_seed=search_seed):
-                    got = evaluate(with_effect(p, name, values), search_seed)
+                    got = evaluate(with_effect(p, name, values), search_seed, k)
                     _progress(progress, "refit", f"line search {name}: "
                               + " ".join(f"{q} {v:+.4g}" for q, v in values.items())
                               + (" failed" if got is None else f" best-of-{k} MSE {got[1]['mse']:.4f}"), effect=name)
@@ -1885,27 +1922,29 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                 started = with_effect_values(refit, entry["effect"], start)
                 at_start = evaluate(started)
                 if at_start is not None and (evaluated is None or at_start[1]["mse"] < evaluated[1]["mse"]):
-                    entry["explanation"] += (f" The refit's end (best-of-{k} MSE "
+                    entry["explanation"] += (f" The refit's end (best-of-{k_eval} MSE "
                                              + (f"{evaluated[1]['mse']:.4f}" if evaluated else "failed")
                                              + ") was worse than its start, the line search's best point, "
                                                "which is kept.")
                     refit, evaluated, kept_start = started, at_start, True
             if evaluated is None:
-                entry["explanation"] += f" Refit: every one of its {k} draws failed to drape."
+                entry["explanation"] += f" Refit: every one of its {k_eval} draws failed to drape."
                 continue
             rshapes, rbase = evaluated
             values = fit_effects.active_effect_values(refit["active_effects"])[entry["effect"]]
             entry["refit"] = {"mse": rbase["mse"], "iou": rbase["iou"], "loss": rbase["loss"],
                               "dc_error": rbase["dc_error"], "node_error": rbase["node_error"],
-                              "amplitude_error": rbase["amplitude_error"], "epochs": 0 if job is None else job.epoch,
+                              "amplitude_error": rbase["amplitude_error"], "samples": k_eval,
+                              "epochs": 0 if job is None else job.epoch,
                               "seconds": time.monotonic() - ts, "values": values,
                               "strength_of_moderate": strength_of_moderate(reg[entry["effect"]], values, second),
-                              "effect_change_mse": effect_change(shapes, rshapes), "kept_start": kept_start,
+                              "effect_change_mse": effect_change(paired, rshapes), "kept_start": kept_start,
                               "end": end, "averaged_epochs": 0 if job is None else job.averaged_epochs,
                               "path": [] if job is None else refit_path(job, entry["effect"]), "search": search}
-            entry["gain"] = (base["loss"] - rbase["loss"]) / len(reg[entry["effect"]]["parameters"])
-            entry["explanation"] += (f" Refit ({entry['refit']['epochs']} epochs): loss {base['loss']:.4g} -> {rbase['loss']:.4g}, "
-                                     f"best-of-{k} MSE {base['mse']:.4f} -> {rbase['mse']:.4f}.")
+            entry["gain"] = (comparison["loss"] - rbase["loss"]) / len(reg[entry["effect"]]["parameters"])
+            entry["explanation"] += (f" Refit ({entry['refit']['epochs']} epochs): loss {comparison['loss']:.4g} -> "
+                                     f"{rbase['loss']:.4g}, best-of-{k_eval} MSE {comparison['mse']:.4f} -> "
+                                     f"{rbase['mse']:.4f}.")
             refit.setdefault("training", {})["init"] = {"preset": preset_path, "model": p["model"],
                                                         "fabric": (p.get("fabric") or {}).get("name"),
                                                         "by": "diagnose refit"}
@@ -1914,14 +1953,17 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                 os.makedirs(os.path.dirname(path), exist_ok=True)
                 infer.write_preset(path, refit)
                 entry["refit"]["preset"] = os.path.relpath(path, out_dir)
-            result["history"].append(_history_entry(f"{label} + {entry['effect']}", refit, rbase, "diagnose refit"))
+            result["history"].append(_history_entry(f"{label} + {entry['effect']}", refit, dict(rbase, samples=k_eval),
+                                                    "diagnose refit"))
             save()
     except Cancelled:
         result["cancelled"] = True
         _progress(progress, "cancelled", "cancelled: writing what is done")
 
-    base_mse = (result.get("base") or {}).get("mse")
-    redrape = (result.get("base") or {}).get("redrape_mse")
+    # the refits are judged against the base on the comparison's draws (k_eval of them; the base's own K when no
+    # refit ran)
+    judged = result.get("comparison") or result.get("base") or {}
+    base_mse, redrape, k = judged.get("mse"), judged.get("redrape_mse"), int(judged.get("samples") or k)
     for e in result["ranking"]:
         e["mse_fall"] = ((base_mse - e["refit"]["mse"]) / base_mse
                          if e["refit"] is not None and base_mse else None)
@@ -1982,7 +2024,7 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
     # trained on exactly these images
     trained_here = _provenance_key(p) == images_key
     current = [h if h["source"] == TRAINING_SOURCE and not trained_here else dict(h, images=images_key)
-               for h in _history(p, label, result.get("base")) + result["history"]]
+               for h in _history(p, label, result.get("comparison") or result.get("base")) + result["history"]]
     mine = {_entry_key(h) for h in _public(current)}
     result["history"] = [h for h in earlier if _entry_key(h) not in mine] + current
     save()
@@ -1995,7 +2037,8 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
 def _history_entry(model, preset, metrics, source):
     effects = {n: {q: e["value"] for q, e in params.items()} for n, params in (preset.get("active_effects") or {}).items()}
     return {"model": model, "effects": effects, "source": source,
-            **{key: metrics.get(key) for key in ("mse", "iou", "dc_error", "node_error", "amplitude_error", "loss")}}
+            **{key: metrics.get(key) for key in ("mse", "iou", "dc_error", "node_error", "amplitude_error", "loss",
+                                                 "samples") if key != "samples" or metrics.get(key) is not None}}
 
 
 TRAINING_SOURCE = "preset training metrics"  # history entries of a preset's own training batch (not charted)
