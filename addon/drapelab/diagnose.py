@@ -112,15 +112,15 @@
    through the best and its neighbours, each point scored by the best-of-K MSE of K draws with a seed of their own
    (SEARCH_SEED_OFFSET: the choice is not made on the draws that judge the refit); the epochs start at the best
    point, or at the vertex when it scores within SEARCH_VERTEX_WITHIN of the re-drape floor of the best (since
-   2026-11-29, late: the vertex pools three points' noise; the smallest of one set of draws stayed at 0.5x the step on
-   density searches whose truth lay at 0.7-0.85x). Why: the pixel loss of a folded drape is rough in rest shape, offset and strain (a gradient step
-   follows fold switches, docs/diagnose.md), and at seed 661 half of the warm-started refits ended worse than
-   their start, so the strength reported was the step's moderate one (17-36 % off the truth). Five to eight
-   forward evaluations, about 4 s each on circle1 with 16 draws. The refit is also evaluated at its start, on
-   the base's draws, and when its end is worse the start is kept (refit.kept_start): a few epochs of Adam's
-   sign-sized first steps on one noisy batch each can undo a good step (measured on fabric 1: from cos2 =
-   +0.75, whose step brought the draws 0.009 closer, 4 epochs went to (1.19, 0.43) and a best-of-16 MSE above
-   the base's). One more evaluation (K forward drapes) per warm-started refit.
+   2026-11-29, late: the vertex pools three points' noise; the smallest of one set of draws stayed at 0.5x the
+   step on density searches whose truth lay at 0.7-0.85x). Why: the pixel loss of a folded drape is rough in rest
+   shape, offset and strain (a gradient step follows fold switches, docs/diagnose.md), and at seed 661 half of the
+   warm-started refits ended worse than their start, so the strength reported was the step's moderate one (17-36 %
+   off the truth). Five to eight forward evaluations, about 4 s each on circle1 with 16 draws. The refit is also
+   evaluated at its start, on the base's draws, and when its end is worse the start is kept (refit.kept_start): a
+   few epochs of Adam's sign-sized first steps on one noisy batch each can undo a good step (measured on fabric 1:
+   from cos2 = +0.75, whose step brought the draws 0.009 closer, 4 epochs went to (1.19, 0.43) and a best-of-16 MSE
+   above the base's). One more evaluation (K forward drapes) per warm-started refit.
    Each refit is evaluated like the base (same seed, P's camera and P's global log sd) and written as
    DIR/presets/<effect>.json. The comparison (result.comparison, since 2026-11-29 late) is on k_eval draws: the
    base is draped again on them, forward only, and the re-drape floor measured against them, where the time
@@ -130,31 +130,32 @@
    seeds the density refits of seeds 761 and 771 beat the camera refits that had been ranked above them on 16
    (0.0138 / 0.0126 against 0.0153 / 0.0143) and seed 761's camera refit beat the density one (0.0140 against
    0.0147). An evaluation is forward drapes only (about 0.13 s a draw on circle1). mse_fall = (base best-of-k_eval
-   MSE - refit's) / base's: the same draws' noise on both sides, so the comparison is paired. The final ranking puts the refits that lower the error first (largest
-   fall first), then the rest in the score tests' order. ``recommended`` = the first of them when its fall is at
-   least MIN_MSE_FALL and some candidate was significant (or it is a switch named with --candidates), and the
-   MSE it removes is at least MIN_FALL_OF_REDRAPE of the re-drape floor, else None. ``alternatives`` are the
-   other refits that lower the error with a best-of-K MSE above the recommended's by less than
-   ALTERNATIVE_WITHIN of the floor (the same line): differences that re-draping makes, so the images do not tell
-   them apart (the radial near twins, docs/diagnose.md seed 681). ``not_refitted`` names, beside a recommendation,
-   the candidates with p below NEAR_THRESHOLD_FACTOR x the threshold whose refit did not run (unrefitted). The re-drape floor
-   (base.redrape_mse) is the mean over REDRAPE_FLOOR_MIN re-drapes of P's mean material (placement noise only) of
-   the same K draws' best-of-K MSE against each: what the base MSE would be if P were right about the specimen,
-   i.e. how much re-draping alone changes a drape. (Until 2026-11-24 the references were posterior draws, whose
-   material spread made the floor twice the control drapes' base MSE: 0.031 against 0.009 in the round-trip
-   test's setting. It was then measured on 6 re-drapes, whose sd of 0.007 gave 0.0105 at one seed and
-   0.0166 at another with the same reference.) An effect whose refit removes less than half of the floor changes
-   the drape less than re-draping does (a 4 degree tilt: significant with six images, p 2.6e-6, yet its refit
-   removed 0.0027 of a 0.0158 MSE against a control MSE of 0.0105, about 0.26 of the floor; the moderate 0.15 rad
-   tilt removed 0.0098, 0.93 of it) and is reported, not recommended. gain = (base loss - refit loss) / added
+   MSE - refit's) / base's: the same draws' noise on both sides, so the comparison is paired. The final ranking puts
+   the refits that lower the error first (largest fall first), then the rest in the score tests' order.
+   ``recommended`` = the first of them when its fall is at least MIN_MSE_FALL and some candidate was significant (or
+   it is a switch named with --candidates), and the MSE it removes is at least MIN_FALL_OF_REDRAPE of the re-drape
+   floor, else None. ``alternatives`` are the other refits that lower the error with a best-of-K MSE above the
+   recommended's by less than ALTERNATIVE_WITHIN of the floor (the same line): differences that re-draping makes, so
+   the images do not tell them apart (the radial near twins, docs/diagnose.md seed 681). ``not_refitted`` names,
+   beside a recommendation, the candidates with p below NEAR_THRESHOLD_FACTOR x the threshold whose refit did not
+   run (unrefitted). The re-drape floor (base.redrape_mse) is the mean over REDRAPE_FLOOR_MIN re-drapes of P's mean
+   material (placement noise only) of the same K draws' best-of-K MSE against each: what the base MSE would be if P
+   were right about the specimen, i.e. how much re-draping alone changes a drape. (Until 2026-11-24 the references
+   were posterior draws, whose material spread made the floor twice the control drapes' base MSE: 0.031 against
+   0.009 in the round-trip test's setting. It was then measured on 6 re-drapes, whose sd of 0.007 gave 0.0105 at one
+   seed and 0.0166 at another with the same reference.) An effect whose refit removes less than half of the floor
+   changes the drape less than re-draping does (a 4 degree tilt: significant with six images, p 2.6e-6, yet its
+   refit removed 0.0027 of a 0.0158 MSE against a control MSE of 0.0105, about 0.26 of the floor; the moderate 0.15
+   rad tilt removed 0.0098, 0.93 of it) and is reported, not recommended. gain = (base loss - refit loss) / added
    parameters, loss = the expected pixel data term of the predictive (mean over draws and images), is reported
    beside it: it weighs the draws' spread, which an effect may widen while its best draws come closer (measured:
    best-of-16 MSE 0.0288 -> 0.0189 with a higher loss).
 
 Time budget (seconds, the whole job): the draws and score tests come first (their cost is K drapes with
 backward), then the step test (2b: its share, screened when thin); what remains, less the refits' evaluations and
-line searches (EVALUATION_OVERHEAD x K forward drapes each, at the drape time measured on the step test's drapes,
-else on the re-drape floor's, until the first evaluation is measured: then the measured ones' mean) and a reserve for
+line searches (EVALUATION_OVERHEAD x K forward drapes each, k_eval for the comparison's base and every refit's
+end and start, at the drape time measured on the step test's drapes, else on the re-drape floor's, until the first
+evaluation is measured: then the measured ones' mean per draw) and a reserve for
 the report, is split equally between the refits. The least promising refits are dropped while the time left does not pay one evaluation each; a
 refit whose share does not pay for epochs keeps its search's best point when the later refits' single evaluations
 leave room for the search, else the step test's best step, evaluated once. Without a budget each refit runs
@@ -1963,7 +1964,7 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
     # the refits are judged against the base on the comparison's draws (k_eval of them; the base's own K when no
     # refit ran)
     judged = result.get("comparison") or result.get("base") or {}
-    base_mse, redrape, k = judged.get("mse"), judged.get("redrape_mse"), int(judged.get("samples") or k)
+    base_mse, redrape, k_judged = judged.get("mse"), judged.get("redrape_mse"), int(judged.get("samples") or k)
     for e in result["ranking"]:
         e["mse_fall"] = ((base_mse - e["refit"]["mse"]) / base_mse
                          if e["refit"] is not None and base_mse else None)
@@ -1986,13 +1987,13 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
         why = ("a switch judged by its refit alone" if best["switch"] else
                (f"significant (p = {best['p_value']:.2g} < {threshold:.2g})" if best["p_value"] < threshold else
                 f"the refit that explains the significant difference best (its own p = {best['p_value']:.2g})"))
-        result["verdict"] = (f"{best['effect']} is {why} and its refit lowers the best-of-{k} MSE by "
+        result["verdict"] = (f"{best['effect']} is {why} and its refit lowers the best-of-{k_judged} MSE by "
                              f"{100 * best['mse_fall']:.0f} % ({base_mse:.4f} -> {best['refit']['mse']:.4f}): "
                              + (f"the refit is {refit_file}; fit --init {refit_file} --effects {best['effect']} "
                                 f"fits the effect and the material together from it" if refit_file
                                 else f"fit --effects {best['effect']}"))
         result["alternatives"] = alternatives([best] + [e for e in falling if e is not best], redrape)
-        result["verdict"] += alternatives_words(result["alternatives"], best["effect"], k)
+        result["verdict"] += alternatives_words(result["alternatives"], best["effect"], k_judged)
         result["not_refitted"] = unrefitted(result["ranking"], threshold, exclude=(best["effect"],))
         result["verdict"] += unrefitted_words(result["not_refitted"], best["effect"],
                                               not_refitted_reason(result["cancelled"], max_refits))
@@ -2003,12 +2004,12 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
         if significant:
             refitted = [e["effect"] for e in significant if e["refit"] is not None and e not in small]
             not_run = [e["effect"] for e in significant if e["refit"] is None]
-            why = [f"the refit with {e['effect']} removes {base_mse - e['refit']['mse']:.4f} of the best-of-{k} MSE, "
+            why = [f"the refit with {e['effect']} removes {base_mse - e['refit']['mse']:.4f} of the best-of-{k_judged} MSE, "
                    f"{e['fall_of_redrape']:.2f} of the re-drape floor {redrape:.4f} (at least "
                    f"{MIN_FALL_OF_REDRAPE:g} needed): it changes the drape less than re-draping does"
                    for e in small]
             if refitted:
-                why.append(f"the refit with {', '.join(refitted)} did not lower the best-of-{k} MSE by "
+                why.append(f"the refit with {', '.join(refitted)} did not lower the best-of-{k_judged} MSE by "
                            f"{100 * MIN_MSE_FALL:.0f} %")
             if not_run:
                 reason = not_refitted_reason(result["cancelled"], max_refits)
