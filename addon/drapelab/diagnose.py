@@ -116,7 +116,12 @@
    step on density searches whose truth lay at 0.7-0.85x). Why: the pixel loss of a folded drape is rough in rest
    shape, offset and strain (a gradient step follows fold switches, docs/diagnose.md), and at seed 661 half of the
    warm-started refits ended worse than their start, so the strength reported was the step's moderate one (17-36 %
-   off the truth). Five to eight forward evaluations, about 4 s each on circle1 with 16 draws. The refit is also
+   off the truth). Five to eight forward evaluations, about 4 s each on circle1 with 16 draws. An effect with a
+   search grid in the registry (search_grid_spacing: the offset, 2.5 mm out to 1.5 cm) searches its plane on the
+   grid instead, with or without a step start (grid_search: every point on SEARCH_GRID_DRAWS draws of the search's
+   seed, the SEARCH_GRID_FINALISTS best again on K; about 60 s on circle1): its landscape is basins 3-5 mm wide,
+   and at seeds 781 and 791 every 1 cm step draped further from the data than the centred drape, so the line
+   search from the best step ended on the wrong side. The refit is also
    evaluated at its start, on the base's draws, and when its end is worse the start is kept (refit.kept_start): a
    few epochs of Adam's sign-sized first steps on one noisy batch each can undo a good step (measured on fabric 1:
    from cos2 = +0.75, whose step brought the draws 0.009 closer, 4 epochs went to (1.19, 0.43) and a best-of-16 MSE
@@ -201,6 +206,9 @@ SEARCH_FACTORS = (0.5, 1.0, 1.5, 2.0)  # the refit's line search: multiples of t
 SEARCH_TURN_RAD = math.pi / 4  # ... and, for an effect that steps two parameters, the step turned by this in their plane
 SEARCH_VERTEX_WITHIN = 0.5  # ... whose parabola vertex is kept when it scores within this x the re-drape floor of the
                             # best point (ALTERNATIVE_WITHIN's line: the images do not tell such points apart)
+SEARCH_GRID_DRAWS = 2     # a grid search (the registry's search_grid_spacing) scores each point on this many draws,
+SEARCH_GRID_FINALISTS = 3  # ... then its best points again on K draws, and starts at the best of those
+SEARCH_GRID_CALL_DRAWS = 1.5  # a point's evaluation costs its draws plus about this many drapes (a fresh model)
 SEARCH_SEED_OFFSET = 200000  # the search's draws: material and placement seed apart from the base's (module doc, 3.)
 REPORT_RESERVE_S = 5.0    # seconds kept back from the refits for the evaluation bookkeeping and the report
 SCORE_SIGMA_DC = 0.0      # the score test's data term: pixel term only (see the module doc)
@@ -1321,10 +1329,68 @@ def with_effect(preset, name, values):
     return infer.validate_preset(out)
 
 
-def search_evaluations(entry):
-    """How many points line_search drapes at most for registry entry `entry`."""
+def search_evaluations(entry, k=DEFAULT_SAMPLES):
+    """How many evaluations of k draws the refit's search costs at most for registry entry `entry`: line_search's
+    points, or grid_search's (its points on SEARCH_GRID_DRAWS draws each, in evaluations of k, and its finalists)."""
+    grid = grid_points(entry)
+    if grid:
+        return len(grid) * (SEARCH_GRID_DRAWS + SEARCH_GRID_CALL_DRAWS) / max(int(k), 1) + SEARCH_GRID_FINALISTS
     turns = 2 if len(entry.get("step_parameters") or []) == 2 else 0
     return len(SEARCH_FACTORS) + turns + 2
+
+
+def grid_points(entry):
+    """The grid search's points for registry entry `entry` ([{parameter: value}], every parameter; the off point
+    first), or [] for an effect searched along a line: the square grid of the registry's search_grid_spacing in the
+    plane of its two step_parameters, out to search_grid_reach from the off values, clipped to the bounds
+    (duplicates dropped)."""
+    h, reach = float(entry.get("search_grid_spacing") or 0.0), float(entry.get("search_grid_reach") or 0.0)
+    stepped = stepped_parameters(entry)
+    if h <= 0 or reach < h or len(stepped) != 2:
+        return []
+    params = {q["name"]: q for q in entry["parameters"]}
+    off = {q: float(params[q]["off"]) for q in params}
+    a, b = stepped
+    n = int(math.floor(reach / h + 1e-9))
+    cells = sorted(((i, j) for i in range(-n, n + 1) for j in range(-n, n + 1)
+                    if math.hypot(i, j) * h <= reach * (1 + 1e-9)), key=lambda c: (math.hypot(*c), c))
+    out, seen = [], set()
+    for i, j in cells:
+        v = dict(off)
+        for q, c in ((a, i), (b, j)):
+            v[q] = float(np.clip(off[q] + c * h, params[q]["lower"], params[q]["upper"]))
+        key = (round(v[a], 12), round(v[b], 12))
+        if key not in seen:
+            seen.add(key)
+            out.append(v)
+    return out
+
+
+def grid_search(entry, mse_of, k, draws=SEARCH_GRID_DRAWS, finalists=SEARCH_GRID_FINALISTS):
+    """The refit's grid search (module doc, 3.) for registry entry `entry` with a search grid (grid_points): every
+    point scored by `mse_of(values, draws)` (the best-of-`draws` MSE on the search's own draws, None when they all
+    failed), then the `finalists` best again by `mse_of(values, k)` (the search's K draws). Why: an offset's
+    landscape is basins 3-5 mm wide with steps between them, and its drapes take the same folds whatever the
+    placement noise (docs/lab/effect-recovery.md), so a few draws find the basin where a line search from the best
+    step did not (docs/diagnose.md, "Measured: the offset's grid search"). Returns (best values, points [{values,
+    mse, draws, finalist}] in the order draped); the off point wins where no other point scores better (then the
+    refit starts from off)."""
+    points = []
+    for v in grid_points(entry):
+        mse = mse_of(v, draws)
+        points.append({"values": v, "mse": None if mse is None else float(mse), "draws": int(draws),
+                       "finalist": False})
+    ranked = sorted((pt for pt in points if pt["mse"] is not None), key=lambda pt: pt["mse"])[:max(int(finalists), 1)]
+    final = []
+    for pt in ranked:
+        mse = mse_of(pt["values"], k)
+        final.append({"values": dict(pt["values"]), "mse": None if mse is None else float(mse), "draws": int(k),
+                      "finalist": True})
+    points += final
+    best = min((pt for pt in final if pt["mse"] is not None), key=lambda pt: pt["mse"], default=None)
+    if best is None:
+        return None, points
+    return dict(best["values"]), points
 
 
 def line_search(entry, step, mse_of, vertex_within=0.0):
@@ -1783,16 +1849,22 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
             """The refit's start (refit_start), None without a step that brought the draws closer."""
             return refit_start(e["step"])[0] if e.get("step") else None  # as the refit loop takes it
 
-        def evaluate(candidate, at_seed=seed, n=None):
+        def searched(e):
+            """Whether refit e searches before its epochs: from a step start (line_search), or on its effect's
+            grid (grid_search), which needs no start."""
+            return start_of(e) is not None or bool(grid_points(reg[e["effect"]]))
+
+        def evaluate(candidate, at_seed=seed, n=None, record=True):
             """(shapes, summary) of n draws of `candidate` (by default the comparison's k_eval draws of the base's
-            seed), or None when all fail."""
+            seed), or None when all fail. `record`: its seconds per draw plan the evaluations still to come (not a
+            grid point's few draws, which a fresh model's setup weighs more)."""
             n = k_eval if n is None else n
             rp = infer._Predictive(candidate, observations[0].mask.shape, lanes, config, template_dir, pred.level,
                                    "dynamic")
             te = time.monotonic()
             draws = infer.preset_bend_samples(candidate, rp.num_edges, np.random.default_rng(at_seed), n)
             rshapes = rp.drape(draws, at_seed, cancel_event=cancel_event)
-            if not (cancel_event is not None and cancel_event.is_set()):
+            if record and not (cancel_event is not None and cancel_event.is_set()):
                 evaluations_s.append((time.monotonic() - te) / n)
             if not any("error" not in r for r in rshapes):
                 return None
@@ -1812,18 +1884,18 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
             n = k_eval if n is None else n
             return n * (float(np.mean(evaluations_s)) if evaluations_s else estimated / k)
 
-        def evaluations_of(e, searched=False):
-            """Seconds of the evaluations refit e still needs: its search's (unless `searched`, K draws each), its
-            end's and its start's (k_eval draws each)."""
-            if start_of(e) is None:
+        def evaluations_of(e, done=False):
+            """Seconds of the evaluations refit e still needs: its search's (unless `done`; in evaluations of K
+            draws), its end's and its start's (k_eval draws each)."""
+            if not searched(e):
                 return evaluation_s()
-            return 2 * evaluation_s() + (0 if searched else search_evaluations(reg[e["effect"]]) * evaluation_s(k))
+            return 2 * evaluation_s() + (0 if done else search_evaluations(reg[e["effect"]], k) * evaluation_s(k))
 
-        def refit_budget(idx, searched=False):
+        def refit_budget(idx, done=False):
             """Seconds for refit idx's epochs: what is left, less the evaluations still to come (this refit's
-            search unless `searched`) and the report's reserve, shared equally by the refits still to run."""
+            search unless `done`) and the report's reserve, shared equally by the refits still to run."""
             left = float(time_budget) - (time.monotonic() - t0)
-            evaluations = sum(evaluations_of(e, searched and i == idx) for i, e in enumerate(promising) if i >= idx)
+            evaluations = sum(evaluations_of(e, done and i == idx) for i, e in enumerate(promising) if i >= idx)
             return (left - REPORT_RESERVE_S - evaluations) / (len(promising) - idx)
 
         if time_budget is not None:  # the least promising go first when the budget cannot pay one evaluation each
@@ -1836,7 +1908,7 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
         if promising:
             # the comparison (module doc, 3.): the base and every refit's end and start on k_eval draws, as many as
             # COMPARISON_SHARE of the time left pays for (at least K, at most COMPARISON_SAMPLES_MAX)
-            finals = 1 + sum(2 if start_of(e) is not None else 1 for e in promising)
+            finals = 1 + sum(2 if searched(e) else 1 for e in promising)
             if time_budget is None:
                 k_eval = max(k, COMPARISON_SAMPLES_MAX)
             else:
@@ -1866,14 +1938,16 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                 # what this refit may spend when each later one gets a single evaluation (its step, or its end)
                 spare = (float(time_budget) - (time.monotonic() - t0) - REPORT_RESERVE_S
                          - (len(promising) - idx - 1) * evaluation_s())
-                mode = refit_mode(budget, spare, evaluation_s(), evaluations_of(entry), start is not None)
+                mode = refit_mode(budget, spare, evaluation_s(), evaluations_of(entry), searched(entry))
+                if mode == "step" and start is None:  # a grid effect without a step start: nothing to evaluate
+                    mode = None
                 if mode is None:
                     entry["explanation"] += " Not refitted: the time budget was spent."
                     continue
                 step_only = mode == "step"
             ts = time.monotonic()
             search = None
-            if start is not None:
+            if start is not None and not grid_points(reg[entry["effect"]]):  # a grid search starts anywhere
                 st = entry["step"]
                 if how == "harmonic":
                     entry["explanation"] += (f" Its steps' statistics follow a first harmonic around their plane (r2 "
@@ -1883,25 +1957,41 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                 elif start_step != st["step"]:
                     entry["explanation"] += (f" The refit starts at the step that brought the draws closest ({start_step}), "
                                              f"not at the step with the smallest p ({st['step']}).")
-            if start is not None and not step_only:  # the line search along the step, on its own draws (module doc, 3.)
+            if searched(entry) and not step_only:  # the search, on draws of its own (module doc, 3.)
                 name = entry["effect"]
                 search_seed = seed + SEARCH_SEED_OFFSET
+                grid = grid_points(reg[name])
+                counter = itertools.count(1)
 
-                def mse_of(values, name=name, search_seed=search_seed):
-                    got = evaluate(with_effect(p, name, values), search_seed, k)
-                    _progress(progress, "refit", f"line search {name}: "
-                              + " ".join(f"{q} {v:+.4g}" for q, v in values.items())
-                              + (" failed" if got is None else f" best-of-{k} MSE {got[1]['mse']:.4f}"), effect=name)
+                def mse_of(values, n=k, name=name, search_seed=search_seed, grid=grid, counter=counter):
+                    got = evaluate(with_effect(p, name, values), search_seed, n, record=n >= k)
+                    what = (f"grid search {name} {next(counter)}/{len(grid) + SEARCH_GRID_FINALISTS}" if grid
+                            else f"line search {name}")
+                    _progress(progress, "refit", f"{what}: " + " ".join(f"{q} {v:+.4g}" for q, v in values.items())
+                              + (" failed" if got is None else f" best-of-{n} MSE {got[1]['mse']:.4f}"), effect=name)
                     return None if got is None else got[1]["mse"]
-                vertex_within = SEARCH_VERTEX_WITHIN * float(base.get("redrape_mse") or 0.0)
-                best, points = line_search(reg[name], start, mse_of, vertex_within)
-                search = {"seed": search_seed, "step": dict(start), "points": points, "best": best,
-                          "vertex_within": vertex_within, "seconds": time.monotonic() - ts}
-                start = best
-                entry["explanation"] += (f" Line search along the step ({len(points)} points on draws of their own): "
-                                         + ", ".join(f"{q} {v:+.4g}" for q, v in best.items()) + ".")
+                if grid:
+                    best, points = grid_search(reg[name], mse_of, k)
+                    spacing = float(reg[name]["search_grid_spacing"])
+                    search = {"seed": search_seed, "step": None if start is None else dict(start), "points": points,
+                              "best": best, "grid": {"spacing": spacing, "reach": float(reg[name]["search_grid_reach"]),
+                                                     "draws": SEARCH_GRID_DRAWS, "finalists": SEARCH_GRID_FINALISTS},
+                              "seconds": time.monotonic() - ts}
+                    if best is not None:
+                        entry["explanation"] += (f" Grid search over its plane ({len(grid)} points {spacing:g} apart "
+                                                 f"on {SEARCH_GRID_DRAWS} draws of their own, the best "
+                                                 f"{SEARCH_GRID_FINALISTS} on {k}): " + ", ".join(
+                                                     f"{q} {v:+.4g}" for q, v in best.items()) + ".")
+                else:
+                    vertex_within = SEARCH_VERTEX_WITHIN * float(base.get("redrape_mse") or 0.0)
+                    best, points = line_search(reg[name], start, mse_of, vertex_within)
+                    search = {"seed": search_seed, "step": dict(start), "points": points, "best": best,
+                              "vertex_within": vertex_within, "seconds": time.monotonic() - ts}
+                    entry["explanation"] += (f" Line search along the step ({len(points)} points on draws of their "
+                                             "own): " + ", ".join(f"{q} {v:+.4g}" for q, v in best.items()) + ".")
+                start = best if best is not None else start
                 if time_budget is not None:
-                    budget = refit_budget(idx, searched=True)
+                    budget = refit_budget(idx, done=True)
             job = None
             if not step_only and (budget is None or budget > 0):
                 _progress(progress, "refit", f"refit with {entry['effect']} "
@@ -1913,19 +2003,22 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                 end = {"values": fit_effects.active_effect_values(refit["active_effects"])[entry["effect"]],
                        "mse": evaluated[1]["mse"] if evaluated else None}
             kept_start = False
+            if job is None and start is None:  # a grid search whose every point failed, and no step start
+                entry["explanation"] += " Not refitted: every point of its search failed to drape."
+                continue
             if job is None:  # the search spent the refit's share: its best point, on the base's draws, is the refit
                 refit, end, kept_start = with_effect(p, entry["effect"], start), None, True
                 evaluated = evaluate(refit)
                 entry["explanation"] += (" No line search, no epochs: the time budget left paid for one evaluation, so "
                                          "the refit is the step test's best step." if step_only else
-                                         " No epochs: the line search spent the refit's share of the time budget.")
+                                         " No epochs: the search spent the refit's share of the time budget.")
             elif start is not None:  # the refit's start, on the same draws: kept when the refit's end is worse
                 started = with_effect_values(refit, entry["effect"], start)
                 at_start = evaluate(started)
                 if at_start is not None and (evaluated is None or at_start[1]["mse"] < evaluated[1]["mse"]):
                     entry["explanation"] += (f" The refit's end (best-of-{k_eval} MSE "
                                              + (f"{evaluated[1]['mse']:.4f}" if evaluated else "failed")
-                                             + ") was worse than its start, the line search's best point, "
+                                             + ") was worse than its start, the search's best point, "
                                                "which is kept.")
                     refit, evaluated, kept_start = started, at_start, True
             if evaluated is None:

@@ -58,12 +58,14 @@ TABLE_SHAPES = {"stretch": tables.STRETCH_SHAPE, "bend": tables.BEND_SHAPE}
 # ---------------------------------------------------------------- effects
 def effects():
     """The effect registry: a list of {name, explanation, signature, dynamic_only, second_direction, step_parameters,
-    step_diagonals, parameters: [{name, unit, off, lower, upper, prior_scale, moderate, structural, description}]}
+    step_diagonals, search_grid_spacing, search_grid_reach, parameters: [{name, unit, off, lower, upper, prior_scale, moderate, structural, description}]}
     (the first parameter is the primary one; dynamic_only: the effect acts only over a dynamic rollout's time
     steps, e.g. damping, and a static drape ignores it; second_direction: {parameter: value} under which the
     diagnosis scores the primary again, e.g. a tilt's azimuth turned by 90 degrees; step_parameters: the parameters
     the diagnosis's step test steps, empty for the primary alone; step_diagonals: with two step_parameters, the
-    step test also steps along the diagonals of their plane)."""
+    step test also steps along the diagonals of their plane; search_grid_spacing, search_grid_reach: with two
+    step_parameters, the diagnosis's refit searches their plane on this grid instead of along its best step, 0 for
+    none)."""
     return [dict(e) for e in native.effects()]
 
 

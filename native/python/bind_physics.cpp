@@ -108,6 +108,8 @@ py::list effect_list() {
     for (const auto& name : e.step_parameters) steps.append(py::str(name));
     d["step_parameters"] = steps;
     d["step_diagonals"] = e.step_diagonals;
+    d["search_grid_spacing"] = e.search_grid_spacing;
+    d["search_grid_reach"] = e.search_grid_reach;
     out.append(d);
   }
   return out;

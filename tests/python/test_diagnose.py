@@ -871,6 +871,52 @@ def test_line_search_finds_the_minimum_along_the_step_and_turns_a_two_parameter_
     assert len(points) <= diagnose.search_evaluations(aniso)
 
 
+def test_grid_search_finds_a_narrow_basin_the_line_search_from_the_best_step_misses():
+    reg = fit_effects.registry()
+    offset = reg["offset"]
+    assert offset["search_grid_spacing"] > 0 and offset["search_grid_reach"] >= offset["search_grid_spacing"]
+    assert all(not e["search_grid_spacing"] for n, e in reg.items() if n != "offset")
+    assert diagnose.grid_points(reg["tilt"]) == []
+    grid = diagnose.grid_points(offset)
+    h, reach = offset["search_grid_spacing"], offset["search_grid_reach"]
+    # the square grid in the (dx, dy) plane out to the reach, the off point first, each point once
+    assert grid[0] == {"dx_m": 0.0, "dy_m": 0.0}
+    keys = {(round(v["dx_m"] / h), round(v["dy_m"] / h)) for v in grid}
+    n = round(reach / h)
+    assert keys == {(i, j) for i in range(-n, n + 1) for j in range(-n, n + 1) if math.hypot(i, j) <= n}
+    assert len(keys) == len(grid)
+    for v in grid:
+        assert v["dx_m"] == pytest.approx(h * round(v["dx_m"] / h), abs=1e-12)
+    # an offset's landscape (docs/lab/effect-recovery.md): flat away from the truth, worse than off everywhere
+    # but in a basin 3 mm wide around it, at (-4.6, 12.1) mm as at seed 791; a few draws score each point with
+    # noise, K draws without
+    truth = np.array([-0.0046, 0.0121])
+    calls = []
+
+    def mse_of(v, draws):
+        calls.append(draws)
+        d = np.hypot(v["dx_m"] - truth[0], v["dy_m"] - truth[1])
+        noise = 0.0 if draws == 16 else 0.004 * math.sin(1e4 * v["dx_m"] + 3e3 * v["dy_m"])
+        return (0.05 if v["dx_m"] == v["dy_m"] == 0 else 0.08) - (0.06 * max(0.0, 1 - d / 0.003)) + noise
+    best, points = diagnose.grid_search(offset, mse_of, 16)
+    assert np.hypot(best["dx_m"] - truth[0], best["dy_m"] - truth[1]) <= h / math.sqrt(2) + 1e-12
+    assert calls == [diagnose.SEARCH_GRID_DRAWS] * len(grid) + [16] * diagnose.SEARCH_GRID_FINALISTS
+    finalists = [p for p in points if p["finalist"]]
+    assert len(finalists) == diagnose.SEARCH_GRID_FINALISTS and all(p["draws"] == 16 for p in finalists)
+    assert best == min(finalists, key=lambda p: p["mse"])["values"]
+    # its cost, in evaluations of K draws, is what the refits' time plan reserves
+    assert diagnose.search_evaluations(offset, 16) == pytest.approx(
+        len(grid) * (diagnose.SEARCH_GRID_DRAWS + diagnose.SEARCH_GRID_CALL_DRAWS) / 16 + diagnose.SEARCH_GRID_FINALISTS)
+    # the line search from the step test's best 1 cm step (at -45 degrees, as at seed 791) stays on its line
+    line_best, _ = diagnose.line_search(offset, {"dx_m": 0.00707, "dy_m": -0.00707}, lambda v: mse_of(v, 16))
+    assert np.hypot(line_best["dx_m"] - truth[0], line_best["dy_m"] - truth[1]) > 0.01
+    # nothing there (a flat landscape, off best): the grid keeps the off point; every point failed: no best
+    best, _ = diagnose.grid_search(offset, lambda v, draws: 0.02 + 0.01 * (v["dx_m"] != 0 or v["dy_m"] != 0), 16)
+    assert best == {"dx_m": 0.0, "dy_m": 0.0}
+    best, points = diagnose.grid_search(offset, lambda v, draws: None, 16)
+    assert best is None and len(points) == len(grid) and not any(p["finalist"] for p in points)
+
+
 def test_line_search_keeps_the_vertex_within_the_tolerance_of_the_best_point():
     tilt = fit_effects.registry()["tilt"]
     step = {"angle_rad": 0.2, "azimuth_rad": 0.0}

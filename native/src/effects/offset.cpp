@@ -165,6 +165,12 @@ EffectSpec make_offset_effect() {
   // significant but fifth in the refit order, nothing recommended; docs/diagnose.md, "Measured: directions").
   s.step_parameters = {"dx_m", "dy_m"};
   s.step_diagonals = true;
+  // The refit searches the (dx, dy) plane on a 2.5 mm grid out to 1.5 cm: the landscape is basins 3-5 mm wide
+  // (docs/lab/effect-recovery.md, "offset: why it is not recovered"), every 1 cm step can drape further from the
+  // data than the centred drape, and a line search from the best one ended opposite the truth at seeds 781 and
+  // 791 (docs/diagnose.md, "Measured: the offset's grid search").
+  s.search_grid_spacing = 0.0025;
+  s.search_grid_reach = 0.015;
   s.change_base_terms = [](const EffectContext& c, BaseTermChanges& changes) {
     check_combination(c, changes);
     changes.handle_replaced = true;

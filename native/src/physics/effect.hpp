@@ -98,6 +98,13 @@ struct EffectSpec {
   // direction (an offset 45 degrees from its nearest step was significant but not refitted: docs/diagnose.md,
   // "Measured: directions").
   bool step_diagonals = false;
+  // Optional, with two step_parameters: the diagnosis's refit searches their plane on a square grid of this
+  // spacing out to search_grid_reach from the off point (both in the parameters' unit) instead of a line search
+  // along the best step, for an effect whose fit landscape is basins a few grid spacings wide with steps between
+  // them (an offset: the hold's edge crosses vertices and the folds switch; a line search from the best step
+  // missed the basin, docs/diagnose.md "Measured: the offset's grid search"). 0: the line search.
+  double search_grid_spacing = 0.0;
+  double search_grid_reach = 0.0;
 };
 
 // Effect name -> parameter name -> value; an effect present here is active (missing parameters take their

@@ -351,6 +351,11 @@ TEST(EffectRegistry, SpecsAreComplete) {
       EXPECT_NE(it->moderate, it->off) << name;
     }
     if (e.step_diagonals) EXPECT_EQ(e.step_parameters.size(), 2u) << e.name;  // the diagonals of their plane
+    EXPECT_GE(e.search_grid_spacing, 0.0) << e.name;
+    if (e.search_grid_spacing > 0) {  // a grid over the plane of two step parameters, at least one spacing wide
+      EXPECT_EQ(e.step_parameters.size(), 2u) << e.name;
+      EXPECT_GE(e.search_grid_reach, e.search_grid_spacing) << e.name;
+    }
   }
 }
 
