@@ -119,7 +119,7 @@
    off the truth). Five to eight forward evaluations, about 4 s each on circle1 with 16 draws. An effect with a
    search grid in the registry (search_grid_spacing: the offset, 2.5 mm out to 1.5 cm) searches its plane on the
    grid instead, with or without a step start (grid_search: every point on SEARCH_GRID_DRAWS draws of the search's
-   seed, the SEARCH_GRID_FINALISTS best again on K; about 60 s on circle1): its landscape is basins 3-5 mm wide,
+   seed, the SEARCH_GRID_FINALISTS best again on K; about 50 s on circle1): its landscape is basins 3-5 mm wide,
    and at seeds 781 and 791 every 1 cm step draped further from the data than the centred drape, so the line
    search from the best step ended on the wrong side. The refit is also
    evaluated at its start, on the base's draws, and when its end is worse the start is kept (refit.kept_start): a
