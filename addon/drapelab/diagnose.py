@@ -1977,8 +1977,10 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                               "best": best, "grid": {"spacing": spacing, "reach": float(reg[name]["search_grid_reach"]),
                                                      "draws": SEARCH_GRID_DRAWS, "finalists": SEARCH_GRID_FINALISTS},
                               "seconds": time.monotonic() - ts}
+                    first = stepped_parameters(reg[name])[0]
+                    unit = next(q["unit"] for q in reg[name]["parameters"] if q["name"] == first)
                     if best is not None:
-                        entry["explanation"] += (f" Grid search over its plane ({len(grid)} points {spacing:g} apart "
+                        entry["explanation"] += (f" Grid search over its plane ({len(grid)} points {spacing:g} {unit} apart "
                                                  f"on {SEARCH_GRID_DRAWS} draws of their own, the best "
                                                  f"{SEARCH_GRID_FINALISTS} on {k}): " + ", ".join(
                                                      f"{q} {v:+.4g}" for q, v in best.items()) + ".")
