@@ -1457,17 +1457,20 @@ def line_search(entry, step, mse_of, vertex_within=0.0):
     return (dict(step) if best is None else dict(best["values"])), points
 
 
-def refit_mode(budget, spare, evaluation, full, has_start):
+def refit_mode(budget, spare, evaluation, full, has_start, can_search=None):
     """How a refit runs under a time budget (module doc, Time budget): "epochs" when its equal share of the time
-    left pays for epochs (`budget` > 0 s); else, for a refit with a start (a step that brought the draws closer),
-    "search" when `spare` (the time left less one evaluation per later refit) pays for its `full` evaluations (its
-    search's best point is then the refit), "step" when it pays for one (the step itself is the refit), else None
-    (not refitted)."""
+    left pays for epochs (`budget` > 0 s); else, for a refit that can search (`can_search`, by default `has_start`:
+    a line search needs a start, a step that brought the draws closer; a grid search does not), "search" when
+    `spare` (the time left less one evaluation per later refit) pays for its `full` evaluations (its search's best
+    point is then the refit); else, for a refit with a start, "step" when `spare` pays for one evaluation (the step
+    itself is the refit); else None (not refitted)."""
     if budget > 0:
         return "epochs"
-    if not has_start or spare < evaluation:
-        return None
-    return "search" if spare >= full else "step"
+    if (has_start if can_search is None else can_search) and spare >= full:
+        return "search"
+    if has_start and spare >= evaluation:
+        return "step"
+    return None
 
 
 def refit_path(job, name):
@@ -1849,10 +1852,12 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
             """The refit's start (refit_start), None without a step that brought the draws closer."""
             return refit_start(e["step"])[0] if e.get("step") else None  # as the refit loop takes it
 
+        grids = {e["effect"]: grid_points(reg[e["effect"]]) for e in promising}  # [] for a line search
+
         def searched(e):
             """Whether refit e searches before its epochs: from a step start (line_search), or on its effect's
             grid (grid_search), which needs no start."""
-            return start_of(e) is not None or bool(grid_points(reg[e["effect"]]))
+            return start_of(e) is not None or bool(grids[e["effect"]])
 
         def evaluate(candidate, at_seed=seed, n=None, record=True):
             """(shapes, summary) of n draws of `candidate` (by default the comparison's k_eval draws of the base's
@@ -1938,16 +1943,16 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                 # what this refit may spend when each later one gets a single evaluation (its step, or its end)
                 spare = (float(time_budget) - (time.monotonic() - t0) - REPORT_RESERVE_S
                          - (len(promising) - idx - 1) * evaluation_s())
-                mode = refit_mode(budget, spare, evaluation_s(), evaluations_of(entry), searched(entry))
-                if mode == "step" and start is None:  # a grid effect without a step start: nothing to evaluate
-                    mode = None
+                mode = refit_mode(budget, spare, evaluation_s(), evaluations_of(entry), start is not None,
+                                  searched(entry))
                 if mode is None:
                     entry["explanation"] += " Not refitted: the time budget was spent."
                     continue
                 step_only = mode == "step"
             ts = time.monotonic()
             search = None
-            if start is not None and not grid_points(reg[entry["effect"]]):  # a grid search starts anywhere
+            grid = grids[entry["effect"]]
+            if start is not None and not grid:  # a grid search starts anywhere
                 st = entry["step"]
                 if how == "harmonic":
                     entry["explanation"] += (f" Its steps' statistics follow a first harmonic around their plane (r2 "
@@ -1960,7 +1965,6 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
             if searched(entry) and not step_only:  # the search, on draws of its own (module doc, 3.)
                 name = entry["effect"]
                 search_seed = seed + SEARCH_SEED_OFFSET
-                grid = grid_points(reg[name])
                 counter = itertools.count(1)
 
                 def mse_of(values, n=k, name=name, search_seed=search_seed, grid=grid, counter=counter):

@@ -773,6 +773,10 @@ def test_refit_mode_searches_or_steps_with_what_the_later_refits_leave():
     assert diagnose.refit_mode(-3.0, 100.0, 40.0, 280.0, True) == "step"  # one evaluation: the step itself
     assert diagnose.refit_mode(-3.0, 30.0, 40.0, 280.0, True) is None  # not even that
     assert diagnose.refit_mode(-3.0, 300.0, 40.0, 280.0, False) is None  # no start: only epochs would refit it
+    # a grid search needs no start: it searches when the time pays for it, and without a start never steps
+    assert diagnose.refit_mode(-3.0, 300.0, 40.0, 280.0, False, True) == "search"
+    assert diagnose.refit_mode(-3.0, 100.0, 40.0, 280.0, False, True) is None
+    assert diagnose.refit_mode(-3.0, 100.0, 40.0, 280.0, True, True) == "step"
 
 
 def test_refit_order_sums_the_ranks_of_both_tests():
