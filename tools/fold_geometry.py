@@ -13,7 +13,7 @@ count (maxima of that smoothed R). Per band of rest radius, the bending edges' d
 percentile, degrees): of the edges that run radially (their angle is the hoop curvature: the folds' crests and
 troughs) and of those along the hoop (the radial curvature: the fall over the support's edge); the model's again
 with `--noise-mm` of vertex noise, for the reconstructions' own noise (0.10-0.15 mm reproduces their hoop angles in
-the hanging skirt on fabric 4). The meshes' in-plane strains are not compared: the
+the hanging skirt on fabric 4; the statistics: addon/drapelab/fold_geometry.py). The meshes' in-plane strains are not compared: the
 reconstructions change triangle areas by -30 .. +40 % (1st / 99th percentile on fabric 1), far beyond what a
 woven cotton stretches, so their in-plane lengths are not measurements; positions and fold shapes are (IoU 0.94-0.98
 against the silhouettes).
@@ -29,12 +29,11 @@ sys.path.insert(0, os.path.join(ROOT, "addon"))
 import numpy as np  # noqa: E402
 
 from drapelab import infer, paths  # noqa: E402
+from drapelab.fold_geometry import RECONSTRUCTION_NOISE_M, ring_stats, summarise  # noqa: E402
 
 PRESETS = {1: "fabric_01_cotton_white_bdp.json", 2: "fabric_02_cotton_blue_bdp.json",
            3: "fabric_03_viscose_white_bdp.json", 4: "fabric_04_cotton_pink_bdp.json",
            5: "fabric_05_wool_red_bdp.json"}
-RINGS = np.arange(0.095, 0.1451, 0.01)  # ring centres [m]; each ring is the band r0 +- 5 mm
-HARMONICS = 16
 
 
 def obj_vertices(path):
@@ -43,88 +42,9 @@ def obj_vertices(path):
         return np.array([[float(t) for t in line.split()[1:4]] for line in fh if line.startswith("v ")])
 
 
-def smooth_profile(phi, values, harmonics=HARMONICS, samples=720):
-    """values(phi) on a regular grid of `samples` angles from a least-squares Fourier fit up to `harmonics`."""
-    cols = [np.ones_like(phi)]
-    for k in range(1, harmonics + 1):
-        cols += [np.cos(k * phi), np.sin(k * phi)]
-    coef, *_ = np.linalg.lstsq(np.stack(cols, 1), values, rcond=None)
-    grid = np.linspace(-np.pi, np.pi, samples, endpoint=False)
-    out = coef[0] * np.ones_like(grid)
-    for k in range(1, harmonics + 1):
-        out += coef[2 * k - 1] * np.cos(k * grid) + coef[2 * k] * np.sin(k * grid)
-    return out
-
-
-def peaks(profile):
-    """Indices of the local maxima and minima of a periodic profile."""
-    prev, nxt = np.roll(profile, 1), np.roll(profile, -1)
-    return np.flatnonzero((profile > prev) & (profile >= nxt)), np.flatnonzero((profile < prev) & (profile <= nxt))
-
-
-def dihedral_angles(x, edges):
-    """Signed dihedral angles (rad) of bending edges (a, b, c, d) as BendTerm::dihedral_angle."""
-    a, b, c, d = (x[edges[:, i]] for i in range(4))
-    e, ec, ed = b - a, c - a, d - a
-    n1, n2 = np.cross(e, ec), np.cross(ed, e)
-    m = np.cross(n1, n2)
-    s = np.einsum("ij,ij->i", m, e) / np.linalg.norm(e, axis=1)
-    return np.arctan2(s, np.einsum("ij,ij->i", n1, n2))
-
-
-BANDS = ((0.09, 0.10), (0.10, 0.12), (0.12, 0.14), (0.14, 0.151))  # rest-radius bands of the hinge statistics [m]
-
-
-def hinge_classes(rest, edges):
-    """Per bending edge: its rest midpoint's radius and whether it runs radially (|cos| to the radius > 0.8: its
-    angle is the hoop curvature, a fold's crest or trough) or along the hoop (< 0.35: the radial curvature, the
-    fall over the support's edge)."""
-    mid = 0.5 * (rest[edges[:, 0], :2] + rest[edges[:, 1], :2])
-    r = np.hypot(mid[:, 0], mid[:, 1])
-    d = rest[edges[:, 1], :2] - rest[edges[:, 0], :2]
-    c = np.abs(np.einsum("ij,ij->i", d / np.linalg.norm(d, axis=1)[:, None], mid / r[:, None]))
-    return r, c > 0.8, c < 0.35
-
-
-def ring_stats(x, rest, edges):
-    """Per ring: z, R, amplitude, fold count; per band: the radial and hoop hinges' angle percentiles."""
-    r0 = np.hypot(rest[:, 0], rest[:, 1])
-    phi0 = np.arctan2(rest[:, 1], rest[:, 0])
-    R = np.hypot(x[:, 0], x[:, 1])
-    out = {"rings": [], "bands": []}
-    for c in RINGS:
-        sel = np.abs(r0 - c) <= 0.005
-        prof = smooth_profile(phi0[sel], R[sel] - r0[sel])  # the radial move: the band's own width is no fold
-        hi, lo = peaks(prof)
-        amp = 0.5 * (prof[hi].mean() - prof[lo].mean()) if len(hi) and len(lo) else 0.0
-        out["rings"].append({"r0": float(c), "z": float(x[sel, 2].mean()), "R": float(R[sel].mean()),
-                             "amplitude": float(amp), "folds": int(len(hi))})
-    r, radial, hoop = hinge_classes(rest, edges)
-    ang = np.abs(np.degrees(dihedral_angles(x, edges)))
-    for lo, hi in BANDS:
-        band = (r >= lo) & (r < hi)
-        out["bands"].append({"r0": [lo, hi], "crest_p95": float(np.percentile(ang[band & radial], 95)),
-                             "crest_p99": float(np.percentile(ang[band & radial], 99)),
-                             "hoop_p95": float(np.percentile(ang[band & hoop], 95))})
-    return out
-
-
 def with_noise(x, sd, rng):
     """x with isotropic Gaussian noise of sd [m] on every vertex: what a reconstruction's noise does to the angles."""
     return x + rng.normal(0.0, sd, x.shape)
-
-
-def summarise(stats):
-    """Mean and sd over drapes of every ring and band quantity."""
-    out = {"rings": [], "bands": []}
-    for group, keys in (("rings", ("z", "R", "amplitude", "folds")), ("bands", ("crest_p95", "crest_p99", "hoop_p95"))):
-        for i, first in enumerate(stats[0][group]):
-            row = {"r0": first["r0"]}
-            for key in keys:
-                v = np.array([s[group][i][key] for s in stats], dtype=float)
-                row[key] = [float(v.mean()), float(v.std(ddof=1)) if len(v) > 1 else 0.0]
-            out[group].append(row)
-    return out
 
 
 def main():
@@ -132,7 +52,7 @@ def main():
     ap.add_argument("--fabrics", default="1,2,3,4,5")
     ap.add_argument("--draws", type=int, default=12)
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--noise-mm", type=float, default=0.12,
+    ap.add_argument("--noise-mm", type=float, default=RECONSTRUCTION_NOISE_M * 1e3,
                     help="sd of the vertex noise added to the model's drapes for the third column of the angles "
                          "(the reconstructions' own noise: 0.10-0.15 mm matches their hoop angles, fabric 4)")
     ap.add_argument("--json")

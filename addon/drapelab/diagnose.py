@@ -179,7 +179,7 @@ import time
 
 import numpy as np
 
-from . import fit_effects, infer, measure, render
+from . import fit_effects, fold_geometry, infer, measure, render, sim
 from ._native import Cancelled, InputError, SolverError
 
 __all__ = ["diagnose", "score_test", "refit_with_effect", "write_report", "DEFAULT_SAMPLES", "ALPHA", "MAX_REFITS"]
@@ -426,6 +426,25 @@ def _observations(images):
             raise InputError(f"images: {o.path} has {o.calibration['px_per_m']:.1f} px/m, {first.path} "
                              f"{first.calibration['px_per_m']:.1f} px/m: diagnose images of one calibration")
     return obs
+
+
+def geometry_3d(meshes, drapes, model, seed=0):
+    """The measured meshes (OBJ paths) against the draws' drapes (list of (V, 3)) in 3D: drapelab.fold_geometry's
+    comparison per material ring and hinge band with its words, when every measured mesh has the model's topology
+    (the dataset's reconstructions are circle3's mesh: diagnose them on --mesh-level 3); else {"skipped": why}."""
+    faces = np.asarray(model.faces)
+    measured = []
+    for path in meshes:
+        mesh = sim.read_obj(path)
+        x, f = np.asarray(mesh.positions, dtype=float).reshape(-1, 3), np.asarray(mesh.faces)
+        if len(x) != model.num_vertices or f.shape != faces.shape or not np.array_equal(f, faces):
+            return {"skipped": f"{os.path.basename(os.fspath(path))} has {len(x)} vertices and {len(f)} faces, the "
+                               f"model's mesh {model.num_vertices} and {len(faces)}: the 3D fold comparison needs the "
+                               "measured meshes on the model's topology (the Cusick dataset's reconstructions are "
+                               "circle3's: --mesh-level 3)"}
+        measured.append(x)
+    return fold_geometry.compare(measured, drapes, np.asarray(model.rest_positions), np.asarray(model.bending_edges),
+                                 seed=seed)
 
 
 def _summary(shapes, observations, camera_cal, sigma_obs, sigma_dc):
@@ -1639,6 +1658,8 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
             figures["images"].append({"mask": o.mask, "best": ok[e["best_draw"]]["image"], **curves})
         for e, mesh in zip(per_image, meshes):  # the best draw's mesh against the measured one
             e["hausdorff_m"] = float(measure.hausdorff_distance((ok[e["best_draw"]]["x"], models[0].faces), mesh))
+        if meshes:  # where in 3D: fold shape per ring, crest and edge hinge angles (drapelab.fold_geometry)
+            result["geometry"] = geometry_3d(meshes, [s["x"] for s in ok], models[0], seed)
         result["per_image"] = per_image
         result["draws_used"] = len(done)
         per_draw = seconds * lanes / max(1, len(done))
@@ -2119,6 +2140,14 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
             why = ("no candidate was tested" if smallest is None else
                    f"the smallest p-value is {smallest:.2g} against the threshold {threshold:.2g} "
                    f"({result['threshold_rule']})")
+            # switches have no test: say what their refits did (a switch named in --candidates, e.g. disk_contact)
+            switched = [e for e in result["ranking"] if e.get("switch") and e["refit"] is not None and base_mse]
+            said = [f"the refit with {e['effect']} (a switch, judged by its refit alone) "
+                    f"{'raised' if e['refit']['mse'] > base_mse else 'lowered'} the best-of-{k_judged} MSE "
+                    f"({base_mse:.4f} -> {e['refit']['mse']:.4f}; a recommendation needs a fall of "
+                    f"{100 * MIN_MSE_FALL:.0f} %)" for e in switched]
+            if said:
+                why = "; ".join(said) if smallest is None else why + "; " + "; ".join(said)
             result["verdict"] = f"Nothing significant: {why}."
     # every entry measured on these images carries their fingerprint; P's training metrics only when P was
     # trained on exactly these images
@@ -2252,6 +2281,41 @@ def _public(result):
 
 
 # ---------------------------------------------------------------- report
+def _geometry_figure(path, g):
+    """The mean drape's profile per material ring (side view: R against z, the fold amplitude as bars) and the hinge
+    angles per band, measured against the model (its 90 % interval over the draws)."""
+    fig = _figure((8.0, 3.4))
+    ax = fig.add_subplot(1, 2, 1)
+    rings = [r for r in g["rings"] if r["R"]["measured"] is not None]  # a coarse mesh leaves rings unmeasured
+    for who, colour in (("measured", "C3"), ("model", "C0")):
+        R = [1000 * r["R"][who] for r in rings]
+        z = [1000 * r["z"][who] for r in rings]
+        a = [1000 * r["amplitude"][who] for r in rings]
+        ax.errorbar(R, z, xerr=a, color=colour, marker="o", ms=3, capsize=2, label=f"{who} (bars: fold amplitude)")
+    ax.set_xlabel("mean radius R (mm)")
+    ax.set_ylabel("mean height z (mm)")
+    ax.set_title("material rings r0 9.5 .. 14.5 cm", fontsize=9)
+    ax.legend(fontsize=7)
+    ax2 = fig.add_subplot(1, 2, 2)
+    labels, x = [], 0
+    for b in g["bands"]:
+        for key, name in (("crest_p99", "crest p99"), ("hoop_p95", "fall p95")):
+            q = b[key]
+            if q["interval90"] is None:
+                continue
+            ax2.plot([x, x], q["interval90"], color="C0", lw=6, alpha=0.4)
+            ax2.plot(x, q["model"], "_", color="C0", ms=12)
+            ax2.plot(x, q["measured"], "o", color="C3")
+            labels.append(f"{name}\n{100 * b['r0_m'][0]:.0f}-{100 * b['r0_m'][1]:.0f} cm")
+            x += 1
+    ax2.set_xticks(range(len(labels)))
+    ax2.set_xticklabels(labels, fontsize=6)
+    ax2.set_ylabel("hinge angle (degrees)")
+    ax2.set_title("measured (dots) against the draws' 90 % (bars)", fontsize=9)
+    fig.tight_layout()
+    _save(fig, path)
+
+
 def _figure(size=(6.4, 3.6)):
     from matplotlib.figure import Figure
     from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -2321,6 +2385,15 @@ def write_report(out_dir, result, figures, observations, calibration):
     fig.tight_layout()
     _save(fig, os.path.join(out_dir, "intervals.png"))
     parts.append("<h2>Predictive 90 % intervals (bars) and measurements (dots)</h2><img src='intervals.png'>")
+    geometry = result.get("geometry")
+    if geometry and "skipped" in geometry:
+        parts.append(f"<h2>In 3D</h2><p>{html.escape(geometry['skipped'])}</p>")
+    elif geometry:
+        _geometry_figure(os.path.join(out_dir, "geometry.png"), geometry)
+        words = "".join(f"<li>{html.escape(w)}</li>" for w in geometry["words"]) or (
+            "<li>The measured meshes lie within the model's 90 % intervals in every ring and band compared.</li>")
+        parts.append("<h2>In 3D: the measured meshes against the draws</h2><img src='geometry.png'>"
+                     f"<ul>{words}</ul>")
     # ranking
     ranked = [e for e in result["ranking"] if e["p_value"] is not None]
     fig = _figure((6.4, 0.6 + 0.5 * max(1, len(ranked))))

@@ -1053,3 +1053,35 @@ def test_step_family_p_counts_the_steps_by_their_correlation(monkeypatch):
     assert diagnose.step_family_p([1e-3] + [0.5] * 7, np.ones((8, 8)), many) == pytest.approx(1e-3, rel=0.25)
     assert diagnose.step_family_p([1e-3, 0.9], [[1.0, -1.0], [-1.0, 1.0]], many) == pytest.approx(2e-3, rel=0.05)
     assert diagnose.step_family_p([2e-3], [[1.0]]) == 2e-3
+
+
+def test_meshes_on_the_models_topology_get_the_3d_comparison(images, tmp_path):
+    """--meshes: each best draw's Hausdorff distance, and with meshes on the model's topology the 3D comparison
+    (drapelab.fold_geometry) in diagnosis.json and the report; a mesh of another topology is skipped, saying why."""
+    preset = infer.load_preset(PRESET)
+    model = sim.ClothModel(sim.cusick_specimen(1), density=preset["density_kg_m2"])
+    p = model.parameters(stretch=preset["stretch_N_m"], bend=np.exp(np.asarray(preset["posterior"]["bend"]["log_mean"])))
+    v0 = infer.placement_velocities(model.rest_positions, np.random.default_rng([0, 99]), 0.05, 32)
+    x = model.simulate(p, mode="dynamic", record=False, velocities0=v0)  # the control image's drape (drape_image)
+    mesh = str(tmp_path / "control.obj")
+    sim.write_obj(mesh, x, model.faces)
+    out = str(tmp_path / "with_mesh")
+    d = diagnose.diagnose(PRESET, [images["control"]], meshes=[mesh], candidates="tilt", samples=4, seed=0,
+                          config=small_config(), mesh_level=1, max_refits=0, threads=1, out_dir=out)
+    validate(d)
+    g = d["geometry"]
+    assert g["measured_meshes"] == 1 and g["drapes"] == d["draws_used"]
+    assert [r["r0_m"] for r in g["rings"]] == pytest.approx(list(diagnose.fold_geometry.RINGS))
+    hem = g["rings"][-1]
+    assert hem["z"]["measured"] < -0.02 and hem["z"]["model"] < -0.02  # both hang down
+    assert isinstance(g["words"], list)
+    assert d["per_image"][0]["hausdorff_m"] > 0
+    assert os.path.getsize(os.path.join(out, "geometry.png")) > 0
+    with open(os.path.join(out, "index.html")) as f:
+        assert "In 3D: the measured meshes against the draws" in f.read()
+    other = sim.cusick_specimen(2)
+    mesh2 = str(tmp_path / "circle2.obj")
+    sim.write_obj(mesh2, np.asarray(other.positions), np.asarray(other.faces))
+    d2 = diagnose.diagnose(PRESET, [images["control"]], meshes=[mesh2], candidates="tilt", samples=4, seed=0,
+                           config=small_config(), mesh_level=1, max_refits=0, threads=1)
+    assert "circle2.obj" in d2["geometry"]["skipped"] and "model's topology" in d2["geometry"]["skipped"]
