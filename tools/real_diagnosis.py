@@ -8,7 +8,8 @@
 For each fabric: the shipped preset assets/presets/fabric_XX_*_bdp.json, diagnosed against the first --count
 capture-1 photos of samples 03 onwards without the preset's training sample (the paper's training samples:
 fabric 1: 5, 2: 2, 3: 1, 4: 4, 5: 2), on the preset's mesh, every registered effect a candidate. Each report goes
-to DIR/fabric_XX/ (index.html, diagnosis.json, presets/ of the refits); DIR/real.json collects one row per fabric
+to DIR/fabric_XX/ (index.html, diagnosis.json, presets/ of the refits; with the photos' capture-1 meshes, so the
+report compares them in 3D too); DIR/real.json collects one row per fabric
 (rerunning skips the fabrics already in it) and the table is printed as Markdown.
 --held-out: for each diagnosed fabric, the shipped preset ("before") and the refit of the effect the diagnosis
 ranked first ("after", whether or not it was recommended) evaluated best-of-N (`evaluate`, the same seed and
@@ -108,7 +109,8 @@ def row_of(fabric, d, seconds):
             "p_values": {e["effect"]: e["p_value"] for e in tested},
             "refits": {e["effect"]: {k: e["refit"].get(k) for k in ("mse", "iou", "loss", "dc_error", "amplitude_error",
                                                                     "values", "epochs", "kept_start", "preset")}
-                       for e in d["ranking"] if e.get("refit")}}
+                       for e in d["ranking"] if e.get("refit")},
+            "geometry_words": (d.get("geometry") or {}).get("words")}
 
 
 def table(rows):
@@ -152,8 +154,13 @@ def main():
             continue
         preset = glob.glob(os.path.join(ROOT, "assets", "presets", f"fabric_{fabric:02d}_*_bdp.json"))[0]
         images = test_photos(data, fabric, args.count)
+        # each photo's capture-1 mesh (the dataset's reconstructions: circle3, the presets' mesh): Hausdorff per
+        # image and the 3D comparison (diagnosis.json geometry)
+        meshes = [p.replace(os.sep + "silhouettes" + os.sep, os.sep + "meshes" + os.sep).replace(".jpg", ".obj")
+                  for p in images]
+        meshes = meshes if all(os.path.isfile(m) for m in meshes) else None
         t0 = time.monotonic()
-        d = diagnose.diagnose(preset, images, candidates=args.candidates, time_budget=args.time_budget,
+        d = diagnose.diagnose(preset, images, meshes=meshes, candidates=args.candidates, time_budget=args.time_budget,
                               samples=args.samples, seed=args.seed,
                               out_dir=os.path.join(args.out, f"fabric_{fabric:02d}"))
         rows.append(dict(row_of(fabric, d, time.monotonic() - t0), preset=os.path.relpath(preset, ROOT),
