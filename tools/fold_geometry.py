@@ -8,18 +8,19 @@ real drape is a known point of the flat specimen, as in the model's drapes. For 
 fabric (12 samples) and `--draws` posterior-predictive drapes of its shipped preset (assets/presets, the
 evaluation's protocol: dynamic rollout from flat with placement noise), per material ring (the vertices whose rest
 radius lies in a 1 cm band around r0 = 9.5 .. 14.5 cm): the mean height z, the mean horizontal radius R, the ring's
-fold amplitude (half the peak-to-trough of the radial move R - r0 over the rest angle, smoothed to its first 16 harmonics) and its fold
-count (maxima of that smoothed R). Per band of rest radius, the bending edges' dihedral angles (95th / 99th
-percentile, degrees): of the edges that run radially (their angle is the hoop curvature: the folds' crests and
-troughs) and of those along the hoop (the radial curvature: the fall over the support's edge); the model's again
-with `--noise-mm` of vertex noise, for the reconstructions' own noise (0.10-0.15 mm reproduces their hoop angles in
-the hanging skirt on fabric 4; the statistics: addon/drapelab/fold_geometry.py). The meshes' in-plane strains are not compared: the
-reconstructions change triangle areas by -30 .. +40 % (1st / 99th percentile on fabric 1), far beyond what a
-woven cotton stretches, so their in-plane lengths are not measurements; positions and fold shapes are (IoU 0.94-0.98
-against the silhouettes).
+fold amplitude (half the peak-to-trough of the radial move R - r0 over the rest angle, smoothed to its first 16
+harmonics) and its fold count (maxima of that smoothed profile). Per band of rest radius, the bending edges'
+dihedral angles (95th / 99th percentile, degrees): of the edges that run radially (their angle is the hoop
+curvature: the folds' crests and troughs) and of those along the hoop (the radial curvature: the fall over the
+support's edge); the model's again with `--noise-mm` of vertex noise, for the reconstructions' own noise (0.10-0.15
+mm reproduces their hoop angles in the hanging skirt on fabric 4; the statistics: addon/drapelab/fold_geometry.py).
+The meshes' in-plane strains are not compared: the reconstructions change triangle areas by -30 .. +40 % (1st / 99th
+percentile on fabric 1), far beyond what a woven cotton stretches, so their in-plane lengths are not measurements;
+positions and fold shapes are (IoU 0.94-0.98 against the silhouettes).
 Run with ./drapelab's environment: `PYTHONPATH=addon:build/python /usr/bin/python3 tools/fold_geometry.py`.
 """
 import argparse
+import glob
 import json
 import os
 import sys
@@ -28,18 +29,8 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, os.path.join(ROOT, "addon"))
 import numpy as np  # noqa: E402
 
-from drapelab import infer, paths  # noqa: E402
+from drapelab import infer, paths, sim  # noqa: E402
 from drapelab.fold_geometry import RECONSTRUCTION_NOISE_M, ring_stats, summarise  # noqa: E402
-
-PRESETS = {1: "fabric_01_cotton_white_bdp.json", 2: "fabric_02_cotton_blue_bdp.json",
-           3: "fabric_03_viscose_white_bdp.json", 4: "fabric_04_cotton_pink_bdp.json",
-           5: "fabric_05_wool_red_bdp.json"}
-
-
-def obj_vertices(path):
-    """The vertex positions (V, 3) of an OBJ file."""
-    with open(path) as fh:
-        return np.array([[float(t) for t in line.split()[1:4]] for line in fh if line.startswith("v ")])
 
 
 def with_noise(x, sd, rng):
@@ -63,16 +54,17 @@ def main():
     config = infer.load_config()
     result = {}
     for f in (int(s) for s in args.fabrics.split(",")):
-        preset = infer.load_preset(os.path.join(ROOT, "assets", "presets", PRESETS[f]))
+        preset = infer.load_preset(glob.glob(os.path.join(ROOT, "assets", "presets", f"fabric_{f:02d}_*_bdp.json"))[0])
         pred = infer._Predictive(preset, (256, 256), 2, config, mesh_level=3)
         model = pred.models[0]
         rest, edges = np.asarray(model.rest_positions), np.asarray(model.bending_edges)
         real = []
         for s in range(1, 13):
-            x = obj_vertices(os.path.join(data, f"fabric_{f:02d}", "meshes", f"sample_{s:02d}_capture_1.obj"))
+            mesh = sim.read_obj(os.path.join(data, f"fabric_{f:02d}", "meshes", f"sample_{s:02d}_capture_1.obj"))
+            x = np.asarray(mesh.positions, dtype=float).reshape(-1, 3)
             if len(x) != len(rest):
                 raise SystemExit(f"fold_geometry: fabric {f} sample {s}: {len(x)} vertices, circle3 has {len(rest)}")
-            real.append(ring_stats(np.asarray(x), rest, edges))
+            real.append(ring_stats(x, rest, edges))
         draws = infer.preset_bend_samples(preset, pred.num_edges, np.random.default_rng(args.seed), args.draws)
         shapes = [s for s in pred.drape(draws, args.seed) if "x" in s]
         model_stats = [ring_stats(s["x"], rest, edges) for s in shapes]
@@ -85,9 +77,10 @@ def main():
         for a, b in zip(result[f]["real"]["rings"], result[f]["model"]["rings"]):
             print(f"  {a['r0'] * 100:5.1f} | {a['z'][0] * 1e3:7.1f} / {b['z'][0] * 1e3:7.1f} | "
                   f"{a['R'][0] * 1e3:7.1f} / {b['R'][0] * 1e3:7.1f} | {a['amplitude'][0] * 1e3:5.1f} +- "
-                  f"{a['amplitude'][1] * 1e3:4.1f} / {b['amplitude'][0] * 1e3:5.1f} +- {b['amplitude'][1] * 1e3:4.1f} | "
+                  f"{a['amplitude'][1] * 1e3:4.1f} / {b['amplitude'][0] * 1e3:5.1f} +- "
+                  f"{b['amplitude'][1] * 1e3:4.1f} | "
                   f"{a['folds'][0]:4.1f} / {b['folds'][0]:4.1f}")
-        print(f"  hinge angles (deg): band | crest p95 / p99 real, model, model + {args.noise_mm} mm noise | "
+        print(f"  hinge angles (deg): band | crest p95 / p99 real, model, model + {args.noise_mm:g} mm noise | "
               "hoop p95 real, model, model + noise")
         for a, b, c in zip(*(result[f][k]["bands"] for k in ("real", "model", "model_noise"))):
             print(f"  {a['r0'][0] * 100:.0f}-{a['r0'][1] * 100:.0f} cm | " + ", ".join(

@@ -70,30 +70,45 @@ def hinge_classes(rest, edges):
 def ring_stats(x, rest, edges):
     """One drape x (V, 3) of the specimen with rest positions `rest` (V, 3) and bending edges (E, 4): per ring
     {r0, z, R, amplitude, folds} [m], per band {r0: [lo, hi], crest_p95, crest_p99, hoop_p95} [degrees]."""
+    return {"rings": rings_of(x, rest), "bands": bands_of(x, rest, edges)}
+
+
+def rings_of(x, rest):
+    """ring_stats' rings: per material ring {r0, z, R, amplitude, folds} (None where a coarse mesh has too few
+    vertices for the profile)."""
     x, rest = np.asarray(x, dtype=float), np.asarray(rest, dtype=float)
     r0 = np.hypot(rest[:, 0], rest[:, 1])
     phi0 = np.arctan2(rest[:, 1], rest[:, 0])
     R = np.hypot(x[:, 0], x[:, 1])
-    out = {"rings": [], "bands": []}
+    out = []
     for c in RINGS:
         sel = np.abs(r0 - c) <= RING_HALF_WIDTH
         if sel.sum() < 2 * HARMONICS + 1:  # too few vertices for the profile (a coarse mesh): not measured
-            out["rings"].append({"r0": float(c), "z": None, "R": None, "amplitude": None, "folds": None})
+            out.append({"r0": float(c), "z": None, "R": None, "amplitude": None, "folds": None})
             continue
         prof = smooth_profile(phi0[sel], R[sel] - r0[sel])  # the radial move: the band's own width is no fold
         hi, lo = peaks(prof)
         amp = 0.5 * (prof[hi].mean() - prof[lo].mean()) if len(hi) and len(lo) else 0.0
-        out["rings"].append({"r0": float(c), "z": float(x[sel, 2].mean()), "R": float(R[sel].mean()),
-                             "amplitude": float(amp), "folds": int(len(hi))})
+        out.append({"r0": float(c), "z": float(x[sel, 2].mean()), "R": float(R[sel].mean()),
+                    "amplitude": float(amp), "folds": int(len(hi))})
+    return out
+
+
+def bands_of(x, rest, edges):
+    """ring_stats' bands: per band of rest radius the crest and hoop hinge angle percentiles [degrees] (None where
+    a coarse mesh has no such hinge in the band)."""
+    x, rest = np.asarray(x, dtype=float), np.asarray(rest, dtype=float)
     r, radial, hoop = hinge_classes(rest, edges)
     ang = np.abs(np.degrees(dihedral_angles(x, edges)))
-    def pct(sel, q):  # None where a coarse mesh has no such hinge in the band
+
+    def pct(sel, q):
         return float(np.percentile(ang[sel], q)) if sel.any() else None
 
+    out = []
     for lo, hi in BANDS:
         band = (r >= lo) & (r < hi)
-        out["bands"].append({"r0": [lo, hi], "crest_p95": pct(band & radial, 95), "crest_p99": pct(band & radial, 99),
-                             "hoop_p95": pct(band & hoop, 95)})
+        out.append({"r0": [lo, hi], "crest_p95": pct(band & radial, 95), "crest_p99": pct(band & radial, 99),
+                    "hoop_p95": pct(band & hoop, 95)})
     return out
 
 
@@ -133,19 +148,19 @@ def compare(measured, drapes, rest, edges, noise_m=RECONSTRUCTION_NOISE_M, seed=
         raise ValueError("fold_geometry.compare: needs at least one measured mesh and one drape")
     rng = np.random.default_rng([int(seed), 7])
     meas = [ring_stats(x, rest, edges) for x in measured]
-    model = [ring_stats(x, rest, edges) for x in drapes]
-    noisy = [ring_stats(np.asarray(x) + rng.normal(0.0, noise_m, np.shape(x)), rest, edges) for x in drapes]
+    model = [rings_of(x, rest) for x in drapes]  # the rings from the drapes as they are, the angles with the noise
+    noisy = [bands_of(np.asarray(x) + rng.normal(0.0, noise_m, np.shape(x)), rest, edges) for x in drapes]
     out = {"noise_m": float(noise_m), "measured_meshes": len(measured), "drapes": len(drapes), "rings": [],
            "bands": []}
     for i, c in enumerate(RINGS):
         row = {"r0_m": float(c)}
         for key in RING_KEYS:
-            row[key] = _quantity([s["rings"][i][key] for s in meas], [s["rings"][i][key] for s in model])
+            row[key] = _quantity([s["rings"][i][key] for s in meas], [s[i][key] for s in model])
         out["rings"].append(row)
     for i, (lo, hi) in enumerate(BANDS):
         row = {"r0_m": [lo, hi]}
         for key in BAND_KEYS:
-            row[key] = _quantity([s["bands"][i][key] for s in meas], [s["bands"][i][key] for s in noisy])
+            row[key] = _quantity([s["bands"][i][key] for s in meas], [s[i][key] for s in noisy])
         out["bands"].append(row)
     out["words"] = _words(out)
     return out
