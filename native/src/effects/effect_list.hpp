@@ -5,6 +5,7 @@ DRAPELAB_EFFECT(density_variation)
 DRAPELAB_EFFECT(prestrain)
 DRAPELAB_EFFECT(heterogeneity_map)
 DRAPELAB_EFFECT(bending_anisotropy)  // a bend change like heterogeneity_map: over edge directions, not positions
+DRAPELAB_EFFECT(high_curvature_bending)  // a bend change over the edges' curvature: sharp folds
 DRAPELAB_EFFECT(disk_contact)
 DRAPELAB_EFFECT(self_contact)
 DRAPELAB_EFFECT(rest_curvature)

@@ -74,10 +74,28 @@ struct RestAngles {
   }
 };
 
+// Bending beyond the table's curvature range: each edge's energy is multiplied by M = exp(q s(alpha)), with q the
+// sum of p[indices[k]] (a log factor) and s a C1 ramp (smoothstep) in ln(alpha) of the edge's curvature measure
+// alpha [1/m] from 0 at `start` to 1 at `full` (the bend term's alpha, physics/bend.hpp). M = 1 exactly at q = 0
+// and below `start`: the table's own range is untouched. In log curvature the ramp bounds how fast M falls: the
+// bending moment (about alpha M k) keeps rising with alpha for q > -ln(full / start) / 1.5.
+struct CurvatureFactor {
+  std::vector<int> indices;
+  double start = 0, full = 0;
+
+  bool active() const { return !indices.empty(); }
+  double log_factor(const Eigen::VectorXd& p) const {
+    double q = 0;
+    for (int i : indices) q += p[i];
+    return q;
+  }
+};
+
 struct BaseTermChanges {
   RestScaling stretch_rest;
   EnergyModulation bend;
   RestAngles bend_rest;  // rest_curvature
+  CurvatureFactor bend_curvature;  // high_curvature_bending
   // The handle holds the vertices whose rest radius is below this [m] instead of the model's support radius
   // (disk_contact: a small centre clamp; the rest of the specimen lies on the support disk). NaN: unchanged.
   double handle_radius = std::nan("");

@@ -8,8 +8,14 @@
 namespace drapelab {
 
 BendTerm::BendTerm(const TriangleMesh& mesh, const std::vector<BendingEdge>& edges, int parameter_offset, bool shared,
-                   EnergyModulation modulation, RestAngles rest)
-    : offset_(parameter_offset), shared_(shared), modulation_(std::move(modulation)), rest_(std::move(rest)) {
+                   EnergyModulation modulation, RestAngles rest, CurvatureFactor curvature)
+    : offset_(parameter_offset),
+      shared_(shared),
+      modulation_(std::move(modulation)),
+      rest_(std::move(rest)),
+      curvature_(std::move(curvature)) {
+  if (curvature_.active() && !(curvature_.start > 0 && curvature_.full > curvature_.start))
+    throw InputError("bend: a curvature factor needs 0 < start < full");
   for (const auto& c : modulation_.coefficients)
     if (c.size() != edges.size()) throw InputError("bend: a modulation needs one coefficient per bending edge");
   for (const auto& c : rest_.coefficients)
@@ -99,22 +105,77 @@ void BendTerm::angle_derivatives(int e, double d, const double* p, AngleDerivati
   out.E[3] = k[3] * G[0] + 3.0 * k[2] * G[1] + 3.0 * k[1] * G[2] + k[0] * G[3];
 }
 
+void BendTerm::apply_curvature_factor(int e, double d, const Eigen::VectorXd& p, AngleDerivatives& ad) const {
+  // s(alpha(d)) and its d-derivatives: alpha = |sin(d / 2)| / H, r = ln(alpha / start) / ln(full / start),
+  // s = smoothstep(r) (a ramp in log curvature: alpha s'(alpha) <= 1.5 / ln(full / start), which bounds how fast
+  // the factor can fall, physics/base_term_changes.hpp).
+  const double q = curvature_.log_factor(p);
+  const double h = 0.5 * d;
+  const double sn = std::sin(h), cs = std::cos(h);
+  const double H = height_sum_[e];
+  const double sg = sn >= 0 ? 1.0 : -1.0;
+  const double alpha = sg * sn / H;
+  const double ell = std::log(curvature_.full / curvature_.start);
+  double S[4] = {0.0, 0.0, 0.0, 0.0};
+  if (alpha >= curvature_.full) {
+    S[0] = 1.0;
+  } else if (alpha > curvature_.start) {
+    const double r = std::log(alpha / curvature_.start) / ell;
+    // alpha's d-derivatives over alpha, then r's
+    const double a1 = sg * 0.5 * cs / H / alpha, a2 = -sg * 0.25 * sn / H / alpha, a3 = -sg * 0.125 * cs / H / alpha;
+    const double t1 = a1 / ell, t2 = (a2 - a1 * a1) / ell, t3 = (a3 - 3.0 * a1 * a2 + 2.0 * a1 * a1 * a1) / ell;
+    const double s1 = 6.0 * r * (1.0 - r), s2 = 6.0 - 12.0 * r;
+    S[0] = r * r * (3.0 - 2.0 * r);
+    S[1] = s1 * t1;
+    S[2] = s2 * t1 * t1 + s1 * t2;
+    S[3] = -12.0 * t1 * t1 * t1 + 3.0 * s2 * t1 * t2 + s1 * t3;
+  }
+  // M = exp(u), u = q S: M' = u' M, M'' = (u'' + u'^2) M, M''' = (u''' + 3 u' u'' + u'^3) M; d/dq of each with
+  // du^(k)/dq = S^(k).
+  const double M0 = std::exp(q * S[0]);
+  const double u1 = q * S[1], u2 = q * S[2], u3 = q * S[3];
+  const double M[4] = {M0, u1 * M0, (u2 + u1 * u1) * M0, (u3 + 3.0 * u1 * u2 + u1 * u1 * u1) * M0};
+  const double Mq[3] = {S[0] * M0, (S[1] + u1 * S[0]) * M0, (S[2] + 2.0 * u1 * S[1] + (u2 + u1 * u1) * S[0]) * M0};
+  const double* E = ad.E;
+  ad.dq[0] = Mq[0] * E[0];
+  ad.dq[1] = Mq[1] * E[0] + Mq[0] * E[1];
+  ad.dq[2] = Mq[2] * E[0] + 2.0 * Mq[1] * E[1] + Mq[0] * E[2];
+  const double En[4] = {M[0] * E[0], M[1] * E[0] + M[0] * E[1], M[2] * E[0] + 2.0 * M[1] * E[1] + M[0] * E[2],
+                        M[3] * E[0] + 3.0 * M[2] * E[1] + 3.0 * M[1] * E[2] + M[0] * E[3]};
+  for (int n = 0; n < 4; ++n) ad.E[n] = En[n];
+  for (int j = 0; j < ad.count; ++j) {
+    const double* f = ad.phi[j];
+    const double fn[3] = {M[0] * f[0], M[1] * f[0] + M[0] * f[1], M[2] * f[0] + 2.0 * M[1] * f[1] + M[0] * f[2]};
+    for (int n = 0; n < 3; ++n) ad.phi[j][n] = fn[n];
+  }
+}
+
 void BendTerm::modulated_angle_derivatives(int e, double d, const Eigen::VectorXd& p, AngleDerivatives& out,
                                            double& m) const {
   angle_derivatives(e, d, p.data() + parameter_offset(e), out);
+  if (curvature_.active()) apply_curvature_factor(e, d, p, out);
   m = 1.0;
   if (!modulation_.active()) return;
   m = std::exp(modulation_.log_multiplier(e, p));
   for (int n = 0; n < 4; ++n) out.E[n] *= m;
   for (int j = 0; j < out.count; ++j)
     for (int n = 0; n < 3; ++n) out.phi[j][n] *= m;
+  if (curvature_.active())
+    for (int n = 0; n < 3; ++n) out.dq[n] *= m;
 }
 
 double BendTerm::energy(const Eigen::VectorXd& x, const Eigen::VectorXd& p) const {
-  if (!modulation_.active() && !rest_.active()) return Reference::energy(x, p);
+  if (!modulation_.active() && !rest_.active() && !curvature_.active()) return Reference::energy(x, p);
   double E = 0, xe[12];
   for (int e = 0; e < num_elements(); ++e) {
     gather_local(e, x, xe);
+    if (curvature_.active()) {
+      AngleDerivatives ad;
+      double m;
+      modulated_angle_derivatives(e, dihedral_angle(xe) - rest_angle(e, p), p, ad, m);
+      E += ad.E[0];
+      continue;
+    }
     const double Ee = energy_of_angle(e, dihedral_angle(xe) - rest_angle(e, p), p.data() + parameter_offset(e));
     E += modulation_.active() ? std::exp(modulation_.log_multiplier(e, p)) * Ee : Ee;
   }
@@ -216,6 +277,16 @@ void BendTerm::add_energy_parameter_gradient(const Eigen::VectorXd& x, const Eig
     gather_local(e, x, xe);
     const int off = parameter_offset(e);
     const double d = dihedral_angle(xe) - rest_angle(e, p);
+    if (curvature_.active()) {  // everything from the angle derivatives, which carry M(d) and m
+      AngleDerivatives ad;
+      double m;
+      modulated_angle_derivatives(e, d, p, ad, m);
+      for (int j = 0; j < ad.count; ++j) gp[off + ad.index[j]] += ad.phi[j][0];
+      if (rest_.active()) add_rest_gradient(e, ad.E[1], 1.0, gp);
+      if (modulation_.active()) add_modulation_gradient(e, ad.E[0], 1.0, gp);
+      add_curvature_gradient(ad.dq[0], 1.0, gp);
+      continue;
+    }
     const int n = table_coefficients(e, d, index, phi);
     if (rest_.active()) {  // dE/dq = -a E'(d) (times m)
       AngleDerivatives ad;
@@ -243,10 +314,20 @@ void BendTerm::add_gradient_parameter_product(const Eigen::VectorXd& x, const Ei
     const auto& v = verts_[e];
     const int off = parameter_offset(e);
     const double d = dihedral_angle(xe) - rest_angle(e, p);
-    const int n = table_coefficients(e, D1(d, 0), index, phi);
     dihedral_gradient(xe, gt);
     double gl = 0;
     for (int i = 0; i < 12; ++i) gl += gt[i] * lambda[3 * v[i / 3] + i % 3];
+    if (curvature_.active()) {  // lambda . grad E = E'(d) gl, E' from the angle derivatives (M(d) and m in them)
+      AngleDerivatives ad;
+      double m;
+      modulated_angle_derivatives(e, d, p, ad, m);
+      for (int j = 0; j < ad.count; ++j) gp[off + ad.index[j]] += scale * gl * ad.phi[j][1];
+      if (rest_.active()) add_rest_gradient(e, ad.E[2] * gl, scale, gp);
+      if (modulation_.active()) add_modulation_gradient(e, ad.E[1] * gl, scale, gp);
+      add_curvature_gradient(ad.dq[1] * gl, scale, gp);
+      continue;
+    }
+    const int n = table_coefficients(e, D1(d, 0), index, phi);
     if (rest_.active()) {  // lambda . grad E = E'(d) gl: its q-derivative -a E''(d) gl (times m)
       AngleDerivatives ad;
       double m;
@@ -314,6 +395,7 @@ void BendTerm::add_step_matrix_derivatives(const Eigen::VectorXd& x, const Eigen
     for (int j = 0; j < ad.count; ++j) gp[off + ad.index[j]] += scale * gl * gw * ad.phi[j][2];
     if (modulation_.active()) add_modulation_gradient(e, gl * gw * E2, scale, gp);
     if (rest_.active()) add_rest_gradient(e, E3v * gl * gw, scale, gp);
+    if (curvature_.active()) add_curvature_gradient(ad.dq[2] * gl * gw, scale, gp);
   }
 }
 
@@ -361,6 +443,7 @@ bool BendTerm::add_step_adjoint(const Eigen::VectorXd& x, const Eigen::VectorXd&
     for (int j = 0; j < n; ++j) gp[off + ad.index[j]] += -h * gl * ad.phi[j][1];
     if (modulation_.active()) add_modulation_gradient(e, gl * E1, -h, gp);
     if (rest_.active()) add_rest_gradient(e, E2 * gl, -h, gp);
+    if (curvature_.active()) add_curvature_gradient(ad.dq[1] * gl, -h, gp);
     if (E2 > 0) {  // S = E'' (else S = 0 with zero derivatives)
       for (int i = 0; i < 12; ++i) {
         ge[i] += -h2 * (E3 * gj[i].a * gl * gw + E2 * (gj[i].v[0] * gw + gl * gj[i].v[1]));
@@ -369,6 +452,7 @@ bool BendTerm::add_step_adjoint(const Eigen::VectorXd& x, const Eigen::VectorXd&
       for (int j = 0; j < n; ++j) gp[off + ad.index[j]] += -h2 * gl * gw * ad.phi[j][2];
       if (modulation_.active()) add_modulation_gradient(e, gl * gw * E2, -h2, gp);
       if (rest_.active()) add_rest_gradient(e, E3 * gl * gw, -h2, gp);
+      if (curvature_.active()) add_curvature_gradient(ad.dq[2] * gl * gw, -h2, gp);
       scatter_vector(e, kl, 1.0, gv);
     }
     scatter_vector(e, ge, 1.0, gx);

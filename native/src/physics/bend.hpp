@@ -16,6 +16,9 @@
 // field m_w = exp(sum_k c_wk q_k) > 0 of effect parameters q_k: E_w -> m_w E_w, exact in x, the table and q.
 // Optionally too (rest_curvature) the rest angles are linear in effect parameters q_k:
 // theta_rest,w = sum_k a_wk q_k (a plastic set), so dE_w/dq_k = -a_wk E_w'(d), exact in every kernel.
+// Optionally (high_curvature_bending) the energy is multiplied by M(d) = exp(q s(alpha(d))), s a smoothstep ramp
+// of alpha beyond the table's range (CurvatureFactor): the stiffness at sharp folds, where the table is constant.
+// M depends on the angle, so it enters E's d-derivatives (Leibniz) and the table coefficients; dE/dq = s M E.
 // The jet-derived Reference (element_energy, element_gauss_newton) is the unmodulated, flat-rest term.
 #pragma once
 #include <array>
@@ -34,7 +37,7 @@ class BendTerm : public ElementTerm<BendTerm, 4, 15, 1> {
   // modulation: an optional per-edge energy multiplier (one coefficient per bending edge and mode);
   // rest: optional rest angles linear in parameters (one coefficient per bending edge and parameter).
   BendTerm(const TriangleMesh& mesh, const std::vector<BendingEdge>& edges, int parameter_offset, bool shared,
-           EnergyModulation modulation = {}, RestAngles rest = {});
+           EnergyModulation modulation = {}, RestAngles rest = {}, CurvatureFactor curvature = {});
   std::string name() const override { return "bend"; }
 
   int num_elements() const { return static_cast<int>(verts_.size()); }
@@ -44,6 +47,7 @@ class BendTerm : public ElementTerm<BendTerm, 4, 15, 1> {
   std::vector<int> extra_parameter_indices() const {
     std::vector<int> out = modulation_.indices;
     out.insert(out.end(), rest_.indices.begin(), rest_.indices.end());
+    out.insert(out.end(), curvature_.indices.begin(), curvature_.indices.end());
     return out;
   }
 
@@ -130,6 +134,7 @@ class BendTerm : public ElementTerm<BendTerm, 4, 15, 1> {
     int count;
     int index[4];
     double phi[4][3];
+    double dq[3];  // with a curvature factor (modulated_angle_derivatives): dE/dq, dE'/dq, dE''/dq
   };
   void angle_derivatives(int e, double d, const double* p, AngleDerivatives& out) const;
 
@@ -163,6 +168,14 @@ class BendTerm : public ElementTerm<BendTerm, 4, 15, 1> {
   }
 
   double bias_angle(int e) const { return bias_[e]; }
+  double height_sum(int e) const { return height_sum_[e]; }
+  // E(d)'s derivatives with every change applied (curvature factor, modulation), as the kernels use them (tests).
+  AngleDerivatives changed_angle_derivatives(int e, double d, const Eigen::VectorXd& p) const {
+    AngleDerivatives ad;
+    double m;
+    modulated_angle_derivatives(e, d, p, ad, m);
+    return ad;
+  }
 
   // Gradient of the dihedral angle in closed form (Bridson et al. 2003): with e = x_b - x_a and the
   // area-weighted normals n1 = e x (x_c - x_a), n2 = (x_d - x_a) x e,
@@ -244,7 +257,8 @@ class BendTerm : public ElementTerm<BendTerm, 4, 15, 1> {
     for (size_t k = 0; k < rest_.indices.size(); ++k)
       gp[rest_.indices[k]] -= scale * rest_.coefficients[k][e] * derivative_in_d;
   }
-  // angle_derivatives times the edge's multiplier m (m = 1, untouched, without a modulation); p: the whole vector.
+  // angle_derivatives times the curvature factor M(d) (untouched without one) and the edge's multiplier m (m = 1,
+  // untouched, without a modulation); p: the whole vector.
   void modulated_angle_derivatives(int e, double d, const Eigen::VectorXd& p, AngleDerivatives& out, double& m) const;
   // Adds scale * dm_e/dq_k * value to gp for every mode k (value: the unmodulated quantity, times m_e by the caller).
   void add_modulation_gradient(int e, double m_value, double scale, Eigen::VectorXd& gp) const {
@@ -272,6 +286,13 @@ class BendTerm : public ElementTerm<BendTerm, 4, 15, 1> {
   bool shared_;
   EnergyModulation modulation_;
   RestAngles rest_;
+  CurvatureFactor curvature_;
+  // Adds scale * value to the curvature factor's parameters (value: a q-derivative, ad.dq[n] times a product).
+  void add_curvature_gradient(double value, double scale, Eigen::VectorXd& gp) const {
+    for (int i : curvature_.indices) gp[i] += scale * value;
+  }
+  // Multiplies ad (E, phi) by M(d) and fills ad.dq.
+  void apply_curvature_factor(int e, double d, const Eigen::VectorXd& p, AngleDerivatives& ad) const;
 };
 
 }  // namespace drapelab

@@ -102,7 +102,8 @@ Model::Model(const TriangleMesh& mesh, const ModelOptions& options) : mesh_(mesh
       throw InputError("model: no vertex lies inside the clamp (rest radius < clamp radius); use a larger clamp");
   }
   terms_.push_back(std::make_unique<StretchTerm>(mesh_, stretch_off, shared, changes.stretch_rest));
-  terms_.push_back(std::make_unique<BendTerm>(mesh_, edges_, bend_off, shared, changes.bend, changes.bend_rest));
+  terms_.push_back(std::make_unique<BendTerm>(mesh_, edges_, bend_off, shared, changes.bend, changes.bend_rest,
+                                                changes.bend_curvature));
   terms_.push_back(std::make_unique<GravityTerm>(area_weights_, density_off, options.gravity));
   if (!changes.handle_replaced) {
     auto handle = std::make_unique<HandleTerm>(handle_vertices_, anchors, handle_off);

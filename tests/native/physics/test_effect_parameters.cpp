@@ -7,9 +7,14 @@
 // the separate products.
 #include <gtest/gtest.h>
 
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
 #include <random>
+#include <string>
 
 #include "../test_support.hpp"
+#include "physics/bend.hpp"
 #include "physics/effect.hpp"
 #include "physics/sparse_pattern.hpp"
 #include "solver/cholmod_solver.hpp"
@@ -29,24 +34,13 @@ double step_form(const Term& t, const SparsePattern& pat, const Eigen::VectorXd&
   return lambda.dot(symmetric_multiply(pat, K, w));
 }
 
-}  // namespace
-
-class EffectParameters : public ::testing::TestWithParam<std::tuple<std::string, bool>> {};
-
-TEST_P(EffectParameters, EveryTermIsExactInPositionsAndEffectParameters) {
-  const EffectSpec& spec = find_effect(std::get<0>(GetParam()));
-  ModelOptions o;
-  o.heterogeneous = std::get<1>(GetParam());
-  o.effects = moderate_effect_values(spec, 41);
-  Model model(make_cusick_specimen(60), o);
-  const Eigen::VectorXd p = o.heterogeneous ? jittered_parameters(model, 3) : model.default_parameters();
-  // keep the effect's own values as set (jitter only the material)
-  Eigen::VectorXd pe = p;
-  for (const auto& q : spec.parameters) {
-    const int k = model.layout().block(effect_block_name(spec.name, q.name)).offset;
-    pe[k] = o.effects[spec.name][q.name];
-  }
-  const Eigen::VectorXd x = perturbed_positions(model, 2e-3, 7);
+// Every term's derivatives in positions and the effect's parameters at (x, pe), against central differences;
+// its step matrix PSD; its fused kernels against the separate products.
+// only_term: check that term alone (empty: every term). position_differences false: skip the central differences
+// in positions (for positions with edges on the C1 blends' nodes; the rest is differences in the parameters, which
+// the blends do not see, and exact identities).
+void check_every_term(const EffectSpec& spec, const Model& model, const Eigen::VectorXd& x, const Eigen::VectorXd& pe,
+                      const std::string& only_term = "", bool position_differences = true) {
   const int n = model.num_dofs();
   // A step start 1 mm away for terms with step-start state (damping; contact terms keep their own suite there).
   Eigen::VectorXd start = x;
@@ -59,18 +53,21 @@ TEST_P(EffectParameters, EveryTermIsExactInPositionsAndEffectParameters) {
   // the C1 blend's second derivative jumps; a step of 1e-6 that straddles one misses the Hessian by percent.
   const double eps = 1e-7;
   for (const auto& term : model.terms()) {
+    if (!only_term.empty() && term->name() != only_term) continue;
     SCOPED_TRACE(term->name());
     const Term& t = *term;
     // positions
     Eigen::VectorXd g = Eigen::VectorXd::Zero(n), gp = g, gm = g, Hd = g;
     t.add_gradient(x, pe, g);
-    const double fdE = (t.energy(x + eps * d, pe) - t.energy(x - eps * d, pe)) / (2 * eps);
-    EXPECT_NEAR(g.dot(d), fdE, near_tolerance(fdE, 1e-3 * g.norm() * d.norm() * eps, 1e-6)) << "gradient";
-    t.add_gradient(x + eps * d, pe, gp);
-    t.add_gradient(x - eps * d, pe, gm);
-    t.add_hessian_product(x, pe, d, Hd);
-    const Eigen::VectorXd fdH = (gp - gm) / (2 * eps);
-    EXPECT_LE((Hd - fdH).norm(), 1e-6 * std::max(1e-12, fdH.norm()) + 1e-12 * g.norm()) << "Hessian product";
+    if (position_differences) {
+      const double fdE = (t.energy(x + eps * d, pe) - t.energy(x - eps * d, pe)) / (2 * eps);
+      EXPECT_NEAR(g.dot(d), fdE, near_tolerance(fdE, 1e-3 * g.norm() * d.norm() * eps, 1e-6)) << "gradient";
+      t.add_gradient(x + eps * d, pe, gp);
+      t.add_gradient(x - eps * d, pe, gm);
+      t.add_hessian_product(x, pe, d, Hd);
+      const Eigen::VectorXd fdH = (gp - gm) / (2 * eps);
+      EXPECT_LE((Hd - fdH).norm(), 1e-6 * std::max(1e-12, fdH.norm()) + 1e-12 * g.norm()) << "Hessian product";
+    }
     Eigen::VectorXd K = Eigen::VectorXd::Zero(pat.nnz());
     t.add_step_matrix(x, pe, 1.0, K);
     EXPECT_GE(d.dot(symmetric_multiply(pat, K, d)), -1e-12 * std::max(1.0, K.norm())) << "step matrix PSD";
@@ -82,9 +79,11 @@ TEST_P(EffectParameters, EveryTermIsExactInPositionsAndEffectParameters) {
     // d(lambda^T K w)/dx against central differences along d
     Eigen::VectorXd gx = Eigen::VectorXd::Zero(n), gpar = Eigen::VectorXd::Zero(pe.size());
     t.add_step_matrix_derivatives(x, pe, lambda, w, 1.0, gx, gpar);
-    const double fdK = (step_form(t, pat, x + eps * d, pe, lambda, w) - step_form(t, pat, x - eps * d, pe, lambda, w)) /
-                       (2 * eps);
-    EXPECT_NEAR(gx.dot(d), fdK, near_tolerance(fdK, 1e-8 * gx.norm() * d.norm(), 1e-5)) << "d(lambda K w)/dx";
+    if (position_differences) {
+      const double fdK =
+          (step_form(t, pat, x + eps * d, pe, lambda, w) - step_form(t, pat, x - eps * d, pe, lambda, w)) / (2 * eps);
+      EXPECT_NEAR(gx.dot(d), fdK, near_tolerance(fdK, 1e-8 * gx.norm() * d.norm(), 1e-5)) << "d(lambda K w)/dx";
+    }
     // the effect's parameters
     Eigen::VectorXd dEdp = Eigen::VectorXd::Zero(pe.size()), dGdp = dEdp;
     t.add_energy_parameter_gradient(x, pe, dEdp);
@@ -135,8 +134,126 @@ TEST_P(EffectParameters, EveryTermIsExactInPositionsAndEffectParameters) {
   }
 }
 
+}  // namespace
+
+class EffectParameters : public ::testing::TestWithParam<std::tuple<std::string, bool>> {};
+
+TEST_P(EffectParameters, EveryTermIsExactInPositionsAndEffectParameters) {
+  const EffectSpec& spec = find_effect(std::get<0>(GetParam()));
+  ModelOptions o;
+  o.heterogeneous = std::get<1>(GetParam());
+  o.effects = moderate_effect_values(spec, 41);
+  Model model(make_cusick_specimen(60), o);
+  const Eigen::VectorXd p = o.heterogeneous ? jittered_parameters(model, 3) : model.default_parameters();
+  // keep the effect's own values as set (jitter only the material)
+  Eigen::VectorXd pe = p;
+  for (const auto& q : spec.parameters) {
+    const int k = model.layout().block(effect_block_name(spec.name, q.name)).offset;
+    pe[k] = o.effects[spec.name][q.name];
+  }
+  check_every_term(spec, model, perturbed_positions(model, 2e-3, 7), pe);
+}
+
 INSTANTIATE_TEST_SUITE_P(Registry, EffectParameters,
                          ::testing::Combine(::testing::ValuesIn(registered_effect_names()), ::testing::Bool()),
                          [](const ::testing::TestParamInfo<std::tuple<std::string, bool>>& info) {
                            return std::get<0>(info.param) + (std::get<1>(info.param) ? "_heterogeneous" : "_homogeneous");
                          });
+
+// high_curvature_bending acts only where an edge's curvature measure alpha passes the table's 10 /m, which the
+// suite's 2 mm perturbation never reaches (and a mesh bent that far has edges on the C1 blends' nodes, where
+// central differences of second derivatives fail for the base term too). Its change is a factor M(d) on the
+// edge's energy as a function of the angle change d, which every kernel reads through the angle derivatives:
+// those are checked here against central differences in d and in log_factor, for d sweeping alpha from 0 past
+// the ramp (10-40 /m), away from the blends' nodes; and the factor is exactly 1 below the ramp.
+TEST(HighCurvatureBending, AngleDerivativesAreExactOnTheRampAndBeyondIt) {
+  const EffectSpec& spec = find_effect("high_curvature_bending");
+  for (bool heterogeneous : {false, true}) {
+    SCOPED_TRACE(heterogeneous ? "heterogeneous" : "homogeneous");
+    ModelOptions o;
+    o.heterogeneous = heterogeneous;
+    o.effects[spec.name]["log_factor"] = -0.8;
+    Model model(make_cusick_specimen(400), o);
+    Eigen::VectorXd p = heterogeneous ? jittered_parameters(model, 3) : model.default_parameters();
+    const int k = model.layout().block(effect_block_name(spec.name, "log_factor")).offset;
+    p[k] = -0.8;
+    Eigen::VectorXd p0 = p;
+    p0[k] = 0.0;
+    const BendTerm* bend = nullptr;
+    for (const auto& t : model.terms())
+      if (t->name() == "bend") bend = dynamic_cast<const BendTerm*>(t.get());
+    ASSERT_NE(bend, nullptr);
+    int on_ramp = 0, beyond = 0;
+    for (int e : {0, bend->num_elements() / 2, bend->num_elements() - 1}) {
+      const double H = bend->height_sum(e);
+      for (int i = 1; i < 400; ++i) {
+        const double d = (i % 2 ? 1.0 : -1.0) * 3.1 * i / 400.0;  // both signs
+        const double alpha = std::abs(std::sin(0.5 * d)) / H;
+        bool near_node = false;  // the table's columns (2.5 /m apart) and the ramp's ends
+        for (double node : {2.5, 5.0, 7.5, 10.0, 40.0})
+          if (std::abs(alpha - node) < 0.05) near_node = true;
+        if (near_node) continue;
+        const auto ad = bend->changed_angle_derivatives(e, d, p);
+        const auto base = bend->changed_angle_derivatives(e, d, p0);
+        if (alpha < 10.0) {
+          for (int n = 0; n < 4; ++n) EXPECT_EQ(ad.E[n], base.E[n]) << "below the ramp, d " << d;
+          continue;
+        }
+        (alpha < 40.0 ? on_ramp : beyond) += 1;
+        const double h = 1e-6;
+        const auto dp = bend->changed_angle_derivatives(e, d + h, p), dm = bend->changed_angle_derivatives(e, d - h, p);
+        for (int n = 0; n < 3; ++n) {
+          const double fd = (dp.E[n] - dm.E[n]) / (2 * h);
+          EXPECT_NEAR(ad.E[n + 1], fd, 1e-6 * (std::abs(fd) + std::abs(ad.E[n]) + std::abs(ad.E[0]))) << "E^(" << n + 1 << "), d " << d;
+        }
+        for (int j = 0; j < ad.count; ++j)
+          for (int n = 0; n < 2; ++n) {
+            const double fd = (dp.phi[j][n] - dm.phi[j][n]) / (2 * h);
+            EXPECT_NEAR(ad.phi[j][n + 1], fd, 1e-6 * (std::abs(fd) + std::abs(ad.phi[j][0]))) << "phi, d " << d;
+          }
+        Eigen::VectorXd pp = p, pm = p;
+        pp[k] += h;
+        pm[k] -= h;
+        const auto qp = bend->changed_angle_derivatives(e, d, pp), qm = bend->changed_angle_derivatives(e, d, pm);
+        for (int n = 0; n < 3; ++n) {
+          const double fd = (qp.E[n] - qm.E[n]) / (2 * h);
+          EXPECT_NEAR(ad.dq[n], fd, 1e-6 * (std::abs(fd) + std::abs(ad.E[n]))) << "dE^(" << n << ")/dq, d " << d;
+        }
+        if (alpha > 40.0) EXPECT_NEAR(ad.E[0], std::exp(-0.8) * base.E[0], 1e-12 * base.E[0]) << "beyond the ramp";
+      }
+    }
+    EXPECT_GE(on_ramp, 20);
+    EXPECT_GE(beyond, 20);
+  }
+}
+
+// The kernels' use of the factor (the parameter derivatives, the fused kernels, the step matrix) on a mesh bent past
+// the ramp: the suite's checks of the term it changes (bend), the position differences left to the angle test above.
+TEST(HighCurvatureBending, KernelsAreExactInLogFactorOnABentMesh) {
+  const EffectSpec& spec = find_effect("high_curvature_bending");
+  for (bool heterogeneous : {false, true}) {
+    SCOPED_TRACE(heterogeneous ? "heterogeneous" : "homogeneous");
+    ModelOptions o;
+    o.heterogeneous = heterogeneous;
+    o.effects[spec.name]["log_factor"] = -0.8;
+    Model model(make_cusick_specimen(800), o);  // edges ~1 cm: 3 mm of noise bends them past 40 /m
+    Eigen::VectorXd pe = heterogeneous ? jittered_parameters(model, 3) : model.default_parameters();
+    pe[model.layout().block(effect_block_name(spec.name, "log_factor")).offset] = -0.8;
+    const Eigen::VectorXd x = perturbed_positions(model, 3e-3, 7);
+    const Eigen::VectorXd areas = rest_areas(model.mesh());
+    int below = 0, ramp = 0, beyond = 0;
+    for (const BendingEdge& be : model.bending_edges()) {
+      double xe[12];
+      const int v[4] = {be.a, be.b, be.c, be.d};
+      for (int i = 0; i < 12; ++i) xe[i] = x[3 * v[i / 3] + i % 3];
+      const double L = pattern_edge(model.mesh(), be).norm();
+      const double H = 2.0 * (std::abs(areas[be.face0]) + std::abs(areas[be.face1])) / L;
+      const double alpha = std::abs(std::sin(0.5 * BendTerm::dihedral_angle(xe))) / H;
+      (alpha < 10.0 ? below : alpha < 40.0 ? ramp : beyond) += 1;
+    }
+    EXPECT_GE(below, 100);
+    EXPECT_GE(ramp, 100);
+    EXPECT_GE(beyond, 100);
+    check_every_term(spec, model, x, pe, "bend", false);
+  }
+}
