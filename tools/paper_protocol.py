@@ -2,7 +2,7 @@
 """The paper's protocol on the real data, and the shipped presets.
 
     tools/paper_protocol.py table   [--models homo,heter,bdp] [--fabrics 1,2,3,4,5] [--time-budget S] [--samples N] [--out DIR]
-                                    [--reuse-fits]
+                                    [--reuse-fits] [--effects NAME[=VALUE],...]
     tools/paper_protocol.py presets [--fabrics 1,...,20] [--time-budget S] [--samples N] [--out DIR] [--reuse-fits]
 
 table: for each fabric, fit on the paper's training sample (capture 1: Cotton White 5, Cotton Blue 2, Viscose
@@ -14,6 +14,8 @@ fitted on the fabric's paper training sample (fabrics 1-5) or first sample (capt
 --reuse-fits: presets already in the output folder are not refitted; bdp ones are drape-calibrated again with the
 current fit.json (calibration and placement noise), then evaluated; table: the rows of table.json already in the
 folder that this run does not redo are kept.
+--effects: table: every fit with these effects (fit's syntax: a bare NAME is fitted, NAME=VALUE fixed; ./drapelab
+effects), e.g. the fold-depth probe's high_curvature_bending; use its own --out.
 Run with ./drapelab's environment: `./drapelab build && PYTHONPATH=addon:build/python tools/paper_protocol.py ...`.
 """
 import argparse
@@ -26,7 +28,7 @@ import time
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, os.path.join(ROOT, "addon"))
-from drapelab import infer, measure, paths  # noqa: E402
+from drapelab import infer, measure, paths, sim  # noqa: E402
 
 DATA = paths.cusick_dataset_dir()  # None when absent: main() says so
 TRAINING_SAMPLE = {1: 5, 2: 2, 3: 1, 4: 4, 5: 2}
@@ -52,7 +54,7 @@ def slug(row):
     return re.sub(r"[^a-z0-9]+", "_", f"fabric_{int(row['fabric']):02d}_{name}".lower()).strip("_")
 
 
-def fit_and_evaluate(fabric, train_sample, model, time_budget, samples, out_dir, reuse=False):
+def fit_and_evaluate(fabric, train_sample, model, time_budget, samples, out_dir, reuse=False, effects=None):
     rows = captures(fabric)
     train = [r for r in rows if int(r["sample"]) == train_sample][0]
     tests = [r for r in rows if int(r["sample"]) != train_sample]
@@ -77,7 +79,7 @@ def fit_and_evaluate(fabric, train_sample, model, time_budget, samples, out_dir,
                            config=dict(config, calibration=dict(config["calibration"], enabled=False)),
                            fabric={"fabric": fabric, "name": train["name"], "material": train["material"],
                                    "weave": train["weave"], "thickness_mm": float(train["thickness_mm"]),
-                                   "training_sample": train_sample})
+                                   "training_sample": train_sample}, effects=effects or None)
         if calibrate:
             preset = infer.calibrate_preset(preset, [path(train["silhouette"])], config=config)
         infer.write_preset(preset_path, preset)
@@ -115,11 +117,14 @@ def table(args):
     if args.reuse_fits and os.path.exists(os.path.join(out, "table.json")):  # a partial run: keep its other rows
         results = {m: {int(f): r for f, r in per.items()}
                    for m, per in json.load(open(os.path.join(out, "table.json"))).items()}
+    effects = sim.parse_effects_arg(args.effects, bare=None) if args.effects else None
     for model in args.models.split(","):
         for fabric in [int(f) for f in args.fabrics.split(",")]:
             samples = args.samples if model == "bdp" else 1
-            _, _, r = fit_and_evaluate(fabric, TRAINING_SAMPLE[fabric], model, args.time_budget, samples, out,
-                                       reuse=args.reuse_fits)
+            _, preset, r = fit_and_evaluate(fabric, TRAINING_SAMPLE[fabric], model, args.time_budget, samples, out,
+                                            reuse=args.reuse_fits, effects=effects)
+            if preset.get("active_effects"):
+                r["active_effects"] = preset["active_effects"]
             results.setdefault(model, {})[fabric] = r
             print(model, fabric, json.dumps(r["mean"]), f"fit {r['fit_seconds']:.0f} s", flush=True)
             measure.write_json(os.path.join(out, "table.json"), results)
@@ -170,6 +175,7 @@ def main():
     ap.add_argument("--reuse-fits", action="store_true",
                     help="table: evaluate the fits already in --out (bdp fits are drape-calibrated again with the current settings); "
                          "presets: likewise for the shipped presets of fabrics the table run did not fit")
+    ap.add_argument("--effects", default=None, help="table: fit with these effects (fit --effects syntax)")
     ap.add_argument("--out", default=None, help="table: output folder; presets: the table run's folder to reuse fits from (default out/protocol)")
     args = ap.parse_args()
     paths.require_cusick_dataset()  # after parsing: --help works without the dataset

@@ -34,7 +34,7 @@ EffectSpec make_high_curvature_bending_effect() {
       "same node count; the drape coefficient changes little";
   // Moderate strength: docs/physics.md#high_curvature_bending.
   s.parameters = {
-      {"log_factor", "1", 0.0, -0.9, 1.5, 0.5, -0.6,
+      {"log_factor", "1", 0.0, -0.9, 1.5, 0.5, -0.75,
        "log of the bending stiffness factor at curvatures of 40 /m and more (0 below 10 /m)"},
   };
   s.make_terms = [](const EffectContext&) { return std::vector<std::unique_ptr<Term>>{}; };
