@@ -173,6 +173,15 @@ def _outside(q):
     return q["measured"] < lo or q["measured"] > hi
 
 
+# The effect that moves crest sharpness and the turn over the edge together (docs/physics.md#high_curvature_bending;
+# fabric 4 at log_factor -0.9, re-calibrated: crest p99 17 -> 29-33 degrees, real 29-30; edge turn 25 -> 39, real 38).
+_CURVATURE_HINT = {
+    "sharper": "Softer bending in sharp folds does this: high_curvature_bending with log_factor < 0 (set it: one "
+               "photo's silhouette does not fit it).",
+    "blunter": "Stiffer bending in sharp folds does this: high_curvature_bending with log_factor > 0.",
+}
+
+
 def _words(g):
     found = []  # (weight, sentence)
     crest = [g["bands"][i] for i in CREST_BANDS if g["bands"][i]["crest_p99"]["measured"] is not None]
@@ -185,14 +194,15 @@ def _words(g):
                       f"The measured folds' crests are {way} than the model's: 99th percentile of the crest hinges' "
                       f"angles {q['measured']:.0f} degrees at r0 {100 * worst['r0_m'][0]:.0f}-"
                       f"{100 * worst['r0_m'][1]:.0f} cm against the model's {q['model']:.0f} (90 % of drapes "
-                      f"{q['interval90'][0]:.0f}-{q['interval90'][1]:.0f})."))
+                      f"{q['interval90'][0]:.0f}-{q['interval90'][1]:.0f}). " + _CURVATURE_HINT[way]))
     q = g["bands"][EDGE_BAND]["hoop_p95"]
     if _outside(q):
         way = "more sharply" if q["measured"] > q["model"] else "more gently"
         found.append((abs(math.log(q["measured"] / max(q["model"], 1e-9))),
                       f"The measured cloth turns down over the support's edge {way} than the model's: 95th percentile "
                       f"of the hinge angles across the fall {q['measured']:.0f} degrees at r0 9-10 cm against "
-                      f"{q['model']:.0f} ({q['interval90'][0]:.0f}-{q['interval90'][1]:.0f})."))
+                      f"{q['model']:.0f} ({q['interval90'][0]:.0f}-{q['interval90'][1]:.0f}). "
+                      + _CURVATURE_HINT["sharper" if q["measured"] > q["model"] else "blunter"]))
     hem = g["rings"][-1]
     q = hem["amplitude"]
     if _outside(q):

@@ -70,7 +70,7 @@ def test_compare_is_silent_on_its_own_drapes_and_names_sharper_crests(specimen):
     g = fg.compare(sharp, drapes, rest, edges, noise_m=0.0)
     crest = [b["crest_p99"] for b in g["bands"][2:]]
     assert all(q["measured"] > q["interval90"][1] for q in crest)
-    assert any("crests are sharper" in w for w in g["words"])
+    assert any("crests are sharper" in w and "high_curvature_bending with log_factor < 0" in w for w in g["words"])
     # cloth moved in by 3 mm everywhere beyond the edge: named with its size
     inward = [x * np.where(np.hypot(x[:, 0], x[:, 1]) > 0.09, 1 - 0.003 / np.maximum(np.hypot(x[:, 0], x[:, 1]), 1e-9),
                            1.0)[:, None] * [1, 1, 0] + x * [0, 0, 1] for x in drapes[:2]]
