@@ -77,8 +77,9 @@ struct RestAngles {
 // Bending beyond the table's curvature range: each edge's energy is multiplied by M = exp(q s(alpha)), with q the
 // sum of p[indices[k]] (a log factor) and s a C1 ramp (smoothstep) in ln(alpha) of the edge's curvature measure
 // alpha [1/m] from 0 at `start` to 1 at `full` (the bend term's alpha, physics/bend.hpp). M = 1 exactly at q = 0
-// and below `start`: the table's own range is untouched. In log curvature the ramp bounds how fast M falls: the
-// bending moment (about alpha M k) keeps rising with alpha for q > -ln(full / start) / 1.5.
+// and below `start`: the table's own range is untouched. A falling M can make the energy concave in the angle (the
+// moment falling as the fold sharpens: a snap); how far q may go below 0 with E'' > 0 grows with the ramp's length
+// in log curvature (10 -> 80 /m: to about -0.95; 10 -> 40 /m: only to -0.5), the effect's bound says where.
 struct CurvatureFactor {
   std::vector<int> indices;
   double start = 0, full = 0;
