@@ -174,7 +174,7 @@ def _outside(q):
 
 
 # The effect that moves crest sharpness and the turn over the edge together (docs/physics.md#high_curvature_bending;
-# fabric 4 at log_factor -0.9, re-calibrated: crest p99 17 -> 29-33 degrees, real 29-30; edge turn 25 -> 39, real 38).
+# fabric 4 at log_factor -0.9, re-calibrated: crest p99 17 -> 27 degrees, real 29; edge turn 25 -> 40, real 38).
 _CURVATURE_HINT = {
     "sharper": "Softer bending in sharp folds does this: high_curvature_bending with log_factor < 0 (set it: one "
                "photo's silhouette does not fit it).",
