@@ -160,6 +160,26 @@ INSTANTIATE_TEST_SUITE_P(Registry, EffectParameters,
                            return std::get<0>(info.param) + (std::get<1>(info.param) ? "_heterogeneous" : "_homogeneous");
                          });
 
+// high_curvature_bending at -0.8 on a circle of 1500 vertices (edges ~8 mm: alpha up to ~140 /m); the material
+// jittered when heterogeneous; k: log_factor's index.
+struct BentSpecimen {
+  static ModelOptions options(bool heterogeneous) {
+    ModelOptions o;
+    o.heterogeneous = heterogeneous;
+    o.effects["high_curvature_bending"]["log_factor"] = -0.8;
+    return o;
+  }
+  explicit BentSpecimen(bool heterogeneous)
+      : model(make_cusick_specimen(1500), options(heterogeneous)),
+        p(heterogeneous ? jittered_parameters(model, 3) : model.default_parameters()),
+        k(model.layout().block(effect_block_name("high_curvature_bending", "log_factor")).offset) {
+    p[k] = -0.8;
+  }
+  Model model;
+  Eigen::VectorXd p;
+  int k;
+};
+
 // high_curvature_bending acts only where an edge's curvature measure alpha passes the table's 10 /m, which the
 // suite's 2 mm perturbation never reaches (and a mesh bent that far has edges on the C1 blends' nodes, where
 // central differences of second derivatives fail for the base term too). Its change is a factor M(d) on the
@@ -171,13 +191,10 @@ TEST(HighCurvatureBending, AngleDerivativesAreExactOnTheRampAndBeyondIt) {
   const EffectSpec& spec = find_effect("high_curvature_bending");
   for (bool heterogeneous : {false, true}) {
     SCOPED_TRACE(heterogeneous ? "heterogeneous" : "homogeneous");
-    ModelOptions o;
-    o.heterogeneous = heterogeneous;
-    o.effects[spec.name]["log_factor"] = -0.8;
-    Model model(make_cusick_specimen(1500), o);  // edges ~8 mm: alpha up to ~140 /m
-    Eigen::VectorXd p = heterogeneous ? jittered_parameters(model, 3) : model.default_parameters();
-    const int k = model.layout().block(effect_block_name(spec.name, "log_factor")).offset;
-    p[k] = -0.8;
+    BentSpecimen b(heterogeneous);
+    const Model& model = b.model;
+    const Eigen::VectorXd& p = b.p;
+    const int k = b.k;
     Eigen::VectorXd p0 = p;
     p0[k] = 0.0;
     const BendTerm* bend = nullptr;
@@ -239,13 +256,10 @@ TEST(HighCurvatureBending, KernelsAreExactInLogFactorOnABentMesh) {
   const EffectSpec& spec = find_effect("high_curvature_bending");
   for (bool heterogeneous : {false, true}) {
     SCOPED_TRACE(heterogeneous ? "heterogeneous" : "homogeneous");
-    ModelOptions o;
-    o.heterogeneous = heterogeneous;
-    o.effects[spec.name]["log_factor"] = -0.8;
-    Model model(make_cusick_specimen(1500), o);  // edges ~8 mm: 3 mm of noise bends some past 80 /m
-    Eigen::VectorXd pe = heterogeneous ? jittered_parameters(model, 3) : model.default_parameters();
-    pe[model.layout().block(effect_block_name(spec.name, "log_factor")).offset] = -0.8;
-    const Eigen::VectorXd x = perturbed_positions(model, 3e-3, 7);
+    BentSpecimen b(heterogeneous);
+    const Model& model = b.model;
+    const Eigen::VectorXd& pe = b.p;
+    const Eigen::VectorXd x = perturbed_positions(model, 3e-3, 7);  // 3 mm of noise bends some edges past 80 /m
     const Eigen::VectorXd areas = rest_areas(model.mesh());
     int below = 0, ramp = 0, beyond = 0;
     for (const BendingEdge& be : model.bending_edges()) {
