@@ -15,8 +15,6 @@ tools/effect_on_preset.py 4 --effects high_curvature_bending=-0.9 --out out/f4_h
 """
 import argparse
 import copy
-import glob
-import json
 import os
 import sys
 import time
@@ -25,9 +23,8 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, os.path.join(ROOT, "addon"))
 import numpy as np  # noqa: E402
 
-from drapelab import fold_geometry, infer, measure, paths, sim  # noqa: E402
-
-TRAINING_SAMPLE = {1: 5, 2: 2, 3: 1, 4: 4, 5: 2}  # the paper's (tools/paper_protocol.py)
+from drapelab import fit_effects, fold_geometry, infer, measure, paths, sim  # noqa: E402
+from paper_protocol import TRAINING_SAMPLE, captures, path, slug  # noqa: E402  (tools/, this script's folder)
 
 
 def main():
@@ -38,31 +35,23 @@ def main():
     ap.add_argument("--draws", type=int, default=12)
     ap.add_argument("--out", required=True)
     args = ap.parse_args()
-    data = paths.require_cusick_dataset()
+    paths.require_cusick_dataset()
     config = infer.load_config()
     f = args.fabric
-    preset = infer.load_preset(glob.glob(os.path.join(ROOT, "assets", "presets", f"fabric_{f:02d}_*_bdp.json"))[0])
-    registry = {e["name"]: e for e in sim.effects()}
-
-    def image(s):
-        return os.path.join(data, f"fabric_{f:02d}", "silhouettes", f"sample_{s:02d}_capture_1.jpg")
-
-    def mesh(s):
-        return os.path.join(data, f"fabric_{f:02d}", "meshes", f"sample_{s:02d}_capture_1.obj")
+    rows = captures(f)
+    train = [r for r in rows if int(r["sample"]) == TRAINING_SAMPLE[f]][0]
+    tests = [r for r in rows if r is not train]
+    preset = infer.load_preset(os.path.join(ROOT, "assets", "presets", f"{slug(train)}_bdp.json"))
 
     t0 = time.monotonic()
     if args.effects:
-        values = sim.parse_effects_arg(args.effects, bare="moderate")
-        units = {n: {q["name"]: q["unit"] for q in registry[n]["parameters"]} for n in values}
         p = copy.deepcopy(preset)
-        p["active_effects"] = {n: {k: {"value": v, "unit": units[n][k]} for k, v in params.items()}
-                               for n, params in values.items()}
-        preset = infer.calibrate_preset(p, [image(TRAINING_SAMPLE[f])], config=config)
+        p["active_effects"] = fit_effects.EffectPlan(sim.parse_effects_arg(args.effects, bare="moderate")).preset_block()
+        preset = infer.calibrate_preset(p, [path(train["silhouette"])], config=config)
         infer.write_preset(args.out.replace(".json", "") + ".preset.json", preset)
     calibration_s = time.monotonic() - t0
-    tests = [s for s in range(1, 13) if s != TRAINING_SAMPLE[f]]
-    ev = infer.evaluate(preset, [image(s) for s in tests], meshes=[mesh(s) for s in tests], samples=args.samples,
-                        seed=0, config=config)
+    ev = infer.evaluate(preset, [path(r["silhouette"]) for r in tests], meshes=[path(r["mesh"]) for r in tests],
+                        samples=args.samples, seed=0, config=config)
     pred = infer._Predictive(preset, (256, 256), 2, config, mesh_level=3)
     m = pred.models[0]
     rest, edges = np.asarray(m.rest_positions), np.asarray(m.bending_edges)
@@ -77,8 +66,9 @@ def main():
     measure.write_json(args.out, result)
     mn = ev["mean"]
     bands = "; ".join(f"{b['crest_p99'][0]:.1f}/{b['hoop_p95'][0]:.1f}" for b in geometry["bands"] if b["crest_p99"])
-    print(f"fabric {f} {args.effects or 'shipped'}: MSE best-of-1/10/100 {mn['mse_best_of']['1']:.4f}/"
-          f"{mn['mse_best_of']['10']:.4f}/{mn['mse_best_of'][str(args.samples)]:.4f} Hausdorff {mn['hausdorff_m']:.4f} "
+    curve = mn["mse_best_of"]  # best of 1, 10, 100, ... up to --samples
+    print(f"fabric {f} {args.effects or 'shipped'}: MSE best-of-{'/'.join(curve)} "
+          f"{'/'.join(f'{v:.4f}' for v in curve.values())} Hausdorff {mn['hausdorff_m']:.4f} "
           f"DC abs {mn['dc_abs_error']:.3f} cov {mn['dc_coverage90']:.2f} nodes within 1 {mn['node_within1']:.2f} depth "
           f"bias {mn['amplitude_bias_m'] * 1e3:+.2f} mm cov {mn['amplitude_coverage90']:.2f}; crest p99 / hoop p95 per "
           f"band {bands}; {result['seconds']:.0f} s", flush=True)

@@ -20,7 +20,6 @@ positions and fold shapes are (IoU 0.94-0.98 against the silhouettes).
 Run with ./drapelab's environment: `PYTHONPATH=addon:build/python /usr/bin/python3 tools/fold_geometry.py`.
 """
 import argparse
-import glob
 import json
 import os
 import sys
@@ -31,6 +30,7 @@ import numpy as np  # noqa: E402
 
 from drapelab import infer, paths, sim  # noqa: E402
 from drapelab.fold_geometry import RECONSTRUCTION_NOISE_M, ring_stats, summarise  # noqa: E402
+from paper_protocol import captures, path, slug  # noqa: E402  (tools/, this script's folder)
 
 
 def with_noise(x, sd, rng):
@@ -54,16 +54,17 @@ def main():
     config = infer.load_config()
     result = {}
     for f in (int(s) for s in args.fabrics.split(",")):
-        preset = infer.load_preset(glob.glob(os.path.join(ROOT, "assets", "presets", f"fabric_{f:02d}_*_bdp.json"))[0])
+        rows = captures(f)
+        preset = infer.load_preset(os.path.join(ROOT, "assets", "presets", f"{slug(rows[0])}_bdp.json"))
         pred = infer._Predictive(preset, (256, 256), 2, config, mesh_level=3)
         model = pred.models[0]
         rest, edges = np.asarray(model.rest_positions), np.asarray(model.bending_edges)
         real = []
-        for s in range(1, 13):
-            mesh = sim.read_obj(os.path.join(data, f"fabric_{f:02d}", "meshes", f"sample_{s:02d}_capture_1.obj"))
-            x = np.asarray(mesh.positions, dtype=float).reshape(-1, 3)
+        for r in rows:
+            x = np.asarray(sim.read_obj(path(r["mesh"])).positions, dtype=float).reshape(-1, 3)
             if len(x) != len(rest):
-                raise SystemExit(f"fold_geometry: fabric {f} sample {s}: {len(x)} vertices, circle3 has {len(rest)}")
+                raise SystemExit(f"fold_geometry: fabric {f} sample {r['sample']}: {len(x)} vertices, circle3 has "
+                                 f"{len(rest)}")
             real.append(ring_stats(x, rest, edges))
         draws = infer.preset_bend_samples(preset, pred.num_edges, np.random.default_rng(args.seed), args.draws)
         shapes = [s for s in pred.drape(draws, args.seed) if "x" in s]

@@ -29,8 +29,7 @@ import time
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, os.path.join(ROOT, "addon"))
 from drapelab import diagnose, infer, paths  # noqa: E402
-
-TRAINING_SAMPLE = {1: 5, 2: 2, 3: 1, 4: 4, 5: 2}  # the paper's (tools/paper_protocol.py)
+from paper_protocol import TRAINING_SAMPLE  # noqa: E402  (the paper's training samples; tools/, this folder)
 
 
 def test_photos(data, fabric, count):
