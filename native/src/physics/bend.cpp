@@ -16,6 +16,7 @@ BendTerm::BendTerm(const TriangleMesh& mesh, const std::vector<BendingEdge>& edg
       curvature_(std::move(curvature)) {
   if (curvature_.active() && !(curvature_.start > 0 && curvature_.full > curvature_.start))
     throw InputError("bend: a curvature factor needs 0 < start < full");
+  if (curvature_.active()) curvature_log_span_ = std::log(curvature_.full / curvature_.start);
   for (const auto& c : modulation_.coefficients)
     if (c.size() != edges.size()) throw InputError("bend: a modulation needs one coefficient per bending edge");
   for (const auto& c : rest_.coefficients)
@@ -115,7 +116,7 @@ void BendTerm::apply_curvature_factor(int e, double d, const Eigen::VectorXd& p,
   const double H = height_sum_[e];
   const double sg = sn >= 0 ? 1.0 : -1.0;
   const double alpha = sg * sn / H;
-  const double ell = std::log(curvature_.full / curvature_.start);
+  const double ell = curvature_log_span_;
   double S[4] = {0.0, 0.0, 0.0, 0.0};
   if (alpha >= curvature_.full) {
     S[0] = 1.0;

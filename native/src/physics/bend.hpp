@@ -287,6 +287,7 @@ class BendTerm : public ElementTerm<BendTerm, 4, 15, 1> {
   EnergyModulation modulation_;
   RestAngles rest_;
   CurvatureFactor curvature_;
+  double curvature_log_span_ = 0;  // ln(full / start) of curvature_, the ramp's length in log curvature
   // Adds scale * value to the curvature factor's parameters (value: a q-derivative, ad.dq[n] times a product).
   void add_curvature_gradient(double value, double scale, Eigen::VectorXd& gp) const {
     for (int i : curvature_.indices) gp[i] += scale * value;
