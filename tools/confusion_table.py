@@ -102,6 +102,9 @@ def main():
                          "step), or 'random': log-uniform in [0.7, 1.4] per seed and effect")
     ap.add_argument("--directions", choices=("x", "random"), default="x",
                     help="a tilt along +x (the tables before 2026-11-28) or in a random direction per seed")
+    ap.add_argument("--meshes", action="store_true",
+                    help="also give the diagnosis the synthetic drapes' meshes (its 3D step test; noise-free: "
+                         "mesh noise 0)")
     args = ap.parse_args()
     registry = {e["name"]: e for e in sim.effects()}
     names = args.effects.split(",") if args.effects else [
@@ -130,7 +133,10 @@ def main():
             synth.synth(folder, DENSITY, effects=effects, count=args.count, seed=seed, mesh_level=args.mesh_level,
                         force=True)
             t0 = time.monotonic()
-            d = diagnose.diagnose(reference_path, images_of(folder), time_budget=args.time_budget,
+            images = images_of(folder)
+            meshes = ([os.path.join(folder, "fabric_00", "meshes", os.path.basename(i)[:-4] + ".obj") for i in images]
+                      if args.meshes else None)
+            d = diagnose.diagnose(reference_path, images, meshes=meshes, mesh_noise_m=0.0, time_budget=args.time_budget,
                                   samples=args.samples, seed=seed + DIAGNOSE_SEED_OFFSET, config=config,
                                   mesh_level=args.mesh_level,
                                   out_dir=os.path.join(folder, "report"))
@@ -156,6 +162,7 @@ def main():
                    "p_values": {e["effect"]: e["p_value"] for e in tested},
                    "p_values_score": {e["effect"]: e.get("p_value_score", e["p_value"]) for e in tested},
                    "p_values_step": {e["effect"]: e["step"]["p_value"] for e in tested if e.get("step")},
+                   "p_values_step_3d": {e["effect"]: e["step_3d"]["p_value"] for e in tested if e.get("step_3d")},
                    "p_values_step_permutation": {e["effect"]: e["step"].get("p_value_permutation")
                                                  for e in tested if e.get("step")},
                    "steps": {e["effect"]: e["step"]["step"] for e in tested if e.get("step")},

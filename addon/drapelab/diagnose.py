@@ -77,6 +77,17 @@
    (steps_within: the offset's diagonals first, then the candidates with the largest score p; the dropped ones keep
    their score p alone). (Measured before it, on circle3 the whole library left 2-3 draws per step:
    no step test, so the fold-pattern effects the score misses could not be found; docs/diagnose.md.)
+2c. The 3D step test (with --meshes on the model's topology: the Cusick reconstructions are circle3's). Some
+   effects change a drape's folds in depth and sharpness more than its outline (high_curvature_bending: the crests'
+   and the edge's hinge angles; measured on fabric 4, docs/lab/fold-depth.md). The step drapes of 2b are compared
+   a second time, by their fold features (fold_geometry.features: per band of rest radius the crest and hoop
+   hinge angles' 95th / 99th percentiles, per material ring the mean height and the fold amplitude; the simulated
+   drapes' angles taken with the measured meshes' vertex noise, mesh_noise_m): the distance of two drapes is the
+   mean squared feature difference, each feature over its sd among P's own drapes (the references), and the
+   statistic and p are 2b's with it in place of the pixel MSE (step_tests_3d; the quadratic's terms in the draw
+   cancel, so the statistic is the step's mean feature change projected on how the measured meshes differ from
+   P's drapes). A candidate's p_value is then min(1, 3 min(score p, step p, 3D step p)); screened, a candidate
+   passes the screen by either step test.
 3. Refits. When at least one candidate is below the threshold (the data differ from P), the candidates with p
    below REFIT_P_MAX are refitted, up to MAX_REFITS of them in refit_order (the significant ones first, each group
    by the sum of their ranks by combined p and by the step test's p, then statistic), under the time budget: the score test says that
@@ -233,6 +244,7 @@ STEP_FAMILY_DRAWN = (1e-5, 0.05)  # ... drawn only where Bonferroni's p lies abo
 # step_direction: the refit starts along the steps' first harmonic where it explains at least this share of their
 # statistics' variance (a tilt's four steps: 0.99 at seeds 721 and 751; an offset's eight: 0.37-0.38)
 DIRECTION_R2_MIN = 0.8
+MESH_NOISE_STREAM = 43    # the 3D step test's vertex noise streams: [seed, this, kind, draw, step] (MeshFeatures)
 STEP_PERMUTATIONS_MAX = 20000  # labellings enumerated up to this count (six images, 12 references: 18564), else drawn
                                # (the relabelling test: the fallback without references, and p_value_permutation)
 
@@ -428,23 +440,32 @@ def _observations(images):
     return obs
 
 
-def geometry_3d(meshes, drapes, model, seed=0):
-    """The measured meshes (OBJ paths) against the draws' drapes (list of (V, 3)) in 3D: drapelab.fold_geometry's
-    comparison per material ring and hinge band with its words, when every measured mesh has the model's topology
-    (the dataset's reconstructions are circle3's mesh: diagnose them on --mesh-level 3); else {"skipped": why}."""
+def measured_positions(meshes, model):
+    """(positions, None): the measured meshes (OBJ paths) as (V, 3) arrays when every one has the model's topology
+    (the dataset's reconstructions are circle3's mesh: diagnose them on --mesh-level 3), else (None, why)."""
     faces = np.asarray(model.faces)
     measured = []
     for path in meshes:
         mesh = sim.read_obj(path)
         x, f = np.asarray(mesh.positions, dtype=float).reshape(-1, 3), np.asarray(mesh.faces)
         if len(x) != model.num_vertices or f.shape != faces.shape or not np.array_equal(f, faces):
-            return {"skipped": f"{os.path.basename(os.fspath(path))} has {len(x)} vertices and {len(f)} faces, the "
-                               f"model's mesh {model.num_vertices} and {len(faces)}: the 3D fold comparison needs the "
-                               "measured meshes on the model's topology (the Cusick dataset's reconstructions are "
-                               "circle3's: --mesh-level 3)"}
+            return None, (f"{os.path.basename(os.fspath(path))} has {len(x)} vertices and {len(f)} faces, the "
+                          f"model's mesh {model.num_vertices} and {len(faces)}: the 3D comparison and test need the "
+                          "measured meshes on the model's topology (the Cusick dataset's reconstructions are "
+                          "circle3's: --mesh-level 3)")
         measured.append(x)
+    return measured, None
+
+
+def geometry_3d(meshes, drapes, model, seed=0, noise_m=fold_geometry.RECONSTRUCTION_NOISE_M):
+    """The measured meshes (OBJ paths) against the draws' drapes (list of (V, 3)) in 3D: drapelab.fold_geometry's
+    comparison per material ring and hinge band with its words, when every measured mesh has the model's topology
+    (measured_positions); else {"skipped": why}."""
+    measured, why = measured_positions(meshes, model)
+    if measured is None:
+        return {"skipped": why}
     return fold_geometry.compare(measured, drapes, np.asarray(model.rest_positions), np.asarray(model.bending_edges),
-                                 seed=seed)
+                                 noise_m=noise_m, seed=seed)
 
 
 def _summary(shapes, observations, camera_cal, sigma_obs, sigma_dc):
@@ -882,14 +903,16 @@ class _ForwardModels:
             return self._models[key]
 
 
-def _forward_silhouette(m, p, v0, pred, config, cancel_event):
-    """The hard silhouette of one forward drape (no record), or None when the drape fails; Cancelled passes."""
+def _forward_silhouette(m, p, v0, pred, config, cancel_event, with_positions=False):
+    """The hard silhouette of one forward drape (no record), or None when the drape fails; Cancelled passes.
+    `with_positions`: (silhouette, positions (V, 3)), (None, None) when the drape fails."""
     try:
         x = m.simulate(p, mode="dynamic", record=False, velocities0=v0, cancel_event=cancel_event,
                        **config["dynamic"])
     except SolverError:
-        return None
-    return infer._hard_image(pred.camera, infer._observed(m, x, p), m.faces)
+        return (None, None) if with_positions else None
+    image = infer._hard_image(pred.camera, infer._observed(m, x, p), m.faces)
+    return (image, np.asarray(x, dtype=float).reshape(-1, 3)) if with_positions else image
 
 
 def step_tasks(steps, n_used):
@@ -909,7 +932,7 @@ def complete_draws(images, n_used):
     return n_used
 
 
-def _step_drapes(pred, drawn, steps, used, config, lanes, progress, cancel_event, deadline=None):
+def _step_drapes(pred, drawn, steps, used, config, lanes, progress, cancel_event, deadline=None, positions=None):
     """Hard images of the scored draws `used` (the same material draws, P's effect draws and placement noise) with
     each step's effect switched on: {(effect, step index): [image or None per used draw]}. Forward drapes only, each
     on a model with P's effects and the stepped one (drawn["light"], _ForwardModels).
@@ -917,9 +940,11 @@ def _step_drapes(pred, drawn, steps, used, config, lanes, progress, cancel_event
     (step_tasks), and a draw not draped on every step is left out: its images are dropped, so the lists are as long
     as the complete draws (complete_draws). A budget is a promise: the screen's confirmation runs to its deadline
     and not past it (measured on circle3 before it: 16-43 s past its plan, the refit evaluation it had reserved
-    left unpaid, docs/diagnose.md)."""
+    left unpaid, docs/diagnose.md). `positions` (a dict): filled like the result with the drapes' positions (None
+    where a drape failed), for the 3D step test."""
     tasks = step_tasks(steps, len(used))
     out = {(n, si): [False] * len(used) for n, st in steps.items() for si in range(len(st))}  # False: not draped
+    xs = {key: [None] * len(used) for key in out}
     done = [0]
     cursor = [0]  # the next task, shared by the lanes: draws complete in order
     lock = threading.Lock()
@@ -941,7 +966,8 @@ def _step_drapes(pred, drawn, steps, used, config, lanes, progress, cancel_event
             m = drawn["light"].get(lane, n, drawn["offs"][n])
             p = m.parameters(stretch=pred.stretch, bend=drawn["bend"][i], effects={**base, n: values})
             try:
-                out[(n, si)][u] = _forward_silhouette(m, p, drawn["velocities"][i], pred, config, cancel_event)
+                out[(n, si)][u], xs[(n, si)][u] = _forward_silhouette(m, p, drawn["velocities"][i], pred, config,
+                                                                      cancel_event, with_positions=True)
             except Cancelled:
                 return
             with lock:
@@ -952,26 +978,30 @@ def _step_drapes(pred, drawn, steps, used, config, lanes, progress, cancel_event
 
     _in_lanes(run, lanes)
     complete = complete_draws(out, len(used))
+    if positions is not None:
+        positions.update({key: v[:complete] for key, v in xs.items()})
     return {key: v[:complete] for key, v in out.items()}
 
 
-def step_tests(base_images, step_images, steps, observed, references, redrapes=()):
+def step_tests(base_images, step_images, steps, observed, references, redrapes=(), distance=None):
     """{effect: {statistic, p_value, z, p_value_permutation, step, best_of_k_fall}} from the step drapes (module
     doc, 2b): per step, the change of the draws' mean pixel MSE against every measured, reference and re-drape image
     (draws that failed with the step are left out on both sides), then step_specimen_test (p_value; with fewer than
     three references, step_permutation_test) and, for comparison, step_permutation_test on the measured images and
     references (p_value_permutation). best_of_k_fall is the measured images' mean best-of-K MSE fall the best step
-    makes (positive: closer)."""
+    makes (positive: closer). `distance(a, q)`: what is compared instead of the pixel MSE (the 3D step test's
+    feature distance, step_tests_3d; the "images" are then whatever it takes)."""
+    distance = distance or measure.pixel_mse
     images = list(observed) + list(references) + list(redrapes)
     n, j = len(observed), len(references)
-    base = np.array([[measure.pixel_mse(b, q) for q in images] if b is not None else [np.nan] * len(images)
+    base = np.array([[distance(b, q) for q in images] if b is not None else [np.nan] * len(images)
                      for b in base_images])
     out = {}
     for name, st in steps.items():
         deltas, falls, failed = [], [], set()
         for si in range(len(st)):
             imgs = step_images[(name, si)]
-            e = np.array([[measure.pixel_mse(a, q) for q in images] if a is not None else [np.nan] * len(images)
+            e = np.array([[distance(a, q) for q in images] if a is not None else [np.nan] * len(images)
                           for a in imgs])
             both = ~np.isnan(e[:, 0]) & ~np.isnan(base[:, 0])
             if both.sum() < MIN_SAMPLES:
@@ -995,6 +1025,69 @@ def step_tests(base_images, step_images, steps, observed, references, redrapes=(
                                    "statistic": None if si in failed else float(x)}
                                   for si, ((label, values), x) in enumerate(zip(st, per_step))]}
     return out
+
+
+class MeshFeatures:
+    """The 3D step test's view of drapes (module doc, 2c): fold_geometry.features of a drape on the model's
+    specimen (rest, bending edges), the simulated drapes' hinge angles taken with `noise_m` of vertex noise (the
+    measured meshes' own reconstruction noise: they carry theirs), drawn per drape from a stream fixed by the
+    drape's `key`, so the features do not depend on the threads' order."""
+
+    def __init__(self, rest, edges, noise_m, seed):
+        self.rest, self.edges = np.asarray(rest, dtype=float), np.asarray(edges)
+        self.noise_m, self.seed = float(noise_m), int(seed)
+
+    def measured(self, x):
+        return fold_geometry.features(x, self.rest, self.edges)
+
+    def simulated(self, x, key):
+        """`key`: a tuple of whole numbers naming the drape (its kind, draw and step)."""
+        if x is None:
+            return None
+        rng = np.random.default_rng([self.seed, MESH_NOISE_STREAM, *(int(k) for k in key)])
+        return fold_geometry.features(x, self.rest, self.edges, self.noise_m, rng)
+
+
+def feature_scale(measured, references):
+    """(scale, kept): per 3D feature the references' sd (P's own predictive drapes: how much the feature varies
+    where P is right), and which features the 3D step test compares: measured on every measured mesh and
+    reference drape (a coarse mesh leaves rings unmeasured) and varying over the references."""
+    m, r = np.atleast_2d(np.asarray(measured, dtype=float)), np.atleast_2d(np.asarray(references, dtype=float))
+    kept = ~np.isnan(m).any(axis=0) & ~np.isnan(r).any(axis=0)
+    scale = np.ones(m.shape[1])
+    if len(r) >= 2:
+        scale[kept] = np.std(r[:, kept], axis=0, ddof=1)
+    kept &= scale > 0
+    return np.where(kept, scale, 1.0), kept
+
+
+def step_tests_3d(base_features, step_features, steps, measured, references, redrapes=()):
+    """The 3D step test (module doc, 2c): step_tests with each drape's fold features (fold_geometry.features:
+    crest and hoop hinge angles per band, height and fold amplitude per ring) in place of its silhouette and the
+    mean squared difference of the features, each over the references' sd, in place of the pixel MSE. Per step
+    the statistic is then the step's mean feature change projected on how the measured meshes differ from P's own
+    drapes (the quadratic's terms in the draw alone cancel between measured and references), and its p is the
+    specimen null's as in 2D. Returns step_tests' dict, plus "features" (the compared features' names)."""
+    scale, kept = feature_scale(measured, list(references) + list(redrapes))
+    if not kept.any():
+        return {}
+
+    def distance(a, q):
+        d = (np.asarray(a)[kept] - np.asarray(q)[kept]) / scale[kept]
+        return float(np.mean(d * d)) if not np.isnan(d).any() else np.nan
+
+    out = step_tests(base_features, step_features, steps, measured, references, redrapes, distance=distance)
+    names = [nm for nm, k in zip(fold_geometry.feature_names(), kept) if k]
+    for st in out.values():
+        st["features"] = names
+    return out
+
+
+def combined_p(*p_values):
+    """A candidate's p from its tests' (score, step, 3D step; None: not run): Bonferroni over the tests run,
+    min(1, m min p)."""
+    ps = [float(q) for q in p_values if q is not None]
+    return min(1.0, len(ps) * min(ps)) if ps else None
 
 
 def step_direction(entry, second, per_step):
@@ -1122,11 +1215,12 @@ def _signature(obs, ok, best, calibration):
 
 
 def _pseudo_observations(pred, preset, models, offs, j, seed, config, lanes, progress, cancel_event, stream=0,
-                         mean_material=False):
+                         mean_material=False, positions=None):
     """`j` silhouettes of the preset's own predictive (posterior draws with placement noise, independent of the
     scored draws): what the measurement would look like if P were right. Forward drapes only (no record).
     `stream` 1, 2 draw other, independent sets (the step test's extra references, the re-drape floor's);
-    `mean_material`: every drape of P's mean material and effects, only the placement differs (re-draping alone)."""
+    `mean_material`: every drape of P's mean material and effects, only the placement differs (re-draping alone).
+    `positions` (a list): the drapes' positions are appended to it, in the order of the silhouettes returned."""
     if mean_material:
         mean = copy.deepcopy(preset)
         bend = mean["posterior"]["bend"]
@@ -1142,7 +1236,7 @@ def _pseudo_observations(pred, preset, models, offs, j, seed, config, lanes, pro
             [seed, 29] if stream == 0 else [seed, 29, stream]), j)
     amplitude, modes = pred.placement
     rest = models[0].rest_positions
-    images = [None] * j
+    images, xs = [None] * j, [None] * j
 
     def run(lane):
         m = models[lane]
@@ -1153,7 +1247,7 @@ def _pseudo_observations(pred, preset, models, offs, j, seed, config, lanes, pro
             v0 = infer.placement_velocities(rest, np.random.default_rng([seed, PSEUDO_SEED_OFFSET * (1 + stream) + i, 1]),
                                             amplitude, modes) if amplitude > 0 else None
             try:
-                images[i] = _forward_silhouette(m, p, v0, pred, config, cancel_event)
+                images[i], xs[i] = _forward_silhouette(m, p, v0, pred, config, cancel_event, with_positions=True)
             except Cancelled:
                 return
             if images[i] is None:
@@ -1162,6 +1256,8 @@ def _pseudo_observations(pred, preset, models, offs, j, seed, config, lanes, pro
             _progress(progress, "draws", f"predictive silhouette {i + 1}/{j} draped ({what})")
 
     _in_lanes(run, lanes)
+    if positions is not None:
+        positions += [x for im, x in zip(images, xs) if im is not None]
     return [im for im in images if im is not None]
 
 
@@ -1226,7 +1322,9 @@ def _joint_drapes(preset, observations, names, k, seed, config, threads, templat
     # the null reference: P's own predictive silhouettes, as many as there are images (at least PSEUDO_MIN)
     observed = [o.mask for o in observations]
     j = max(PSEUDO_MIN, len(observed))
-    pseudo = _pseudo_observations(pred, preset, light.plain, {}, j, seed, config, lanes, progress, cancel_event)
+    drawn["pseudo_x"] = []  # their positions (the 3D step test's references)
+    pseudo = _pseudo_observations(pred, preset, light.plain, {}, j, seed, config, lanes, progress, cancel_event,
+                                  positions=drawn["pseudo_x"])
     if len(pseudo) < PSEUDO_MIN:
         if cancel_event is not None and cancel_event.is_set():
             return pred, models, shapes, grads, time.monotonic() - t0, lanes, pseudo, drawn
@@ -1568,9 +1666,11 @@ def refit_with_effect(preset, images, name, level, seed, config, threads=None, t
 
 def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, samples=None, seed=0, config=None,
              threads=None, template_dir=None, mesh_level=None, out_dir=None, progress=None, cancel_event=None,
-             alpha=ALPHA, max_refits=MAX_REFITS):
+             alpha=ALPHA, max_refits=MAX_REFITS, mesh_noise_m=fold_geometry.RECONSTRUCTION_NOISE_M):
     """Diagnoses `preset` (a path or a preset dict) against measured silhouettes (module doc); `max_refits`: how
-    many of the most promising candidates are refitted (default MAX_REFITS). Returns the diagnosis
+    many of the most promising candidates are refitted (default MAX_REFITS); `mesh_noise_m`: the measured meshes'
+    vertex noise sd [m], added to the simulated drapes' hinge angles in 3D (default the Cusick reconstructions';
+    0 for noise-free meshes such as synth's). Returns the diagnosis
     dict; with `out_dir`, writes DIR/diagnosis.json (after every stage), DIR/presets/<effect>.json per refit and
     the report DIR/index.html with its PNGs. `progress` receives {stage, message, ...}; `cancel_event` stops
     cleanly: the diagnosis then holds what was done ("cancelled": true)."""
@@ -1593,6 +1693,9 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
     alpha = float(alpha)
     if not 0 < alpha <= 1:
         raise InputError(f"alpha: a significance level in (0, 1], got {alpha}")
+    mesh_noise_m = float(mesh_noise_m)
+    if not 0 <= mesh_noise_m < 0.01:
+        raise InputError(f"mesh_noise: the measured meshes' vertex noise sd, in [0, 10) mm, got {1000 * mesh_noise_m:g} mm")
     switches = [n for n in names if _is_switch(reg[n])]
     named = {str(c).strip() for c in (candidates.split(",") if isinstance(candidates, str) else (candidates or []))}
 
@@ -1643,8 +1746,10 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                                        float(config["sigma_obs"]), SCORE_SIGMA_DC)
         # the re-drape floor: the draws against P's mean material re-draped (placement noise only)
         tr = time.monotonic()
+        redrape_x = []
         redrapes = _pseudo_observations(pred, p, drawn["light"].plain, {}, max(REDRAPE_FLOOR_MIN, len(observations)),
-                                        seed, config, lanes, progress, cancel_event, stream=2, mean_material=True)
+                                        seed, config, lanes, progress, cancel_event, stream=2, mean_material=True,
+                                        positions=redrape_x)
         forward_measured = (time.monotonic() - tr) / len(redrapes) if redrapes else None
         floor = _redrape_floor([shapes[i] for i in done], redrapes)
         if floor is not None:
@@ -1658,8 +1763,16 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
             figures["images"].append({"mask": o.mask, "best": ok[e["best_draw"]]["image"], **curves})
         for e, mesh in zip(per_image, meshes):  # the best draw's mesh against the measured one
             e["hausdorff_m"] = float(measure.hausdorff_distance((ok[e["best_draw"]]["x"], models[0].faces), mesh))
+        mesh3d, f_measured, mesh_test = None, None, None  # the 3D step test's features (module doc, 2c)
         if meshes:  # where in 3D: fold shape per ring, crest and edge hinge angles (drapelab.fold_geometry)
-            result["geometry"] = geometry_3d(meshes, [s["x"] for s in ok], models[0], seed)
+            result["geometry"] = geometry_3d(meshes, [s["x"] for s in ok], models[0], seed, mesh_noise_m)
+            measured_x, why = measured_positions(meshes, models[0])
+            if measured_x is None:
+                mesh_test = {"skipped": why}
+            else:
+                mesh3d = MeshFeatures(models[0].rest_positions, models[0].bending_edges, mesh_noise_m, seed)
+                f_measured = [mesh3d.measured(x) for x in measured_x]
+                mesh_test = {"measured_meshes": len(f_measured), "noise_m": mesh_noise_m}
         result["per_image"] = per_image
         result["draws_used"] = len(done)
         per_draw = seconds * lanes / max(1, len(done))
@@ -1724,7 +1837,7 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                                              f"{full} steps; dropped {', '.join(steps_dropped)}")
             if MIN_SAMPLES <= k_step and k_step < SCREEN_BELOW * len(done):  # thin: screen, then confirm
                 k_screen = min(k_step, SCREEN_DRAWS)
-        tests = {}
+        tests, tests3d = {}, {}
         # (the specimen test's p is continuous, so any number of images can reach the threshold: until 2026-11-28
         # the relabelling test was not run where its smallest p, 2 / C(n + J, n), could not)
         if n_steps and k_step < MIN_SAMPLES:
@@ -1738,12 +1851,30 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                                          f"candidates x {k_first} draws")
             j_extra = j_step - len(pseudo)
             references = list(pseudo)
+            reference_x = list(drawn["pseudo_x"])
             if j_extra > 0:
                 references += _pseudo_observations(pred, p, drawn["light"].plain, {}, j_extra, seed, config, lanes,
-                                                   progress, cancel_event, stream=1)
+                                                   progress, cancel_event, stream=1, positions=reference_x)
             used = done[:k_first]
             tf = time.monotonic()
-            images_k = _step_drapes(pred, drawn, steps, used, config, lanes, progress, cancel_event)
+            step_x = {}
+            images_k = _step_drapes(pred, drawn, steps, used, config, lanes, progress, cancel_event,
+                                    positions=step_x)
+            if mesh3d is not None:
+                f_references = [mesh3d.simulated(x, (1, r)) for r, x in enumerate(reference_x)]
+                f_redrapes = [mesh3d.simulated(x, (3, r)) for r, x in enumerate(redrape_x)]
+
+            def tests_3d(draw_ids, positions, subset):
+                """The 3D step test of the steps `subset` on the draws `draw_ids` (their step drapes' positions)."""
+                if mesh3d is None:
+                    return {}
+                f_base = [mesh3d.simulated(shapes[i]["x"], (0, i)) for i in draw_ids]
+                f_steps = {key: [mesh3d.simulated(x, (4, draw_ids[u], names.index(key[0]), key[1]))
+                                 for u, x in enumerate(v)] for key, v in positions.items() if key[0] in subset}
+                out = step_tests_3d(f_base, f_steps, subset, f_measured, f_references, f_redrapes)
+                for st in out.values():
+                    st["draws"] = len(draw_ids)
+                return out
             # the latest forward drape time, on these models and lanes: what the confirmation and the refits'
             # evaluations are planned with (one estimate for both: 1.43 s a drape on circle3, as the floor's)
             forward_step = (time.monotonic() - tf) / max(1, len(used) * n_steps)
@@ -1755,6 +1886,7 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                 tt = time.monotonic()
                 tests = step_tests([shapes[i]["image"] for i in used], images_k, steps, observed, references,
                                    redrapes)
+                tests3d = tests_3d(used, step_x, steps)
                 # the tests' own computation per draw and step (pixel MSEs against every image, the relabellings):
                 # a confirmation repeats it on all its draws
                 test_s = (time.monotonic() - tt) / max(1, len(used) * n_steps)
@@ -1765,12 +1897,15 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                                                int(max_refits))
                     kept_back = REPORT_RESERVE_S + reserved * k * forward_step * EVALUATION_OVERHEAD
                     room = left - (time.monotonic() - ts) - kept_back
-                    confirmed, m = confirmation_plan(tests, {n: len(v) for n, v in steps.items()}, room, forward_step,
+                    # a candidate passes the screen by its 2D or its 3D step test
+                    screen = {n: {"p_value": min(st["p_value"], tests3d.get(n, {}).get("p_value", 1.0)),
+                                  "statistic": st["statistic"]} for n, st in tests.items()}
+                    confirmed, m = confirmation_plan(screen, {n: len(v) for n, v in steps.items()}, room, forward_step,
                                                      len(done) - k_screen, k_screen, test_s)
                     screen_info = {"draws": k_screen, "p_max": SCREEN_P_MAX, "passed": sorted(
-                        n for n, st in tests.items() if st["p_value"] < SCREEN_P_MAX), "confirmed": confirmed,
+                        n for n, st in screen.items() if st["p_value"] < SCREEN_P_MAX), "confirmed": confirmed,
                         "confirmation_draws": m}
-                    for st in tests.values():
+                    for st in list(tests.values()) + list(tests3d.values()):
                         st["screen"] = {"draws": k_screen, "statistic": st["statistic"], "p_value": st["p_value"],
                                         "step": st["step"]}
                     if confirmed:
@@ -1783,8 +1918,9 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                         # and one drape in flight per lane would no longer fit (a plan is an estimate; this holds it)
                         deadline = (t0 + float(time_budget) - kept_back
                                     - (test_s or 0.0) * n_sub * (k_screen + m) - forward_step * lanes)
+                        more_x = {}
                         more = _step_drapes(pred, drawn, sub, fresh, config, lanes, progress, cancel_event,
-                                            deadline=deadline)
+                                            deadline=deadline, positions=more_x)
                         fresh = fresh[:len(next(iter(more.values()), []))]
                         screen_info["confirmation_draws"] = len(fresh)
                         if len(fresh) < m:
@@ -1797,11 +1933,24 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                             for n, st in step_tests([shapes[i]["image"] for i in both], merged, sub, observed,
                                                     references, redrapes).items():
                                 tests[n] = {**st, "draws": len(both), "screen": tests[n]["screen"]}
-                    for st in tests.values():  # unconfirmed (on the screen's draws only): at least SCREEN_P_MAX
+                            for n, st in tests_3d(both, {key: step_x[key] + more_x[key] for key in more_x},
+                                                  sub).items():
+                                tests3d[n] = {**st, "screen": tests3d[n]["screen"]}
+                    for st in list(tests.values()) + list(tests3d.values()):  # unconfirmed: at least SCREEN_P_MAX
                         if st["draws"] == k_screen:
                             st["p_value"] = max(st["p_value"], SCREEN_P_MAX)
             result["seconds"]["steps"] = time.monotonic() - ts
+            if mesh_test is not None and "skipped" not in mesh_test:
+                names_3d = next((st["features"] for st in tests3d.values()), [])
+                mesh_test.update(features=names_3d, tested=sorted(tests3d),
+                                 rule="the same step drapes, each compared by its 3D fold features (crest and hoop "
+                                      "hinge angles per band, height and fold amplitude per ring; the simulated "
+                                      "drapes' angles with the measured meshes' vertex noise) instead of its "
+                                      "silhouette: the mean squared feature difference over the references' sd, "
+                                      "against the measured meshes, P's own drapes and the re-drapes; the same "
+                                      "specimen null; p_value = min(1, 3 min(score p, step p, 3D step p))")
             result["step_test"] = {"draws": len(used), "references": len(references), "redrapes": len(redrapes),
+                                   "mesh": mesh_test,
                                    "screen": screen_info, "forward_s": forward_step, "test_s": test_s,
                                    "steps": n_steps, "dropped_steps": steps_dropped,
                                    "rule": "per candidate the primary parameter at +- its moderate strength (and "
@@ -1833,8 +1982,10 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                 st["direction"] = direction
             entry["step"] = st
             entry["p_value_score"] = entry["p_value"]
-            entry["p_value"] = (st["p_value"] if entry["p_value"] is None
-                                else min(1.0, 2.0 * min(entry["p_value"], st["p_value"])))
+            st3 = tests3d.get(entry["effect"])
+            if st3 is not None:
+                entry["step_3d"] = st3
+            entry["p_value"] = combined_p(entry["p_value"], st["p_value"], st3 and st3["p_value"])
             verdict = "significant" if entry["p_value"] < threshold else "not significant"
             screened = st.get("screen")
             if screened is not None:
@@ -1846,8 +1997,11 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                     how = f"not confirmed: no time was left for its draws (its step p counts as {SCREEN_P_MAX:g})"
                 entry["explanation"] += f" Step screen on {screened['draws']} draws: p = {screened['p_value']:.2g}, {how}."
             entry["explanation"] += (f" Step test ({st['step']}): the draws' MSE against the measurements moves "
-                                     f"{st['statistic']:+.2g} relative to P's own drapes, p = {st['p_value']:.2g}; "
-                                     f"combined p = {entry['p_value']:.2g} ({verdict}).")
+                                     f"{st['statistic']:+.2g} relative to P's own drapes, p = {st['p_value']:.2g}"
+                                     + ("" if st3 is None else
+                                        f"; in 3D ({st3['step']}) their fold features' distance moves "
+                                        f"{st3['statistic']:+.2g}, p = {st3['p_value']:.2g}")
+                                     + f"; combined p = {entry['p_value']:.2g} ({verdict}).")
         # ties: with K = 16 draws the sign-flip p-value cannot go below 2 / 2^16 = 3.1e-5 (the step test's is
         # continuous); the step statistic, then Hotelling's F break them
         result["ranking"].sort(key=lambda e: (e["p_value"] is None, e["p_value"] if e["p_value"] is not None else 1.0,

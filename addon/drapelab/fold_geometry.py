@@ -13,7 +13,8 @@ import math
 
 import numpy as np
 
-__all__ = ["ring_stats", "summarise", "compare", "dihedral_angles", "RINGS", "BANDS", "RECONSTRUCTION_NOISE_M"]
+__all__ = ["ring_stats", "summarise", "compare", "dihedral_angles", "features", "feature_names", "RINGS", "BANDS",
+           "RECONSTRUCTION_NOISE_M"]
 
 RINGS = tuple(np.round(np.arange(0.095, 0.1451, 0.01), 4))  # ring centres r0 [m] of a 30 cm specimen on an 18 cm disk
 RING_HALF_WIDTH = 0.005  # m
@@ -114,6 +115,27 @@ def bands_of(x, rest, edges):
 
 RING_KEYS = ("z", "R", "amplitude", "folds")
 BAND_KEYS = ("crest_p95", "crest_p99", "hoop_p95")
+
+
+FEATURE_RING_KEYS = ("z", "amplitude")  # the rings' quantities in a drape's feature vector (features)
+
+
+def feature_names():
+    """The names of features()' entries, in order: "band r0 lo-hi cm: key", then "ring r0 cm: key"."""
+    return ([f"band {100 * lo:.0f}-{100 * hi:.0f} cm: {key}" for lo, hi in BANDS for key in BAND_KEYS]
+            + [f"ring {100 * c:.1f} cm: {key}" for c in RINGS for key in FEATURE_RING_KEYS])
+
+
+def features(x, rest, edges, noise_m=0.0, rng=None):
+    """One drape's 3D fold features as a vector (feature_names' order; NaN where a coarse mesh does not measure
+    one): per band the crest and hoop hinge angles' percentiles [degrees], taken with `noise_m` of vertex noise
+    (drawn from `rng`) added to x, as compare does for the model's drapes; per ring the mean height z and the fold
+    amplitude [m] of x as it is. The diagnosis' 3D step test compares drapes by these (drapelab.diagnose)."""
+    x = np.asarray(x, dtype=float)
+    noisy = x + rng.normal(0.0, noise_m, x.shape) if noise_m > 0 else x
+    values = ([b[key] for b in bands_of(noisy, rest, edges) for key in BAND_KEYS]
+              + [r[key] for r in rings_of(x, rest) for key in FEATURE_RING_KEYS])
+    return np.array([np.nan if v is None else v for v in values], dtype=float)
 
 
 def summarise(stats):

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from drapelab import cli, diagnose, fit_effects, infer, measure, render, sim
+from drapelab._native import InputError
 
 from fit_support import ROOT, SHIPPED_PRESET as PRESET, small_config
 
@@ -614,10 +615,10 @@ def test_step_drapes_run_draw_after_draw_and_stop_at_their_deadline(monkeypatch)
         def parameters(self, **kw):
             return kw
 
-    def fake_forward(m, p, v0, pred, config, cancel_event):
+    def fake_forward(m, p, v0, pred, config, cancel_event, with_positions=False):
         started.append(time.monotonic())
         time.sleep(0.1)
-        return np.ones((2, 2))
+        return (np.ones((2, 2)), np.zeros((3, 3))) if with_positions else np.ones((2, 2))
 
     class Light:  # _ForwardModels: one model per lane and stepped effect
         def get(self, lane, effect=None, off=None):
@@ -628,8 +629,10 @@ def test_step_drapes_run_draw_after_draw_and_stop_at_their_deadline(monkeypatch)
     drawn = {"bend": [None] * 8, "effects": None, "offs": {"tilt": {}, "camera": {}}, "velocities": [None] * 8,
              "light": Light()}
     used = list(range(8))
-    full = diagnose._step_drapes(pred, drawn, steps, used, {}, 2, None, None)
+    positions = {}
+    full = diagnose._step_drapes(pred, drawn, steps, used, {}, 2, None, None, positions=positions)
     assert {len(v) for v in full.values()} == {8} and all(im is not None for v in full.values() for im in v)
+    assert positions.keys() == full.keys() and all(x.shape == (3, 3) for v in positions.values() for x in v)
     started.clear()
     deadline = time.monotonic() + 0.5  # 24 drapes of 0.1 s on two lanes take 1.2 s
     cut = diagnose._step_drapes(pred, drawn, steps, used, {}, 2, None, None, deadline=deadline)
@@ -1085,3 +1088,75 @@ def test_meshes_on_the_models_topology_get_the_3d_comparison(images, tmp_path):
     d2 = diagnose.diagnose(PRESET, [images["control"]], meshes=[mesh2], candidates="tilt", samples=4, seed=0,
                            config=small_config(), mesh_level=1, max_refits=0, threads=1)
     assert "circle2.obj" in d2["geometry"]["skipped"] and "model's topology" in d2["geometry"]["skipped"]
+    # the 3D step test (module doc, 2c): on the model's topology every step-tested candidate gets one, and its
+    # p enters the combined p with the other two tests' (Bonferroni over three)
+    mt = d["step_test"]["mesh"]
+    assert mt["measured_meshes"] == 1 and mt["tested"] == ["tilt"] and mt["noise_m"] == pytest.approx(0.12e-3)
+    assert "band 14-15 cm: crest_p99" in mt["features"]
+    tilt = d["ranking"][0]
+    s3 = tilt["step_3d"]
+    assert 0 < s3["p_value"] <= 1 and s3["features"] == mt["features"] and s3["draws"] == tilt["step"]["draws"]
+    assert tilt["p_value"] == diagnose.combined_p(tilt["p_value_score"], tilt["step"]["p_value"], s3["p_value"])
+    assert diagnose.combined_p(0.01, 0.002, 0.3) == pytest.approx(0.006)
+    assert diagnose.combined_p(0.01, 0.002, None) == pytest.approx(0.004) and diagnose.combined_p(None, 0.5) == 0.5
+    assert diagnose.combined_p(0.5, 0.9, 0.4) == 1.0
+    assert "in 3D" in tilt["explanation"]
+    assert "step_3d" not in d2["ranking"][0] and "model's topology" in d2["step_test"]["mesh"]["skipped"]
+    with pytest.raises(InputError, match="mesh_noise"):
+        diagnose.diagnose(PRESET, [images["control"]], meshes=[mesh], candidates="tilt", samples=4,
+                          mesh_noise_m=-1e-4)
+
+
+def test_fold_features_name_every_entry_and_see_a_flat_disk_as_flat():
+    model = sim.ClothModel(sim.cusick_specimen(3), density=0.2)
+    rest, edges = np.asarray(model.rest_positions), np.asarray(model.bending_edges)
+    names = diagnose.fold_geometry.feature_names()
+    f = diagnose.fold_geometry.features(rest, rest, edges)
+    assert f.shape == (len(names),) and not np.isnan(f).any()  # circle3 measures every band and ring
+    by = dict(zip(names, f))
+    assert by["band 12-14 cm: crest_p99"] == pytest.approx(0.0, abs=1e-6)
+    assert by["ring 14.5 cm: amplitude"] == pytest.approx(0.0, abs=1e-9) and by["ring 14.5 cm: z"] == pytest.approx(rest[0, 2])
+    noisy = diagnose.fold_geometry.features(rest, rest, edges, 0.12e-3, np.random.default_rng(1))
+    angles = [i for i, n in enumerate(names) if n.startswith("band")]
+    rings = [i for i, n in enumerate(names) if n.startswith("ring")]
+    assert np.all(noisy[angles] > 0.5) and np.array_equal(noisy[rings], f[rings])  # the noise reaches the angles only
+    # the drapes' noise is fixed by their key, not by the order the lanes drape them in
+    mf = diagnose.MeshFeatures(rest, edges, 0.12e-3, seed=5)
+    assert np.array_equal(mf.simulated(rest, (4, 2, 1, 0)), mf.simulated(rest, (4, 2, 1, 0)))
+    assert not np.array_equal(mf.simulated(rest, (4, 2, 1, 0)), mf.simulated(rest, (4, 2, 1, 1)))
+    assert mf.simulated(None, (0, 1)) is None
+
+
+def test_the_3d_step_test_projects_the_steps_feature_change_on_the_measured_difference():
+    """step_tests_3d's statistic is -2/F sum_k dF_k (mean measured_k - mean reference_k) / s_k^2 (the quadratic's
+    terms in the draw cancel); a step towards where the measured meshes lie is significant, one across it is not,
+    and features unmeasured anywhere (NaN) are left out."""
+    rng = np.random.default_rng(3)
+    F, n, j, f_re, k = 5, 6, 24, 12, 8
+    s_true = np.array([1.0, 2.0, 0.5, 3.0, 1.0])
+    shift = np.array([5.0, 0.0, 0.0, 0.0, 0.0]) * s_true  # the measured meshes differ from P in feature 0
+    measured = list(rng.normal(shift, 0.3 * s_true, (n, F)))
+    references = list(rng.normal(0.0, s_true, (j, F)))
+    redrapes = list(rng.normal(0.0, 0.3 * s_true, (f_re, F)))
+    for x in measured + references + redrapes:
+        x[4] = np.nan  # a feature the mesh does not measure
+    base = [rng.normal(0.0, s_true) for _ in range(k)]
+    towards = [b + np.array([0.5, 0, 0, 0, 0]) * s_true for b in base]
+    across = [b + np.array([0, 0.5, 0, 0, 0]) * s_true for b in base]
+    steps = {"towards": [("a", {})], "across": [("b", {})]}
+    out = diagnose.step_tests_3d(base, {("towards", 0): towards, ("across", 0): across}, steps, measured,
+                                 references, redrapes)
+    scale, kept = diagnose.feature_scale(measured, references + redrapes)
+    assert list(kept) == [True, True, True, True, False]
+    assert out["towards"]["features"] == [diagnose.fold_geometry.feature_names()[i] for i in range(4)]
+    for name, moved in (("towards", towards), ("across", across)):
+        d_f = np.mean(np.array(moved) - np.array(base), axis=0)[:4]
+        diff = np.mean(measured, axis=0)[:4] - np.mean(references, axis=0)[:4]
+        assert out[name]["statistic"] == pytest.approx(-2.0 / 4 * np.sum(d_f * diff / scale[:4] ** 2), rel=1e-9)
+    assert out["towards"]["statistic"] < 0 and out["towards"]["p_value"] < 1e-3
+    assert out["across"]["p_value"] > 0.01
+    # a failed step drape (None) is left out on both sides
+    towards[0] = None
+    again = diagnose.step_tests_3d(base, {("towards", 0): towards, ("across", 0): across}, steps, measured,
+                                   references, redrapes)
+    assert again["towards"]["p_value"] < 1e-3

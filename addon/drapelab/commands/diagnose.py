@@ -1,5 +1,5 @@
 """`drapelab diagnose --preset P --images IMG... [--meshes OBJ...] [--candidates NAME,...] [--time-budget S]
-[--samples K] [--seed S] --report DIR`: where the model P fails on these silhouettes, and which registered
+[--samples K] [--seed S] [--mesh-noise-mm MM] --report DIR`: where the model P fails on these silhouettes, and which registered
 effect is missing.
 
 Drapes K posterior-predictive draws of P (the same draws as `evaluate --seed S`) and reports per image the
@@ -9,8 +9,9 @@ draws' 90 % interval. For every registered effect not in P (or only --candidates
 effect's off value (the data term's gradient per draw, back-propagated through the rollout; Hotelling's T^2
 over the draws, p from sign flips of the draws) and a step test (the same draws with the effect at its moderate
 strength, forward only; p against n re-drapes of one specimen drawn from P, its spread from P's own predictive
-silhouettes and re-drapes of P's mean), combined
-per candidate (twice the smaller p), with the threshold --alpha (0.01) Bonferroni-corrected over the candidates
+silhouettes and re-drapes of P's mean); with --meshes on the model's topology also a 3D step test (the same step
+drapes compared with the measured meshes by their fold features: crest and hoop hinge angles, ring heights and
+fold amplitudes). The tests are combined per candidate (the smallest p times the number of tests), with the threshold --alpha (0.01) Bonferroni-corrected over the candidates
 tested. Once one is below it, up to --max-refits (3) candidates with p below 0.05 are refitted (fit --effects NAME
 with P's material held at its posterior: only the effect is fitted) and written as DIR/presets/NAME.json;
 `recommended` is the refit that lowers the best-of-K MSE most, if by at least 5 % and by at least half of what
@@ -37,6 +38,9 @@ def register(subparsers):
     p.add_argument("--preset", required=True, metavar="P", help="the preset (model) to diagnose")
     p.add_argument("--images", nargs="+", required=True, metavar="IMG", help="measured silhouettes")
     p.add_argument("--meshes", nargs="+", default=None, metavar="OBJ", help="measured meshes (pair with images)")
+    p.add_argument("--mesh-noise-mm", type=float, default=0.12, metavar="MM",
+                   help="the measured meshes' vertex noise sd, added to the model's drapes' hinge angles in 3D "
+                        "(default 0.12: the Cusick reconstructions'; 0 for noise-free meshes such as synth's)")
     p.add_argument("--candidates", default=None, metavar="NAME,...",
                    help="effects to test (default: every registered effect not in the preset)")
     p.add_argument("--time-budget", type=float, default=None, metavar="SECONDS",
@@ -76,7 +80,7 @@ def run(args):
                                    time_budget=args.time_budget, samples=args.samples, seed=args.seed, config=config,
                                    threads=args.threads, mesh_level=args.mesh_level, out_dir=args.report,
                                    progress=progress, cancel_event=cancel, alpha=args.alpha,
-                                   max_refits=args.max_refits)
+                                   max_refits=args.max_refits, mesh_noise_m=args.mesh_noise_mm / 1000.0)
     finally:
         signal.signal(signal.SIGINT, previous)
     b = result.get("base")
