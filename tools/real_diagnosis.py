@@ -106,6 +106,10 @@ def row_of(fabric, d, seconds):
             "ranked_first": d["ranking"][0]["effect"] if d["ranking"] else None,
             "smallest_p": {"effect": smallest["effect"], "p": smallest["p_value"]} if smallest else None,
             "p_values": {e["effect"]: e["p_value"] for e in tested},
+            "p_values_score": {e["effect"]: e.get("p_value_score", e["p_value"]) for e in tested},
+            "p_values_step": {e["effect"]: e["step"]["p_value"] for e in tested if e.get("step")},
+            "p_values_step_3d": {e["effect"]: e["step_3d"]["p_value"] for e in tested if e.get("step_3d")},
+            "statistics_step_3d": {e["effect"]: e["step_3d"]["statistic"] for e in tested if e.get("step_3d")},
             "refits": {e["effect"]: {k: e["refit"].get(k) for k in ("mse", "iou", "loss", "dc_error", "amplitude_error",
                                                                     "values", "epochs", "kept_start", "preset")}
                        for e in d["ranking"] if e.get("refit")},
