@@ -1061,6 +1061,24 @@ def feature_scale(measured, references):
     return np.where(kept, scale, 1.0), kept
 
 
+def feature_distance(scale, kept):
+    """distance(a, q) of two drapes' fold features: the mean squared difference of the `kept` features, each over
+    its `scale` (feature_scale); NaN when one of them is missing."""
+    def distance(a, q):
+        d = (np.asarray(a)[kept] - np.asarray(q)[kept]) / scale[kept]
+        return float(np.mean(d * d)) if not np.isnan(d).any() else np.nan
+    return distance
+
+
+def best_of_k_3d(draw_features, targets, distance):
+    """The 3D analogue of the best-of-K MSE: the mean over the `targets` (measured meshes' or re-drapes' features) of
+    the smallest distance from any of the draws' features (None: a failed drape, left out); None without either."""
+    drawn = [f for f in draw_features if f is not None]
+    if not drawn or not targets:
+        return None
+    return float(np.mean([min(distance(f, t) for f in drawn) for t in targets]))
+
+
 def step_tests_3d(base_features, step_features, steps, measured, references, redrapes=()):
     """The 3D step test (module doc, 2c): step_tests with each drape's fold features (fold_geometry.features:
     crest and hoop hinge angles per band, height and fold amplitude per ring) in place of its silhouette and the
@@ -1071,11 +1089,7 @@ def step_tests_3d(base_features, step_features, steps, measured, references, red
     scale, kept = feature_scale(measured, list(references) + list(redrapes))
     if not kept.any():
         return {}
-
-    def distance(a, q):
-        d = (np.asarray(a)[kept] - np.asarray(q)[kept]) / scale[kept]
-        return float(np.mean(d * d)) if not np.isnan(d).any() else np.nan
-
+    distance = feature_distance(scale, kept)
     out = step_tests(base_features, step_features, steps, measured, references, redrapes, distance=distance)
     names = [nm for nm, k in zip(fold_geometry.feature_names(), kept) if k]
     for st in out.values():
@@ -1764,6 +1778,7 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
         for e, mesh in zip(per_image, meshes):  # the best draw's mesh against the measured one
             e["hausdorff_m"] = float(measure.hausdorff_distance((ok[e["best_draw"]]["x"], models[0].faces), mesh))
         mesh3d, f_measured, mesh_test = None, None, None  # the 3D step test's features (module doc, 2c)
+        distance_3d = None  # the 3D error's feature distance, once the 3D step test has run
         if meshes:  # where in 3D: fold shape per ring, crest and edge hinge angles (drapelab.fold_geometry)
             result["geometry"] = geometry_3d(meshes, [s["x"] for s in ok], models[0], seed, mesh_noise_m)
             measured_x, why = measured_positions(meshes, models[0])
@@ -1940,6 +1955,12 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                         if st["draws"] == k_screen:
                             st["p_value"] = max(st["p_value"], SCREEN_P_MAX)
             result["seconds"]["steps"] = time.monotonic() - ts
+            if mesh3d is not None and tests3d:  # the 3D errors (best-of-K feature distance) of the base and its floor
+                scale3d, kept3d = feature_scale(f_measured, f_references + f_redrapes)
+                distance_3d = feature_distance(scale3d, kept3d)
+                f_drawn = [mesh3d.simulated(shapes[i]["x"], (0, i)) for i in done]
+                base["error_3d"] = best_of_k_3d(f_drawn, f_measured, distance_3d)
+                base["redrape_error_3d"] = best_of_k_3d(f_drawn, f_redrapes, distance_3d)
             if mesh_test is not None and "skipped" not in mesh_test:
                 names_3d = next((st["features"] for st in tests3d.values()), [])
                 mesh_test.update(features=names_3d, tested=sorted(tests3d),
@@ -2034,10 +2055,12 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
             grid (grid_search), which needs no start."""
             return start_of(e) is not None or bool(grids[e["effect"]])
 
-        def evaluate(candidate, at_seed=seed, n=None, record=True):
+        def evaluate(candidate, at_seed=seed, n=None, record=True, noise_key=None):
             """(shapes, summary) of n draws of `candidate` (by default the comparison's k_eval draws of the base's
             seed), or None when all fail. `record`: its seconds per draw plan the evaluations still to come (not a
-            grid point's few draws, which a fresh model's setup weighs more)."""
+            grid point's few draws, which a fresh model's setup weighs more). `noise_key` (two whole numbers: the
+            base's (5, 0), a refit's (6, its candidate's index)): the summary also holds the draws' 3D error when
+            the 3D step test ran (their hinge angles' noise drawn from it)."""
             n = k_eval if n is None else n
             rp = infer._Predictive(candidate, observations[0].mask.shape, lanes, config, template_dir, pred.level,
                                    "dynamic")
@@ -2049,6 +2072,12 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
             if not any("error" not in r for r in rshapes):
                 return None
             rbase, _, _ = _summary(rshapes, observations, rp.calibration, float(config["sigma_obs"]), SCORE_SIGMA_DC)
+            if distance_3d is not None and noise_key is not None:  # the 3D error on the same draws (module doc, 2c)
+                f_drawn = [None if "error" in r else mesh3d.simulated(r["x"], (*noise_key, i))
+                           for i, r in enumerate(rshapes)]
+                rbase["error_3d"] = best_of_k_3d(f_drawn, f_measured, distance_3d)
+                if noise_key == (5, 0):  # the base's: the 3D floor on these draws too
+                    rbase["redrape_error_3d"] = best_of_k_3d(f_drawn, f_redrapes, distance_3d)
             return rshapes, rbase
 
         # an evaluation: K forward drapes, at the step test's measured drape time, else the re-drape floor's (else
@@ -2098,7 +2127,7 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
             comparison, paired = dict(base, samples=k), shapes  # paired: the base's draws, index by index
             if k_eval > k:
                 _progress(progress, "refit", f"the base on {k_eval} draws (the refits' comparison)")
-                got = evaluate(p)
+                got = evaluate(p, noise_key=(5, 0))
                 if got is None:
                     k_eval = k
                 else:
@@ -2180,7 +2209,7 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                           effect=entry["effect"])
                 refit, job = refit_with_effect(p, images, entry["effect"], pred.level, seed, config, threads,
                                                template_dir, budget, cancel_event, progress, start=start)
-                evaluated = evaluate(refit)
+                evaluated = evaluate(refit, noise_key=(6, names.index(entry["effect"])))
                 end = {"values": fit_effects.active_effect_values(refit["active_effects"])[entry["effect"]],
                        "mse": evaluated[1]["mse"] if evaluated else None}
             kept_start = False
@@ -2189,13 +2218,13 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                 continue
             if job is None:  # the search spent the refit's share: its best point, on the base's draws, is the refit
                 refit, end, kept_start = with_effect(p, entry["effect"], start), None, True
-                evaluated = evaluate(refit)
+                evaluated = evaluate(refit, noise_key=(6, names.index(entry["effect"])))
                 entry["explanation"] += (" No line search, no epochs: the time budget left paid for one evaluation, so "
                                          "the refit is the step test's best step." if step_only else
                                          " No epochs: the search spent the refit's share of the time budget.")
             elif start is not None:  # the refit's start, on the same draws: kept when the refit's end is worse
                 started = with_effect_values(refit, entry["effect"], start)
-                at_start = evaluate(started)
+                at_start = evaluate(started, noise_key=(6, names.index(entry["effect"])))
                 if at_start is not None and (evaluated is None or at_start[1]["mse"] < evaluated[1]["mse"]):
                     entry["explanation"] += (f" The refit's end (best-of-{k_eval} MSE "
                                              + (f"{evaluated[1]['mse']:.4f}" if evaluated else "failed")
@@ -2216,10 +2245,16 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                               "effect_change_mse": effect_change(paired, rshapes), "kept_start": kept_start,
                               "end": end, "averaged_epochs": 0 if job is None else job.averaged_epochs,
                               "path": [] if job is None else refit_path(job, entry["effect"]), "search": search}
+            if rbase.get("error_3d") is not None:
+                entry["refit"]["error_3d"] = rbase["error_3d"]
             entry["gain"] = (comparison["loss"] - rbase["loss"]) / len(reg[entry["effect"]]["parameters"])
             entry["explanation"] += (f" Refit ({entry['refit']['epochs']} epochs): loss {comparison['loss']:.4g} -> "
                                      f"{rbase['loss']:.4g}, best-of-{k_eval} MSE {comparison['mse']:.4f} -> "
-                                     f"{rbase['mse']:.4f}.")
+                                     f"{rbase['mse']:.4f}"
+                                     + (f"; in 3D the fold features' best-of-{k_eval} distance "
+                                        f"{comparison['error_3d']:.3g} -> {rbase['error_3d']:.3g}"
+                                        if rbase.get("error_3d") is not None and comparison.get("error_3d") is not None
+                                        else "") + ".")
             refit.setdefault("training", {})["init"] = {"preset": preset_path, "model": p["model"],
                                                         "fabric": (p.get("fabric") or {}).get("name"),
                                                         "by": "diagnose refit"}
@@ -2244,6 +2279,11 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                          if e["refit"] is not None and base_mse else None)
         e["fall_of_redrape"] = ((base_mse - e["refit"]["mse"]) / redrape
                                 if e["refit"] is not None and base_mse and redrape else None)
+        # in 3D: the refit's fall of the best-of-K feature distance, in units of its re-drape floor (module doc, 2c)
+        base_3d, floor_3d = judged.get("error_3d"), judged.get("redrape_error_3d")
+        refit_3d = (e["refit"] or {}).get("error_3d")
+        if refit_3d is not None and base_3d is not None and floor_3d:
+            e["fall_3d_of_redrape"] = (base_3d - refit_3d) / floor_3d
     # the final order: refits that lower the error, most first (which effect explains the difference), then the
     # score tests' order (whether the data differ from P at all: module doc, 3.)
     falling = sorted([e for e in result["ranking"] if e["mse_fall"] is not None and e["mse_fall"] > 0],
