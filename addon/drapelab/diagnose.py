@@ -2044,11 +2044,22 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
             result["material_prior"] = ("the preset's posterior (log_mean, per-entry log_std, global_log_std), held "
                                         "fixed in the refit (material learning rates x "
                                         f"{MATERIAL_LEARNING_RATE_FACTOR:g}); only the effect is fitted")
+        def in_3d(e):
+            """Whether candidate e was found in 3D (its 3D step test's p the smallest of its tests) and the 3D error
+            is measured: its refit is then a line search scored by the 3D error, from the 3D test's best step, with
+            no epochs (the fit's epochs see the silhouettes only; module doc, 3b)."""
+            st3 = e.get("step_3d")
+            others = [q for q in (e.get("p_value_score"), (e.get("step") or {}).get("p_value")) if q is not None]
+            return (distance_3d is not None and st3 is not None and base.get("redrape_error_3d")
+                    and (not others or st3["p_value"] < min(others)))
+
         def start_of(e):
             """The refit's start (refit_start), None without a step that brought the draws closer."""
+            if in_3d(e):
+                return refit_start(e["step_3d"])[0]
             return refit_start(e["step"])[0] if e.get("step") else None  # as the refit loop takes it
 
-        grids = {e["effect"]: grid_points(reg[e["effect"]]) for e in promising}  # [] for a line search
+        grids = {e["effect"]: [] if in_3d(e) else grid_points(reg[e["effect"]]) for e in promising}  # [] for a line search
 
         def searched(e):
             """Whether refit e searches before its epochs: from a step start (line_search), or on its effect's
@@ -2140,7 +2151,9 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
 
         for idx, entry in enumerate(promising):
             budget = None
-            start, how, start_step = refit_start(entry["step"]) if entry.get("step") else (None, None, None)
+            found_3d = bool(in_3d(entry))
+            start, how, start_step = (refit_start(entry["step_3d"]) if found_3d else
+                                      refit_start(entry["step"]) if entry.get("step") else (None, None, None))
             step_only = False
             if time_budget is not None:
                 budget = refit_budget(idx)
@@ -2171,13 +2184,16 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                 search_seed = seed + SEARCH_SEED_OFFSET
                 counter = itertools.count(1)
 
-                def mse_of(values, n=k, name=name, search_seed=search_seed, grid=grid, counter=counter):
-                    got = evaluate(with_effect(p, name, values), search_seed, n, record=n >= k)
+                def mse_of(values, n=k, name=name, search_seed=search_seed, grid=grid, counter=counter,
+                           found_3d=found_3d):
+                    got = evaluate(with_effect(p, name, values), search_seed, n, record=n >= k,
+                                   noise_key=(7, names.index(name)) if found_3d else None)
                     what = (f"grid search {name} {next(counter)}/{len(grid) + SEARCH_GRID_FINALISTS}" if grid
-                            else f"line search {name}")
+                            else f"line search {name}" + (" in 3D" if found_3d else ""))
                     _progress(progress, "refit", f"{what}: " + " ".join(f"{q} {v:+.4g}" for q, v in values.items())
-                              + (" failed" if got is None else f" best-of-{n} MSE {got[1]['mse']:.4f}"), effect=name)
-                    return None if got is None else got[1]["mse"]
+                              + (" failed" if got is None else f" best-of-{n} MSE {got[1]['mse']:.4f}"
+                                 + (f", 3D error {got[1]['error_3d']:.4g}" if found_3d else "")), effect=name)
+                    return None if got is None else got[1]["error_3d" if found_3d else "mse"]
                 if grid:
                     best, points = grid_search(reg[name], mse_of, k)
                     spacing = float(reg[name]["search_grid_spacing"])
@@ -2193,17 +2209,21 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                                                  f"{SEARCH_GRID_FINALISTS} on {k}): " + ", ".join(
                                                      f"{q} {v:+.4g}" for q, v in best.items()) + ".")
                 else:
-                    vertex_within = SEARCH_VERTEX_WITHIN * float(base.get("redrape_mse") or 0.0)
+                    vertex_within = SEARCH_VERTEX_WITHIN * float(base.get("redrape_error_3d" if found_3d else
+                                                                          "redrape_mse") or 0.0)
                     best, points = line_search(reg[name], start, mse_of, vertex_within)
                     search = {"seed": search_seed, "step": dict(start), "points": points, "best": best,
-                              "vertex_within": vertex_within, "seconds": time.monotonic() - ts}
-                    entry["explanation"] += (f" Line search along the step ({len(points)} points on draws of their "
-                                             "own): " + ", ".join(f"{q} {v:+.4g}" for q, v in best.items()) + ".")
+                              "vertex_within": vertex_within, "seconds": time.monotonic() - ts,
+                              "scored_by": "error_3d" if found_3d else "mse"}
+                    entry["explanation"] += (f" Line search along the {'3D ' if found_3d else ''}step ({len(points)} "
+                                             "points on draws of their own"
+                                             + (", scored by the 3D error" if found_3d else "") + "): "
+                                             + ", ".join(f"{q} {v:+.4g}" for q, v in best.items()) + ".")
                 start = best if best is not None else start
                 if time_budget is not None:
                     budget = refit_budget(idx, done=True)
             job = None
-            if not step_only and (budget is None or budget > 0):
+            if not step_only and not found_3d and (budget is None or budget > 0):
                 _progress(progress, "refit", f"refit with {entry['effect']} "
                                              f"({'default epochs' if budget is None else f'{budget:.0f} s'})",
                           effect=entry["effect"])
@@ -2214,13 +2234,17 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                        "mse": evaluated[1]["mse"] if evaluated else None}
             kept_start = False
             if job is None and start is None:  # a grid search whose every point failed, and no step start
-                entry["explanation"] += " Not refitted: every point of its search failed to drape."
+                entry["explanation"] += (" Not refitted: none of its 3D steps brought the draws closer to the measured "
+                                         "meshes." if found_3d else
+                                         " Not refitted: every point of its search failed to drape.")
                 continue
             if job is None:  # the search spent the refit's share: its best point, on the base's draws, is the refit
                 refit, end, kept_start = with_effect(p, entry["effect"], start), None, True
                 evaluated = evaluate(refit, noise_key=(6, names.index(entry["effect"])))
                 entry["explanation"] += (" No line search, no epochs: the time budget left paid for one evaluation, so "
                                          "the refit is the step test's best step." if step_only else
+                                         " Found in 3D, fitted in 3D: the refit is the line search's best point, with "
+                                         "no epochs (the fit's epochs see the silhouettes only)." if found_3d else
                                          " No epochs: the search spent the refit's share of the time budget.")
             elif start is not None:  # the refit's start, on the same draws: kept when the refit's end is worse
                 started = with_effect_values(refit, entry["effect"], start)
@@ -2247,6 +2271,7 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                               "path": [] if job is None else refit_path(job, entry["effect"]), "search": search}
             if rbase.get("error_3d") is not None:
                 entry["refit"]["error_3d"] = rbase["error_3d"]
+            entry["refit"]["fitted_in"] = "3d" if found_3d else "silhouettes"
             entry["gain"] = (comparison["loss"] - rbase["loss"]) / len(reg[entry["effect"]]["parameters"])
             entry["explanation"] += (f" Refit ({entry['refit']['epochs']} epochs): loss {comparison['loss']:.4g} -> "
                                      f"{rbase['loss']:.4g}, best-of-{k_eval} MSE {comparison['mse']:.4f} -> "
@@ -2293,7 +2318,35 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
     gaining = [e for e in falling if (any_significant or e["switch"]) and e["mse_fall"] >= MIN_MSE_FALL]
     small = [e for e in gaining if e["fall_of_redrape"] is not None and e["fall_of_redrape"] < MIN_FALL_OF_REDRAPE]
     gaining = [e for e in gaining if e not in small]
-    if gaining:
+    # found and fitted in 3D (module doc, 3b): recommended when no refit is by the silhouettes, its refit lowers
+    # the 3D error by MIN_MSE_FALL of it and MIN_FALL_OF_REDRAPE of its re-drape floor, and the silhouettes' best-of-K
+    # MSE stays within ALTERNATIVE_WITHIN of their floor (the outline as good as the base's)
+    base_3d = judged.get("error_3d")
+    in_3d_gaining = sorted(
+        [e for e in result["ranking"] if any_significant and (e["refit"] or {}).get("fitted_in") == "3d"
+         and e.get("fall_3d_of_redrape") is not None and e["fall_3d_of_redrape"] >= MIN_FALL_OF_REDRAPE
+         and base_3d and (base_3d - e["refit"]["error_3d"]) / base_3d >= MIN_MSE_FALL
+         and base_mse is not None and redrape and e["refit"]["mse"] <= base_mse + ALTERNATIVE_WITHIN * redrape],
+        key=lambda e: -e["fall_3d_of_redrape"])
+    if not gaining and in_3d_gaining:
+        best = in_3d_gaining[0]
+        result["recommended"] = best["effect"]
+        result["ranking"] = [best] + [e for e in result["ranking"] if e is not best]
+        written = out_dir and best["refit"].get("preset")
+        refit_file = os.path.join(out_dir, best["refit"]["preset"]) if written else None
+        result["verdict"] = (
+            f"{best['effect']} is significant (p = {best['p_value']:.2g} < {threshold:.2g}, by its 3D step test) and "
+            f"its refit, fitted in 3D, lowers the fold features' best-of-{k_judged} distance to the measured meshes by "
+            f"{100 * (base_3d - best['refit']['error_3d']) / base_3d:.0f} % ({base_3d:.3g} -> "
+            f"{best['refit']['error_3d']:.3g}, {best['fall_3d_of_redrape']:.2f} of its re-drape floor) while the "
+            f"silhouettes' best-of-{k_judged} MSE stays within half their re-drape floor ({base_mse:.4f} -> "
+            f"{best['refit']['mse']:.4f}): " + (f"the refit is {refit_file}; the silhouettes alone do not fit it, so keep "
+                                                f"its value (fit --init {refit_file} fits the material with it fixed)"
+                                                if refit_file else f"set {best['effect']} to its refit's value"))
+        result["not_refitted"] = unrefitted(result["ranking"], threshold, exclude=(best["effect"],))
+        result["verdict"] += unrefitted_words(result["not_refitted"], best["effect"],
+                                              not_refitted_reason(result["cancelled"], max_refits))
+    elif gaining:
         best = gaining[0]
         result["recommended"] = best["effect"]
         written = out_dir and best["refit"].get("preset")
