@@ -1097,6 +1097,29 @@ def step_tests_3d(base_features, step_features, steps, measured, references, red
     return out
 
 
+def found_in_3d(entry):
+    """Whether a ranking entry was found in 3D: its 3D step test's p is the smallest of its tests'. Its refit is
+    then a line search scored by the 3D error, from the 3D test's best step, with no epochs (the fit's epochs see
+    the silhouettes only; module doc, 3b)."""
+    st3 = entry.get("step_3d")
+    others = [q for q in (entry.get("p_value_score"), (entry.get("step") or {}).get("p_value")) if q is not None]
+    return st3 is not None and (not others or st3["p_value"] < min(others))
+
+
+def recommendable_in_3d(ranking, base_3d, base_mse, redrape, any_significant):
+    """The refits fitted in 3D that may be recommended (module doc, 3b), largest 3D fall first: some candidate is
+    significant, the refit lowers the 3D error by at least MIN_MSE_FALL of the base's and MIN_FALL_OF_REDRAPE of its
+    re-drape floor (fall_3d_of_redrape), and its silhouettes' best-of-K MSE is at most ALTERNATIVE_WITHIN x their
+    re-drape floor above the base's (the outline as good as the base's)."""
+    if not (any_significant and base_3d and base_mse is not None and redrape):
+        return []
+    ok = [e for e in ranking if (e.get("refit") or {}).get("fitted_in") == "3d"
+          and e.get("fall_3d_of_redrape") is not None and e["fall_3d_of_redrape"] >= MIN_FALL_OF_REDRAPE
+          and (base_3d - e["refit"]["error_3d"]) / base_3d >= MIN_MSE_FALL
+          and e["refit"]["mse"] <= base_mse + ALTERNATIVE_WITHIN * redrape]
+    return sorted(ok, key=lambda e: -e["fall_3d_of_redrape"])
+
+
 def combined_p(*p_values):
     """A candidate's p from its tests' (score, step, 3D step; None: not run): Bonferroni over the tests run,
     min(1, m min p)."""
@@ -2045,13 +2068,8 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                                         "fixed in the refit (material learning rates x "
                                         f"{MATERIAL_LEARNING_RATE_FACTOR:g}); only the effect is fitted")
         def in_3d(e):
-            """Whether candidate e was found in 3D (its 3D step test's p the smallest of its tests) and the 3D error
-            is measured: its refit is then a line search scored by the 3D error, from the 3D test's best step, with
-            no epochs (the fit's epochs see the silhouettes only; module doc, 3b)."""
-            st3 = e.get("step_3d")
-            others = [q for q in (e.get("p_value_score"), (e.get("step") or {}).get("p_value")) if q is not None]
-            return (distance_3d is not None and st3 is not None and base.get("redrape_error_3d")
-                    and (not others or st3["p_value"] < min(others)))
+            """found_in_3d, when the 3D error is measured."""
+            return distance_3d is not None and bool(base.get("redrape_error_3d")) and found_in_3d(e)
 
         def start_of(e):
             """The refit's start (refit_start), None without a step that brought the draws closer."""
@@ -2322,12 +2340,7 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
     # the 3D error by MIN_MSE_FALL of it and MIN_FALL_OF_REDRAPE of its re-drape floor, and the silhouettes' best-of-K
     # MSE stays within ALTERNATIVE_WITHIN of their floor (the outline as good as the base's)
     base_3d = judged.get("error_3d")
-    in_3d_gaining = sorted(
-        [e for e in result["ranking"] if any_significant and (e["refit"] or {}).get("fitted_in") == "3d"
-         and e.get("fall_3d_of_redrape") is not None and e["fall_3d_of_redrape"] >= MIN_FALL_OF_REDRAPE
-         and base_3d and (base_3d - e["refit"]["error_3d"]) / base_3d >= MIN_MSE_FALL
-         and base_mse is not None and redrape and e["refit"]["mse"] <= base_mse + ALTERNATIVE_WITHIN * redrape],
-        key=lambda e: -e["fall_3d_of_redrape"])
+    in_3d_gaining = recommendable_in_3d(result["ranking"], base_3d, base_mse, redrape, any_significant)
     if not gaining and in_3d_gaining:
         best = in_3d_gaining[0]
         result["recommended"] = best["effect"]

@@ -1160,3 +1160,27 @@ def test_the_3d_step_test_projects_the_steps_feature_change_on_the_measured_diff
     again = diagnose.step_tests_3d(base, {("towards", 0): towards, ("across", 0): across}, steps, measured,
                                    references, redrapes)
     assert again["towards"]["p_value"] < 1e-3
+
+
+def test_a_candidate_found_in_3d_is_fitted_and_judged_in_3d():
+    """found_in_3d: the 3D step test's p is the smallest of the candidate's tests; recommendable_in_3d: a 3D refit
+    that lowers the 3D error by half its re-drape floor (and 5 % of it) with the silhouettes' MSE within half
+    theirs of the base's, only when something is significant, largest 3D fall first."""
+    e = {"p_value_score": 0.3, "step": {"p_value": 0.01}, "step_3d": {"p_value": 0.001}}
+    assert diagnose.found_in_3d(e)
+    assert not diagnose.found_in_3d(dict(e, step_3d={"p_value": 0.02}))
+    assert not diagnose.found_in_3d({"p_value_score": 0.3, "step": {"p_value": 0.01}})
+    assert diagnose.found_in_3d({"p_value_score": None, "step_3d": {"p_value": 0.5}})
+
+    def refit(name, error_3d, mse, fall, fitted_in="3d"):
+        return {"effect": name, "refit": {"error_3d": error_3d, "mse": mse, "fitted_in": fitted_in},
+                "fall_3d_of_redrape": fall}
+
+    ranking = [refit("a", 1.5, 0.030, 0.6), refit("b", 1.0, 0.030, 1.2), refit("c", 1.0, 0.036, 1.2),
+               refit("d", 1.85, 0.030, 0.6), refit("g", 1.95, 0.030, 0.6), refit("e", 1.0, 0.030, 1.2, "silhouettes"), refit("f", 1.8, 0.03, 0.4)]
+    # base 3D error 2.0, base MSE 0.030, MSE floor 0.01: c's MSE rose 0.006 > 0.005; g's 3D error fell 2.5 % of the
+    # base's (d's 7.5 %); f below half the floor; e fitted on the silhouettes
+    got = diagnose.recommendable_in_3d(ranking, 2.0, 0.030, 0.01, True)
+    assert [x["effect"] for x in got] == ["b", "a", "d"]
+    assert diagnose.recommendable_in_3d(ranking, 2.0, 0.030, 0.01, False) == []  # nothing significant
+    assert diagnose.recommendable_in_3d(ranking, None, 0.030, 0.01, True) == []
