@@ -166,6 +166,16 @@
    parameters, loss = the expected pixel data term of the predictive (mean over draws and images), is reported
    beside it: it weighs the draws' spread, which an effect may widen while its best draws come closer (measured:
    best-of-16 MSE 0.0288 -> 0.0189 with a higher loss).
+3b. In 3D (with the 3D step test). The base, the comparison and every refit also report their 3D error: the
+   best-of-K fold-feature distance (2c's) to the measured meshes (best_of_k_3d), with its re-drape floor (the same
+   draws against the re-drapes of P's mean), and each refit its fall in units of that floor (fall_3d_of_redrape).
+   A candidate found in 3D (found_in_3d: its 3D step p the smallest of its tests) is refitted in 3D: the line
+   search starts at its best 3D step and scores its points by the 3D error, and there are no epochs (the fit's
+   epochs follow the pixel loss, which does not see such an effect: a fit on fabric 4's training photo pushed
+   high_curvature_bending's log_factor to +0.53, the crests' sign opposite). When no refit is recommended by the
+   silhouettes, such a refit is (recommendable_in_3d) when something is significant, it lowers the 3D error by
+   MIN_MSE_FALL of the base's and MIN_FALL_OF_REDRAPE of its floor, and the silhouettes' best-of-K MSE stays
+   within ALTERNATIVE_WITHIN of their floor of the base's.
 
 Time budget (seconds, the whole job): the draws and score tests come first (their cost is K drapes with
 backward), then the step test (2b: its share, screened when thin); what remains, less the refits' evaluations and
