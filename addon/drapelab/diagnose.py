@@ -2611,7 +2611,10 @@ def write_report(out_dir, result, figures, observations, calibration):
     b = result["base"]
     parts.append(f"<p>{result['draws_used']} posterior draws on circle{result.get('mesh_level')}: best-of-K MSE "
                  f"{b['mse']:.4f}, IoU {b['iou']:.4f}, |dDC| {b['dc_error']:.3f}, node error {b['node_error']:.2f}, "
-                 f"amplitude error {1000 * b['amplitude_error']:.2f} mm, loss {b['loss']:.4g}.</p>")
+                 f"amplitude error {1000 * b['amplitude_error']:.2f} mm, loss {b['loss']:.4g}"
+                 + (f"; in 3D the fold features' best-of-K distance to the measured meshes {b['error_3d']:.3g} "
+                    f"(re-drape floor {b['redrape_error_3d']:.3g})" if b.get("error_3d") is not None
+                    and b.get("redrape_error_3d") is not None else "") + ".</p>")
     for i, (e, f) in enumerate(zip(result["per_image"], figures["images"])):
         name = html.escape(os.path.basename(e["image"]))
         over = f"overlay_{i}.png"
@@ -2688,13 +2691,14 @@ def write_report(out_dir, result, figures, observations, calibration):
         rows += (f"<tr><td>{html.escape(e['effect'])}</td><td>{cell(e['statistic'], '.3g')}</td>"
                  f"<td>{cell(e.get('p_value_score', e['p_value']), '.2g')}</td>"
                  f"<td>{html.escape(step.get('step', ''))}</td><td>{cell(step.get('p_value'), '.2g')}</td>"
+                 f"<td>{cell((e.get('step_3d') or {}).get('p_value'), '.2g')}</td>"
                  f"<td>{cell(e['p_value'], '.2g')}</td><td>{cell(refit_mse, '.4f')}</td>"
                  f"<td>{cell(e['gain'], '.4g')}</td><td>{html.escape(e['explanation'] or '')}</td></tr>")
     parts.append("<h2>What is missing: score tests at each effect's off value, step tests at its moderate strength"
                  "</h2><img src='ranking.png'>"
                  f"<p>{html.escape(result['threshold_rule'])}. {html.escape(result['test'])}.</p>"
                  "<table border=1 cellpadding=3><tr><th>effect</th><th>score T^2</th><th>score p</th><th>step</th>"
-                 "<th>step p</th><th>p</th><th>refit MSE</th>"
+                 "<th>step p</th><th>3D step p</th><th>p</th><th>refit MSE</th>"
                  f"<th>gain / parameter</th><th>explanation</th></tr>{rows}</table>")
     # history: the best-of-K errors on these images, one column per model version (a diagnosed preset), its
     # refits beside it; the versions joined by a line (the training batches' metrics are in diagnosis.json only)
