@@ -169,7 +169,8 @@
 3b. In 3D (with the 3D step test). The base, the comparison and every refit also report their 3D error: the
    best-of-K fold-feature distance (2c's) to the measured meshes (best_of_k_3d), with its re-drape floor (the same
    draws against the re-drapes of P's mean), and each refit its fall in units of that floor (fall_3d_of_redrape).
-   A candidate found in 3D (found_in_3d: its 3D step p the smallest of its tests) is refitted in 3D: the line
+   A candidate found in 3D only (found_in_3d: its 3D step p the smallest of its tests, its silhouette tests
+   alone not significant) is refitted in 3D: the line
    search starts at its best 3D step and scores its points by the 3D error, and there are no epochs (the fit's
    epochs follow the pixel loss, which does not see such an effect: a fit on fabric 4's training photo pushed
    high_curvature_bending's log_factor to +0.53, the crests' sign opposite). When no refit is recommended by the
@@ -1107,13 +1108,15 @@ def step_tests_3d(base_features, step_features, steps, measured, references, red
     return out
 
 
-def found_in_3d(entry):
-    """Whether a ranking entry was found in 3D: its 3D step test's p is the smallest of its tests'. Its refit is
-    then a line search scored by the 3D error, from the 3D test's best step, with no epochs (the fit's epochs see
-    the silhouettes only; module doc, 3b)."""
+def found_in_3d(entry, threshold):
+    """Whether a ranking entry was found in 3D only: its 3D step test's p is the smallest of its tests' and its
+    silhouette tests alone (score and step, combined_p) are not below `threshold`. Its refit is then a line search
+    scored by the 3D error, from the 3D test's best step, with no epochs (the fit's epochs see the silhouettes
+    only; module doc, 3b); an effect the silhouettes show is refitted on them as before."""
     st3 = entry.get("step_3d")
     others = [q for q in (entry.get("p_value_score"), (entry.get("step") or {}).get("p_value")) if q is not None]
-    return st3 is not None and (not others or st3["p_value"] < min(others))
+    return (st3 is not None and (not others or st3["p_value"] < min(others))
+            and (not others or combined_p(*others) >= threshold))
 
 
 def recommendable_in_3d(ranking, base_3d, base_mse, redrape, any_significant):
@@ -2079,7 +2082,7 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                                         f"{MATERIAL_LEARNING_RATE_FACTOR:g}); only the effect is fitted")
         def in_3d(e):
             """found_in_3d, when the 3D error is measured."""
-            return distance_3d is not None and bool(base.get("redrape_error_3d")) and found_in_3d(e)
+            return distance_3d is not None and bool(base.get("redrape_error_3d")) and found_in_3d(e, threshold)
 
         def start_of(e):
             """The refit's start (refit_start), None without a step that brought the draws closer."""

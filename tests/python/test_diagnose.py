@@ -1163,14 +1163,16 @@ def test_the_3d_step_test_projects_the_steps_feature_change_on_the_measured_diff
 
 
 def test_a_candidate_found_in_3d_is_fitted_and_judged_in_3d():
-    """found_in_3d: the 3D step test's p is the smallest of the candidate's tests; recommendable_in_3d: a 3D refit
+    """found_in_3d: the 3D step test's p is the smallest of the candidate's tests and the silhouettes' tests alone
+    are not significant; recommendable_in_3d: a 3D refit
     that lowers the 3D error by half its re-drape floor (and 5 % of it) with the silhouettes' MSE within half
     theirs of the base's, only when something is significant, largest 3D fall first."""
     e = {"p_value_score": 0.3, "step": {"p_value": 0.01}, "step_3d": {"p_value": 0.001}}
-    assert diagnose.found_in_3d(e)
-    assert not diagnose.found_in_3d(dict(e, step_3d={"p_value": 0.02}))
-    assert not diagnose.found_in_3d({"p_value_score": 0.3, "step": {"p_value": 0.01}})
-    assert diagnose.found_in_3d({"p_value_score": None, "step_3d": {"p_value": 0.5}})
+    assert diagnose.found_in_3d(e, 0.005)
+    assert not diagnose.found_in_3d(e, 0.05)  # the silhouettes alone (p 0.02) show it: refitted on them
+    assert not diagnose.found_in_3d(dict(e, step_3d={"p_value": 0.02}), 0.005)
+    assert not diagnose.found_in_3d({"p_value_score": 0.3, "step": {"p_value": 0.01}}, 0.005)
+    assert diagnose.found_in_3d({"p_value_score": None, "step_3d": {"p_value": 0.5}}, 0.005)
 
     def refit(name, error_3d, mse, fall, fitted_in="3d"):
         return {"effect": name, "refit": {"error_3d": error_3d, "mse": mse, "fitted_in": fitted_in},
