@@ -2395,15 +2395,26 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
         significant = [e for e in tested if e["p_value"] < threshold]
         smallest = min((e["p_value"] for e in tested), default=None)
         if significant:
-            refitted = [e["effect"] for e in significant if e["refit"] is not None and e not in small]
+            in_3d_refits = [e for e in significant if (e["refit"] or {}).get("fitted_in") == "3d"]
+            refitted = [e["effect"] for e in significant if e["refit"] is not None and e not in small
+                        and e not in in_3d_refits]
             not_run = [e["effect"] for e in significant if e["refit"] is None]
             why = [f"the refit with {e['effect']} removes {base_mse - e['refit']['mse']:.4f} of the best-of-{k_judged} MSE, "
                    f"{e['fall_of_redrape']:.2f} of the re-drape floor {redrape:.4f} (at least "
                    f"{MIN_FALL_OF_REDRAPE:g} needed): it changes the drape less than re-draping does"
-                   for e in small]
+                   for e in small if (e["refit"] or {}).get("fitted_in") != "3d"]
             if refitted:
                 why.append(f"the refit with {', '.join(refitted)} did not lower the best-of-{k_judged} MSE by "
                            f"{100 * MIN_MSE_FALL:.0f} %")
+            for e in in_3d_refits:  # fitted in 3D: what it did in 3D and to the silhouettes (recommendable_in_3d)
+                fall = e.get("fall_3d_of_redrape")
+                why.append(f"the refit with {e['effect']}, fitted in 3D, moved the fold features' best-of-{k_judged} "
+                           f"distance {base_3d if base_3d is not None else float('nan'):.3g} -> "
+                           f"{e['refit'].get('error_3d') if e['refit'].get('error_3d') is not None else float('nan'):.3g}"
+                           + (f" ({fall:.2f} of its re-drape floor)" if fall is not None else "")
+                           + f" and the silhouettes' best-of-{k_judged} MSE {base_mse:.4f} -> {e['refit']['mse']:.4f}"
+                           f" (a recommendation needs a 3D fall of {MIN_FALL_OF_REDRAPE:g} floors with the MSE at most "
+                           f"{ALTERNATIVE_WITHIN:g} of its floor above the base's)")
             if not_run:
                 reason = not_refitted_reason(result["cancelled"], max_refits)
                 why.append(f"{', '.join(not_run)} not refitted ({reason})")
