@@ -255,7 +255,7 @@ STEP_FAMILY_DRAWN = (1e-5, 0.05)  # ... drawn only where Bonferroni's p lies abo
 # step_direction: the refit starts along the steps' first harmonic where it explains at least this share of their
 # statistics' variance (a tilt's four steps: 0.99 at seeds 721 and 751; an offset's eight: 0.37-0.38)
 DIRECTION_R2_MIN = 0.8
-MESH_NOISE_STREAM = 43    # the 3D step test's vertex noise streams: [seed, this, kind, draw, step] (MeshFeatures)
+MESH_NOISE_STREAM = 43    # the 3D step test's vertex noise streams: [seed, this, kind, draw] (MeshFeatures)
 STEP_PERMUTATIONS_MAX = 20000  # labellings enumerated up to this count (six images, 12 references: 18564), else drawn
                                # (the relabelling test: the fallback without references, and p_value_permutation)
 
@@ -1042,7 +1042,8 @@ class MeshFeatures:
     """The 3D step test's view of drapes (module doc, 2c): fold_geometry.features of a drape on the model's
     specimen (rest, bending edges), the simulated drapes' hinge angles taken with `noise_m` of vertex noise (the
     measured meshes' own reconstruction noise: they carry theirs), drawn per drape from a stream fixed by the
-    drape's `key`, so the features do not depend on the threads' order."""
+    drape's `key`, so the features do not depend on the threads' order (a step drape takes its draw's key:
+    common random numbers)."""
 
     def __init__(self, rest, edges, noise_m, seed):
         self.rest, self.edges = np.asarray(rest, dtype=float), np.asarray(edges)
@@ -1920,8 +1921,10 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                 if mesh3d is None:
                     return {}
                 f_base = [mesh3d.simulated(shapes[i]["x"], (0, i)) for i in draw_ids]
-                f_steps = {key: [mesh3d.simulated(x, (4, draw_ids[u], names.index(key[0]), key[1]))
-                                 for u, x in enumerate(v)] for key, v in positions.items() if key[0] in subset}
+                # a step drape's vertex noise is its draw's (common random numbers): a step that leaves the drape
+                # as it is (the camera's) changes no feature, and the noise does not enter the step's change
+                f_steps = {key: [mesh3d.simulated(x, (0, draw_ids[u])) for u, x in enumerate(v)]
+                           for key, v in positions.items() if key[0] in subset}
                 out = step_tests_3d(f_base, f_steps, subset, f_measured, f_references, f_redrapes)
                 for st in out.values():
                     st["draws"] = len(draw_ids)

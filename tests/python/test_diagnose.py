@@ -1155,6 +1155,11 @@ def test_the_3d_step_test_projects_the_steps_feature_change_on_the_measured_diff
         assert out[name]["statistic"] == pytest.approx(-2.0 / 4 * np.sum(d_f * diff / scale[:4] ** 2), rel=1e-9)
     assert out["towards"]["statistic"] < 0 and out["towards"]["p_value"] < 1e-3
     assert out["across"]["p_value"] > 0.01
+    # a step that leaves every drape as it is (the camera's; its drapes take their draws' vertex noise) is no
+    # evidence either way
+    same = diagnose.step_tests_3d(base, {("same", 0): [b.copy() for b in base]}, {"same": [("c", {})]}, measured,
+                                  references, redrapes)
+    assert same["same"]["statistic"] == 0.0 and same["same"]["p_value"] == 1.0
     # a failed step drape (None) is left out on both sides
     towards[0] = None
     again = diagnose.step_tests_3d(base, {("towards", 0): towards, ("across", 0): across}, steps, measured,
