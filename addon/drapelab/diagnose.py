@@ -178,8 +178,8 @@
    epochs follow the pixel loss, which does not see such an effect: a fit on fabric 4's training photo pushed
    high_curvature_bending's log_factor to +0.53, the crests' sign opposite). When no refit is recommended by the
    silhouettes, such a refit is (recommendable_in_3d) when something is significant, it lowers the 3D error by
-   MIN_MSE_FALL of the base's and MIN_FALL_OF_REDRAPE of its floor, and the silhouettes' best-of-K MSE stays
-   within ALTERNATIVE_WITHIN of their floor of the base's.
+   MIN_MSE_FALL of the base's, MIN_FALL_OF_REDRAPE of its floor and MIN_3D_GAP_SHARE of the gap between them, and
+   the silhouettes' best-of-K MSE stays within ALTERNATIVE_WITHIN of their floor of the base's.
 
 Time budget (seconds, the whole job): the draws and score tests come first (their cost is K drapes with
 backward), then the step test (2b: its share, screened when thin); what remains, less the refits' evaluations and
@@ -219,6 +219,10 @@ MIN_FALL_OF_REDRAPE = 0.5  # ... and by at least this fraction of the re-drape f
 # A candidate without a refit whose p is below this x the threshold is named beside a recommendation (unrefitted)
 NEAR_THRESHOLD_FACTOR = 3.0
 ALTERNATIVE_WITHIN = MIN_FALL_OF_REDRAPE  # a refit whose MSE is within this x the floor of the recommended's: as good
+# a refit fitted in 3D is recommended only when it also closes this share of the 3D error's gap above its re-drape
+# floor: on the real fabrics that gap is 20-25 floors, so half a floor is 2 % of it (module doc, 3b; on fabric 2 a
+# 0.15 rad tilt closed 6 % of it, 1.3 floors, with the silhouettes unchanged)
+MIN_3D_GAP_SHARE = 0.25
 SCORE_CLIP_FACTOR = 1.5   # per-draw score norms capped at this x their median (the fit's cap is 3: module doc, 2.)
 HARMONIC_ORDERS = 6       # residual harmonics reported: k = 1..6
 FLIP_ENUMERATE_MAX = 16  # draws up to which the sign-flip test enumerates all 2^K patterns
@@ -1123,16 +1127,18 @@ def found_in_3d(entry, threshold):
             and (not others or combined_p(*others) >= threshold))
 
 
-def recommendable_in_3d(ranking, base_3d, base_mse, redrape, any_significant):
+def recommendable_in_3d(ranking, base_3d, floor_3d, base_mse, redrape, any_significant):
     """The refits fitted in 3D that may be recommended (module doc, 3b), largest 3D fall first: some candidate is
-    significant, the refit lowers the 3D error by at least MIN_MSE_FALL of the base's and MIN_FALL_OF_REDRAPE of its
-    re-drape floor (fall_3d_of_redrape), and its silhouettes' best-of-K MSE is at most ALTERNATIVE_WITHIN x their
-    re-drape floor above the base's (the outline as good as the base's)."""
-    if not (any_significant and base_3d and base_mse is not None and redrape):
+    significant, the refit lowers the 3D error `base_3d` by at least MIN_MSE_FALL of it, MIN_FALL_OF_REDRAPE of its
+    re-drape floor `floor_3d` (fall_3d_of_redrape) and MIN_3D_GAP_SHARE of the gap between them, and its
+    silhouettes' best-of-K MSE is at most ALTERNATIVE_WITHIN x their re-drape floor `redrape` above the base's
+    `base_mse` (the outline as good as the base's)."""
+    if not (any_significant and base_3d and floor_3d and base_mse is not None and redrape):
         return []
     ok = [e for e in ranking if (e.get("refit") or {}).get("fitted_in") == "3d"
           and e.get("fall_3d_of_redrape") is not None and e["fall_3d_of_redrape"] >= MIN_FALL_OF_REDRAPE
           and (base_3d - e["refit"]["error_3d"]) / base_3d >= MIN_MSE_FALL
+          and base_3d - e["refit"]["error_3d"] >= MIN_3D_GAP_SHARE * (base_3d - floor_3d)
           and e["refit"]["mse"] <= base_mse + ALTERNATIVE_WITHIN * redrape]
     return sorted(ok, key=lambda e: -e["fall_3d_of_redrape"])
 
@@ -2354,7 +2360,8 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
     # the 3D error by MIN_MSE_FALL of it and MIN_FALL_OF_REDRAPE of its re-drape floor, and the silhouettes' best-of-K
     # MSE stays within ALTERNATIVE_WITHIN of their floor (the outline as good as the base's)
     base_3d = judged.get("error_3d")
-    in_3d_gaining = recommendable_in_3d(result["ranking"], base_3d, base_mse, redrape, any_significant)
+    in_3d_gaining = recommendable_in_3d(result["ranking"], base_3d, judged.get("redrape_error_3d"), base_mse, redrape,
+                                        any_significant)
     if not gaining and in_3d_gaining:
         best = in_3d_gaining[0]
         result["recommended"] = best["effect"]
@@ -2414,7 +2421,8 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                            f"{e['refit'].get('error_3d') if e['refit'].get('error_3d') is not None else float('nan'):.3g}"
                            + (f" ({fall:.2f} of its re-drape floor)" if fall is not None else "")
                            + f" and the silhouettes' best-of-{k_judged} MSE {base_mse:.4f} -> {e['refit']['mse']:.4f}"
-                           f" (a recommendation needs a 3D fall of {MIN_FALL_OF_REDRAPE:g} floors with the MSE at most "
+                           f" (a recommendation needs a 3D fall of {MIN_FALL_OF_REDRAPE:g} floors and "
+                           f"{100 * MIN_3D_GAP_SHARE:.0f} % of the gap above the 3D floor, with the MSE at most "
                            f"{ALTERNATIVE_WITHIN:g} of its floor above the base's)")
             if not_run:
                 reason = not_refitted_reason(result["cancelled"], max_refits)

@@ -1170,7 +1170,7 @@ def test_the_3d_step_test_projects_the_steps_feature_change_on_the_measured_diff
 def test_a_candidate_found_in_3d_is_fitted_and_judged_in_3d():
     """found_in_3d: the 3D step test's p is the smallest of the candidate's tests and the silhouettes' tests alone
     are not significant; recommendable_in_3d: a 3D refit
-    that lowers the 3D error by half its re-drape floor (and 5 % of it) with the silhouettes' MSE within half
+    that lowers the 3D error by half its re-drape floor, 5 % of it and a quarter of the gap above the floor with the silhouettes' MSE within half
     theirs of the base's, only when something is significant, largest 3D fall first."""
     e = {"p_value_score": 0.3, "step": {"p_value": 0.01}, "step_3d": {"p_value": 0.001}}
     assert diagnose.found_in_3d(e, 0.005)
@@ -1187,7 +1187,9 @@ def test_a_candidate_found_in_3d_is_fitted_and_judged_in_3d():
                refit("d", 1.85, 0.030, 0.6), refit("g", 1.95, 0.030, 0.6), refit("e", 1.0, 0.030, 1.2, "silhouettes"), refit("f", 1.8, 0.03, 0.4)]
     # base 3D error 2.0, base MSE 0.030, MSE floor 0.01: c's MSE rose 0.006 > 0.005; g's 3D error fell 2.5 % of the
     # base's (d's 7.5 %); f below half the floor; e fitted on the silhouettes
-    got = diagnose.recommendable_in_3d(ranking, 2.0, 0.030, 0.01, True)
-    assert [x["effect"] for x in got] == ["b", "a", "d"]
-    assert diagnose.recommendable_in_3d(ranking, 2.0, 0.030, 0.01, False) == []  # nothing significant
-    assert diagnose.recommendable_in_3d(ranking, None, 0.030, 0.01, True) == []
+    # (3D floor 0.2: the gap 1.8, a quarter of it 0.45: a and d close 0.5 and 0.15 of it)
+    got = diagnose.recommendable_in_3d(ranking, 2.0, 0.2, 0.030, 0.01, True)
+    assert [x["effect"] for x in got] == ["b", "a"]  # d's fall is 8 % of the gap
+    assert [x["effect"] for x in diagnose.recommendable_in_3d(ranking, 2.0, 1.9, 0.030, 0.01, True)] == ["b", "a", "d"]
+    assert diagnose.recommendable_in_3d(ranking, 2.0, 0.2, 0.030, 0.01, False) == []  # nothing significant
+    assert diagnose.recommendable_in_3d(ranking, None, 0.2, 0.030, 0.01, True) == []
