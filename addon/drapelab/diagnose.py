@@ -984,10 +984,11 @@ def _step_drapes(pred, drawn, steps, used, config, lanes, progress, cancel_event
             m = drawn["light"].get(lane, n, drawn["offs"][n])
             p = m.parameters(stretch=pred.stretch, bend=drawn["bend"][i], effects={**base, n: values})
             try:
-                out[(n, si)][u], xs[(n, si)][u] = _forward_silhouette(m, p, drawn["velocities"][i], pred, config,
-                                                                      cancel_event, with_positions=True)
+                got = _forward_silhouette(m, p, drawn["velocities"][i], pred, config, cancel_event,
+                                          with_positions=positions is not None)
             except Cancelled:
                 return
+            out[(n, si)][u], xs[(n, si)][u] = got if positions is not None else (got, None)
             with lock:
                 done[0] += 1
                 if done[0] % max(1, len(tasks) // 10) == 0 or done[0] == len(tasks):
@@ -1098,14 +1099,15 @@ def best_of_k_3d(draw_features, targets, distance):
     return float(np.mean([min(distance(f, t) for f in drawn) for t in targets]))
 
 
-def step_tests_3d(base_features, step_features, steps, measured, references, redrapes=()):
+def step_tests_3d(base_features, step_features, steps, measured, references, redrapes=(), scale=None):
     """The 3D step test (module doc, 2c): step_tests with each drape's fold features (fold_geometry.features:
     crest and hoop hinge angles per band, height and fold amplitude per ring) in place of its silhouette and the
     mean squared difference of the features, each over the references' sd, in place of the pixel MSE. Per step
     the statistic is then the step's mean feature change projected on how the measured meshes differ from P's own
     drapes (the quadratic's terms in the draw alone cancel between measured and references), and its p is the
-    specimen null's as in 2D. Returns step_tests' dict, plus "features" (the compared features' names)."""
-    scale, kept = feature_scale(measured, list(references) + list(redrapes))
+    specimen null's as in 2D. `scale`: feature_scale's (scale, kept) of these measured meshes, references and
+    re-drapes, when the caller has it. Returns step_tests' dict, plus "features" (the compared features' names)."""
+    scale, kept = scale or feature_scale(measured, list(references) + list(redrapes))
     if not kept.any():
         return {}
     distance = feature_distance(scale, kept)
@@ -1307,9 +1309,10 @@ def _pseudo_observations(pred, preset, models, offs, j, seed, config, lanes, pro
             v0 = infer.placement_velocities(rest, np.random.default_rng([seed, PSEUDO_SEED_OFFSET * (1 + stream) + i, 1]),
                                             amplitude, modes) if amplitude > 0 else None
             try:
-                images[i], xs[i] = _forward_silhouette(m, p, v0, pred, config, cancel_event, with_positions=True)
+                got = _forward_silhouette(m, p, v0, pred, config, cancel_event, with_positions=positions is not None)
             except Cancelled:
                 return
+            images[i], xs[i] = got if positions is not None else (got, None)
             if images[i] is None:
                 continue
             what = ("the score's null reference", "the step test's references", "the re-drape floor")[stream]
@@ -1343,7 +1346,7 @@ def _scatter_image(i, pseudo, observed, pseudo_pairs, observed_pairs):
 
 
 def _joint_drapes(preset, observations, names, k, seed, config, threads, template_dir, mesh_level, progress,
-                  cancel_event):
+                  cancel_event, keep_positions=False):
     """Drapes K draws of the preset on one model with every candidate active at its off values (P's own effects
     at their sampled values), recording the rollout; returns the shapes (x, hard image, dc, nodes, amplitude),
     per draw the score (the gradient of the excess data term, module doc 2.) for every candidate parameter and,
@@ -1382,7 +1385,7 @@ def _joint_drapes(preset, observations, names, k, seed, config, threads, templat
     # the null reference: P's own predictive silhouettes, as many as there are images (at least PSEUDO_MIN)
     observed = [o.mask for o in observations]
     j = max(PSEUDO_MIN, len(observed))
-    drawn["pseudo_x"] = []  # their positions (the 3D step test's references)
+    drawn["pseudo_x"] = [] if keep_positions else None  # their positions (the 3D step test's references)
     pseudo = _pseudo_observations(pred, preset, light.plain, {}, j, seed, config, lanes, progress, cancel_event,
                                   positions=drawn["pseudo_x"])
     if len(pseudo) < PSEUDO_MIN:
@@ -1790,7 +1793,8 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
         _progress(progress, "draws", f"{label}: {k} posterior draws on {len(images)} image(s), score tests of "
                                      f"{', '.join(names) or 'no candidates'}")
         pred, models, shapes, grads, seconds, lanes, pseudo, drawn = _joint_drapes(
-            p, observations, names, k, seed, config, threads, template_dir, mesh_level, progress, cancel_event)
+            p, observations, names, k, seed, config, threads, template_dir, mesh_level, progress, cancel_event,
+            keep_positions=bool(meshes))
         result["seconds"]["draws"] = seconds
         result["mesh_level"] = pred.level
         done = [i for i in range(k) if shapes[i] is not None and "error" not in shapes[i]]
@@ -1806,7 +1810,7 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                                        float(config["sigma_obs"]), SCORE_SIGMA_DC)
         # the re-drape floor: the draws against P's mean material re-draped (placement noise only)
         tr = time.monotonic()
-        redrape_x = []
+        redrape_x = [] if meshes else None  # the re-drapes' positions (the 3D step test, with meshes)
         redrapes = _pseudo_observations(pred, p, drawn["light"].plain, {}, max(REDRAPE_FLOOR_MIN, len(observations)),
                                         seed, config, lanes, progress, cancel_event, stream=2, mean_material=True,
                                         positions=redrape_x)
@@ -1912,18 +1916,19 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                                          f"candidates x {k_first} draws")
             j_extra = j_step - len(pseudo)
             references = list(pseudo)
-            reference_x = list(drawn["pseudo_x"])
+            reference_x = None if mesh3d is None else list(drawn["pseudo_x"])
             if j_extra > 0:
                 references += _pseudo_observations(pred, p, drawn["light"].plain, {}, j_extra, seed, config, lanes,
                                                    progress, cancel_event, stream=1, positions=reference_x)
             used = done[:k_first]
             tf = time.monotonic()
-            step_x = {}
+            step_x = None if mesh3d is None else {}
             images_k = _step_drapes(pred, drawn, steps, used, config, lanes, progress, cancel_event,
                                     positions=step_x)
             if mesh3d is not None:
                 f_references = [mesh3d.simulated(x, (1, r)) for r, x in enumerate(reference_x)]
                 f_redrapes = [mesh3d.simulated(x, (3, r)) for r, x in enumerate(redrape_x)]
+                scale_3d = feature_scale(f_measured, f_references + f_redrapes)  # the tests' and the 3D error's
 
             def tests_3d(draw_ids, positions, subset):
                 """The 3D step test of the steps `subset` on the draws `draw_ids` (their step drapes' positions)."""
@@ -1934,7 +1939,7 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                 # as it is (the camera's) changes no feature, and the noise does not enter the step's change
                 f_steps = {key: [mesh3d.simulated(x, (0, draw_ids[u])) for u, x in enumerate(v)]
                            for key, v in positions.items() if key[0] in subset}
-                out = step_tests_3d(f_base, f_steps, subset, f_measured, f_references, f_redrapes)
+                out = step_tests_3d(f_base, f_steps, subset, f_measured, f_references, f_redrapes, scale_3d)
                 for st in out.values():
                     st["draws"] = len(draw_ids)
                 return out
@@ -1999,8 +2004,7 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                             st["p_value"] = max(st["p_value"], SCREEN_P_MAX)
             result["seconds"]["steps"] = time.monotonic() - ts
             if mesh3d is not None and tests3d:  # the 3D errors (best-of-K feature distance) of the base and its floor
-                scale3d, kept3d = feature_scale(f_measured, f_references + f_redrapes)
-                distance_3d = feature_distance(scale3d, kept3d)
+                distance_3d = feature_distance(*scale_3d)
                 f_drawn = [mesh3d.simulated(shapes[i]["x"], (0, i)) for i in done]
                 base["error_3d"] = best_of_k_3d(f_drawn, f_measured, distance_3d)
                 base["redrape_error_3d"] = best_of_k_3d(f_drawn, f_redrapes, distance_3d)
@@ -2091,11 +2095,15 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
             """found_in_3d, when the 3D error is measured."""
             return distance_3d is not None and bool(base.get("redrape_error_3d")) and found_in_3d(e, threshold)
 
-        def start_of(e):
-            """The refit's start (refit_start), None without a step that brought the draws closer."""
+        def start_for(e):
+            """Refit e's start, refit_start's (values, how, label) from its 3D step test when it was found in 3D, else
+            from its step test; (None, None, None) without a step that brought the draws closer."""
             if in_3d(e):
-                return refit_start(e["step_3d"])[0]
-            return refit_start(e["step"])[0] if e.get("step") else None  # as the refit loop takes it
+                return refit_start(e["step_3d"])
+            return refit_start(e["step"]) if e.get("step") else (None, None, None)
+
+        def start_of(e):
+            return start_for(e)[0]
 
         grids = {e["effect"]: [] if in_3d(e) else grid_points(reg[e["effect"]]) for e in promising}  # [] for a line search
 
@@ -2104,12 +2112,12 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
             grid (grid_search), which needs no start."""
             return start_of(e) is not None or bool(grids[e["effect"]])
 
-        def evaluate(candidate, at_seed=seed, n=None, record=True, noise_key=None):
+        def evaluate(candidate, at_seed=seed, n=None, record=True, noise_key=None, floor_3d=False):
             """(shapes, summary) of n draws of `candidate` (by default the comparison's k_eval draws of the base's
             seed), or None when all fail. `record`: its seconds per draw plan the evaluations still to come (not a
             grid point's few draws, which a fresh model's setup weighs more). `noise_key` (two whole numbers: the
             base's (5, 0), a refit's (6, its candidate's index)): the summary also holds the draws' 3D error when
-            the 3D step test ran (their hinge angles' noise drawn from it)."""
+            the 3D step test ran (their hinge angles' noise drawn from it), and with `floor_3d` its re-drape floor."""
             n = k_eval if n is None else n
             rp = infer._Predictive(candidate, observations[0].mask.shape, lanes, config, template_dir, pred.level,
                                    "dynamic")
@@ -2125,7 +2133,7 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                 f_drawn = [None if "error" in r else mesh3d.simulated(r["x"], (*noise_key, i))
                            for i, r in enumerate(rshapes)]
                 rbase["error_3d"] = best_of_k_3d(f_drawn, f_measured, distance_3d)
-                if noise_key == (5, 0):  # the base's: the 3D floor on these draws too
+                if floor_3d:  # the base's: the 3D floor on these draws too
                     rbase["redrape_error_3d"] = best_of_k_3d(f_drawn, f_redrapes, distance_3d)
             return rshapes, rbase
 
@@ -2176,7 +2184,7 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
             comparison, paired = dict(base, samples=k), shapes  # paired: the base's draws, index by index
             if k_eval > k:
                 _progress(progress, "refit", f"the base on {k_eval} draws (the refits' comparison)")
-                got = evaluate(p, noise_key=(5, 0))
+                got = evaluate(p, noise_key=(5, 0), floor_3d=True)
                 if got is None:
                     k_eval = k
                 else:
@@ -2190,8 +2198,7 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
         for idx, entry in enumerate(promising):
             budget = None
             found_3d = bool(in_3d(entry))
-            start, how, start_step = (refit_start(entry["step_3d"]) if found_3d else
-                                      refit_start(entry["step"]) if entry.get("step") else (None, None, None))
+            start, how, start_step = start_for(entry)
             step_only = False
             if time_budget is not None:
                 budget = refit_budget(idx)
