@@ -93,7 +93,8 @@
    nothing needs no raising.
 3. Refits. When at least one candidate is below the threshold (the data differ from P), the candidates with p
    below REFIT_P_MAX are refitted, up to MAX_REFITS of them in refit_order (the significant ones first, each group
-   by the sum of their ranks by combined p and by the step test's p, then statistic), under the time budget: the score test says that
+   by the sum of their ranks by combined p and by the step test's p, then statistic; the candidates found in 3D,
+   3b, re-sorted among their places by their 3D move, refit_order_3d), under the time budget: the score test says that
    something differs, the refits say which effect explains it. Significant first since seed 701 on circle3: a crease
    step that passes near the threshold on drapes without a crease (p 0.002-0.012) went before the significant tilt
    and camera by its strong step statistic, and the tilt's refit was dropped for time (docs/diagnose.md). Neither test alone picks the refits well: the combined p saturated (the step test's
@@ -173,7 +174,8 @@
    best-of-K fold-feature distance (2c's) to the measured meshes (best_of_k_3d), with its re-drape floor (the same
    draws against the re-drapes of P's mean), and each refit its fall in units of that floor (fall_3d_of_redrape).
    A candidate found in 3D only (found_in_3d: its 3D step p the smallest of its tests, its silhouette tests
-   alone not significant) is refitted in 3D: the line
+   alone not significant) is refitted in 3D, such candidates in the order of their 3D move (the most negative 3D
+   step statistic first, in the places refit_order gave them: refit_order_3d), not of their 3D p: the line
    search starts at its best 3D step and scores its points by the 3D error, and there are no epochs (the fit's
    epochs follow the pixel loss, which does not see such an effect: a fit on fabric 4's training photo pushed
    high_curvature_bending's log_factor to +0.53, the crests' sign opposite). When no refit is recommended by the
@@ -1487,6 +1489,23 @@ def refit_order(entries, threshold=None):
     return sorted(entries, key=lambda e: (rank_p[id(e)] + rank_step[id(e)], rank_step[id(e)]))
 
 
+def refit_order_3d(order, found):
+    """`order` (refit_order's) with the entries found in 3D (`found(e)`, found_in_3d's) re-sorted among the places
+    they hold by their 3D step statistic, the largest move towards the measured meshes first (module doc, 3b), the
+    others where they were. Where P is far from the meshes in 3D every step that moves the fold features towards
+    them is rejected with a small p, and the smallest p's go to the most consistent moves, not the largest (fabric
+    4: tilt's 3D p 1.6e-6 for a move of -0.58, high_curvature_bending's 7.1e-4 for -10.8, and the three refits went
+    to tilt, bending_anisotropy and damping); which effect explains the gap is the refits' question, and the
+    largest moves are the ones that can close it."""
+    places = [i for i, e in enumerate(order) if found(e)]
+    by_move = sorted((order[i] for i in places),
+                     key=lambda e: (float(e["step_3d"]["statistic"]), float(e["step_3d"]["p_value"])))
+    out = list(order)
+    for i, e in zip(places, by_move):
+        out[i] = e
+    return out
+
+
 def with_effect_values(preset, name, values):
     """A copy of `preset` with effect `name`'s values set to `values` ({parameter: value}; the others kept), each
     fitted parameter's interval moved with its value and its sd kept: a refit preset taken back to its start."""
@@ -2081,8 +2100,13 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
 
         # 2. refits of the most promising candidates
         tested = [e for e in result["ranking"] if e["p_value"] is not None]
-        promising = (refit_order([e for e in tested if e["p_value"] < max(threshold, REFIT_P_MAX)],
-                                 threshold)[:int(max_refits)]
+
+        def in_3d(e):
+            """found_in_3d, when the 3D error is measured."""
+            return distance_3d is not None and bool(base.get("redrape_error_3d")) and found_in_3d(e, threshold)
+
+        promising = (refit_order_3d(refit_order([e for e in tested if e["p_value"] < max(threshold, REFIT_P_MAX)],
+                                                threshold), in_3d)[:int(max_refits)]
                      if any(e["p_value"] < threshold for e in tested) else [])
         for order, e in enumerate(promising):
             e["refit_order"] = order + 1
@@ -2091,10 +2115,6 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
             result["material_prior"] = ("the preset's posterior (log_mean, per-entry log_std, global_log_std), held "
                                         "fixed in the refit (material learning rates x "
                                         f"{MATERIAL_LEARNING_RATE_FACTOR:g}); only the effect is fitted")
-        def in_3d(e):
-            """found_in_3d, when the 3D error is measured."""
-            return distance_3d is not None and bool(base.get("redrape_error_3d")) and found_in_3d(e, threshold)
-
         def start_for(e):
             """Refit e's start, refit_start's (values, how, label) from its 3D step test when it was found in 3D, else
             from its step test; (None, None, None) without a step that brought the draws closer."""

@@ -1193,3 +1193,21 @@ def test_a_candidate_found_in_3d_is_fitted_and_judged_in_3d():
     assert [x["effect"] for x in diagnose.recommendable_in_3d(ranking, 2.0, 1.9, 0.030, 0.01, True)] == ["b", "a", "d"]
     assert diagnose.recommendable_in_3d(ranking, 2.0, 0.2, 0.030, 0.01, False) == []  # nothing significant
     assert diagnose.recommendable_in_3d(ranking, None, 0.2, 0.030, 0.01, True) == []
+
+
+def test_refit_order_3d_puts_the_largest_3d_moves_first_in_their_places():
+    # fabric 4 with --meshes (2026-11-30, threshold 9.1e-4): every candidate but the camera, orientation and offset
+    # was found in 3D; by p the three refits went to tilt, bending_anisotropy and damping, whose 3D moves were the
+    # smallest, and prestrain and high_curvature_bending (moves -10.9 and -10.8) had none
+    def entry(name, p, p3, stat3, found=True):
+        return {"effect": name, "p_value": p, "found": found, "step_3d": {"p_value": p3, "statistic": stat3}}
+    order = [entry("tilt", 4.7e-6, 1.6e-6, -0.58), entry("bending_anisotropy", 2e-8, 6.6e-9, -1.7),
+             entry("offset", 0.073, 0.036, -2.9, found=False), entry("damping", 2.2e-4, 7.5e-5, -0.85),
+             entry("prestrain", 0.0016, 5.3e-4, -10.9), entry("high_curvature_bending", 0.0021, 7.1e-4, -10.8),
+             entry("camera", 0.02, 1.0, 0.0, found=False), entry("heterogeneity_map", 0.017, 0.0057, -8.7)]
+    out = [e["effect"] for e in diagnose.refit_order_3d(order, lambda e: e["found"])]
+    assert out == ["prestrain", "high_curvature_bending", "offset", "heterogeneity_map", "bending_anisotropy",
+                   "damping", "camera", "tilt"]
+    # the entries not found in 3D keep their places; with none found nothing moves
+    assert diagnose.refit_order_3d(order, lambda e: False) == order
+    assert diagnose.refit_order_3d([], lambda e: True) == []
