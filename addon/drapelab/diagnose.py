@@ -94,7 +94,7 @@
 3. Refits. When at least one candidate is below the threshold (the data differ from P), the candidates with p
    below REFIT_P_MAX are refitted, up to MAX_REFITS of them in refit_order (the significant ones first, each group
    by the sum of their ranks by combined p and by the step test's p, then statistic; the candidates found in 3D,
-   3b, re-sorted among their places by their 3D move, refit_order_3d), under the time budget: the score test says that
+   3b, re-sorted among their places by their 3D step's fall, refit_order_3d), under the time budget: the score test says that
    something differs, the refits say which effect explains it. Significant first since seed 701 on circle3: a crease
    step that passes near the threshold on drapes without a crease (p 0.002-0.012) went before the significant tilt
    and camera by its strong step statistic, and the tilt's refit was dropped for time (docs/diagnose.md). Neither test alone picks the refits well: the combined p saturated (the step test's
@@ -174,8 +174,8 @@
    best-of-K fold-feature distance (2c's) to the measured meshes (best_of_k_3d), with its re-drape floor (the same
    draws against the re-drapes of P's mean), and each refit its fall in units of that floor (fall_3d_of_redrape).
    A candidate found in 3D only (found_in_3d: its 3D step p the smallest of its tests, its silhouette tests
-   alone not significant) is refitted in 3D, such candidates in the order of their 3D move (the most negative 3D
-   step statistic first, in the places refit_order gave them: refit_order_3d), not of their 3D p: the line
+   alone not significant) is refitted in 3D, such candidates in the order of their best 3D step's fall of the 3D error (the largest first,
+   in the places refit_order gave them: refit_order_3d), not of their 3D p: the line
    search starts at its best 3D step and scores its points by the 3D error, and there are no epochs (the fit's
    epochs follow the pixel loss, which does not see such an effect: a fit on fabric 4's training photo pushed
    high_curvature_bending's log_factor to +0.53, the crests' sign opposite). When no refit is recommended by the
@@ -1491,17 +1491,24 @@ def refit_order(entries, threshold=None):
 
 def refit_order_3d(order, found):
     """`order` (refit_order's) with the entries found in 3D (`found(e)`, found_in_3d's) re-sorted among the places
-    they hold by their 3D step statistic, the largest move towards the measured meshes first (module doc, 3b), the
-    others where they were. Where P is far from the meshes in 3D every step that moves the fold features towards
-    them is rejected with a small p, and the smallest p's go to the most consistent moves, not the largest (fabric
-    4: tilt's 3D p 1.6e-6 for a move of -0.58, high_curvature_bending's 7.1e-4 for -10.8, and the three refits went
-    to tilt, bending_anisotropy and damping); which effect explains the gap is the refits' question, and the
-    largest moves are the ones that can close it."""
+    they hold by their 3D step test's best_of_k_fall (the best step's fall of the measured meshes' best-of-K 3D
+    error on the test's draws: what the refit's start does), the largest first, then by the 3D statistic; the
+    others stay where they were (module doc, 3b). Where P is far from the meshes in 3D every step that moves the
+    fold features towards them is rejected with a small p, and the smallest p's go to the most consistent moves,
+    not the largest (fabric 4: tilt's 3D p 1.6e-6 for a fall of 0.77, high_curvature_bending's 7.1e-4 for 2.26; the
+    three refits went to tilt, bending_anisotropy and damping). Nor does the statistic order them: it is the
+    step's change projected on the gap between the meshes and P's drapes, linear in the step, while the 3D error
+    also grows with the step's square (fabric 4: prestrain's statistic -10.9, the largest, for a fall of -2.69,
+    and its refit raised the 3D error from 6.86 to 7.99)."""
     places = [i for i, e in enumerate(order) if found(e)]
-    by_move = sorted((order[i] for i in places),
-                     key=lambda e: (float(e["step_3d"]["statistic"]), float(e["step_3d"]["p_value"])))
+
+    def key(e):
+        st = e["step_3d"]
+        fall = st.get("best_of_k_fall")
+        return (-float(fall) if fall is not None and math.isfinite(fall) else math.inf, float(st["statistic"]))
+    by_fall = sorted((order[i] for i in places), key=key)
     out = list(order)
-    for i, e in zip(places, by_move):
+    for i, e in zip(places, by_fall):
         out[i] = e
     return out
 

@@ -1195,19 +1195,23 @@ def test_a_candidate_found_in_3d_is_fitted_and_judged_in_3d():
     assert diagnose.recommendable_in_3d(ranking, None, 0.2, 0.030, 0.01, True) == []
 
 
-def test_refit_order_3d_puts_the_largest_3d_moves_first_in_their_places():
+def test_refit_order_3d_puts_the_largest_3d_falls_first_in_their_places():
     # fabric 4 with --meshes (2026-11-30, threshold 9.1e-4): every candidate but the camera, orientation and offset
-    # was found in 3D; by p the three refits went to tilt, bending_anisotropy and damping, whose 3D moves were the
-    # smallest, and prestrain and high_curvature_bending (moves -10.9 and -10.8) had none
-    def entry(name, p, p3, stat3, found=True):
-        return {"effect": name, "p_value": p, "found": found, "step_3d": {"p_value": p3, "statistic": stat3}}
-    order = [entry("tilt", 4.7e-6, 1.6e-6, -0.58), entry("bending_anisotropy", 2e-8, 6.6e-9, -1.7),
-             entry("offset", 0.073, 0.036, -2.9, found=False), entry("damping", 2.2e-4, 7.5e-5, -0.85),
-             entry("prestrain", 0.0016, 5.3e-4, -10.9), entry("high_curvature_bending", 0.0021, 7.1e-4, -10.8),
-             entry("camera", 0.02, 1.0, 0.0, found=False), entry("heterogeneity_map", 0.017, 0.0057, -8.7)]
+    # was found in 3D; by p the three refits went to tilt, bending_anisotropy and damping, whose best steps lowered
+    # the 3D error least; by the 3D statistic prestrain went first, and its step raised the 3D error
+    def entry(name, p, stat3, fall, found=True):
+        return {"effect": name, "p_value": p, "found": found,
+                "step_3d": {"p_value": p / 3, "statistic": stat3, "best_of_k_fall": fall}}
+    order = [entry("tilt", 4.7e-6, -0.58, 0.77), entry("bending_anisotropy", 2e-8, -1.7, 0.96),
+             entry("offset", 0.073, -2.9, -4.38, found=False), entry("damping", 2.2e-4, -0.85, 0.41),
+             entry("prestrain", 0.0016, -10.9, -2.69), entry("high_curvature_bending", 0.0021, -10.8, 2.26),
+             entry("camera", 0.02, 0.0, 0.0, found=False), entry("heterogeneity_map", 0.017, -8.75, 1.66)]
     out = [e["effect"] for e in diagnose.refit_order_3d(order, lambda e: e["found"])]
-    assert out == ["prestrain", "high_curvature_bending", "offset", "heterogeneity_map", "bending_anisotropy",
-                   "damping", "camera", "tilt"]
-    # the entries not found in 3D keep their places; with none found nothing moves
+    assert out == ["high_curvature_bending", "heterogeneity_map", "offset", "bending_anisotropy", "tilt",
+                   "damping", "camera", "prestrain"]
+    # equal falls go by the statistic; a missing fall goes last; the entries not found in 3D keep their places;
+    # with none found nothing moves
+    tied = [entry("a", 0.001, -1.0, 0.5), entry("b", 0.002, -2.0, 0.5), entry("c", 0.003, -9.0, None)]
+    assert [e["effect"] for e in diagnose.refit_order_3d(tied, lambda e: True)] == ["b", "a", "c"]
     assert diagnose.refit_order_3d(order, lambda e: False) == order
     assert diagnose.refit_order_3d([], lambda e: True) == []
