@@ -1215,3 +1215,15 @@ def test_refit_order_3d_puts_the_largest_3d_falls_first_in_their_places():
     assert [e["effect"] for e in diagnose.refit_order_3d(tied, lambda e: True)] == ["b", "a", "c"]
     assert diagnose.refit_order_3d(order, lambda e: False) == order
     assert diagnose.refit_order_3d([], lambda e: True) == []
+
+
+def test_a_3d_recommendation_says_whether_it_is_significant_itself():
+    # fabric 2 with --meshes (2026-11-30): high_curvature_bending recommended at p 0.0019, above the threshold; the
+    # verdict said "significant (p = 0.0019 < 0.00091)"
+    ranking = [{"effect": "high_curvature_bending", "p_value": 0.0019}, {"effect": "tilt", "p_value": 2.2e-5},
+               {"effect": "bending_anisotropy", "p_value": 3.8e-7}, {"effect": "camera", "p_value": None}]
+    words = diagnose.why_in_3d(ranking[0], ranking, 0.00091)
+    assert "significant (p" not in words and "its own p = 0.0019" in words
+    assert "bending_anisotropy's p = 3.8e-07 < 0.00091" in words
+    assert diagnose.why_in_3d(ranking[1], ranking, 0.00091) == \
+        "significant (p = 2.2e-05 < 0.00091, by its 3D step test)"
