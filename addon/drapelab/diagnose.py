@@ -94,7 +94,7 @@
 3. Refits. When at least one candidate is below the threshold (the data differ from P), the candidates with p
    below REFIT_P_MAX are refitted, up to MAX_REFITS of them in refit_order (the significant ones first, each group
    by the sum of their ranks by combined p and by the step test's p, then statistic; the candidates found in 3D,
-   3b, re-sorted among their places by their 3D step's fall, refit_order_3d), under the time budget: the score test says that
+   3b, re-sorted among their places by their 3D steps' change, refit_order_3d), under the time budget: the score test says that
    something differs, the refits say which effect explains it. Significant first since seed 701 on circle3: a crease
    step that passes near the threshold on drapes without a crease (p 0.002-0.012) went before the significant tilt
    and camera by its strong step statistic, and the tilt's refit was dropped for time (docs/diagnose.md). Neither test alone picks the refits well: the combined p saturated (the step test's
@@ -174,8 +174,8 @@
    best-of-K fold-feature distance (2c's) to the measured meshes (best_of_k_3d), with its re-drape floor (the same
    draws against the re-drapes of P's mean), and each refit its fall in units of that floor (fall_3d_of_redrape).
    A candidate found in 3D only (found_in_3d: its 3D step p the smallest of its tests, its silhouette tests
-   alone not significant) is refitted in 3D, such candidates in the order of their best 3D step's fall of the 3D error (the largest first,
-   in the places refit_order gave them: refit_order_3d), not of their 3D p: the line
+   alone not significant) is refitted in 3D, such candidates in the order of how much their best 3D step brings the draws' features closer
+   to the meshes on average (in the places refit_order gave them: refit_order_3d), not of their 3D p: the line
    search starts at its best 3D step and scores its points by the 3D error, and there are no epochs (the fit's
    epochs follow the pixel loss, which does not see such an effect: a fit on fabric 4's training photo pushed
    high_curvature_bending's log_factor to +0.53, the crests' sign opposite). When no refit is recommended by the
@@ -1005,12 +1005,13 @@ def _step_drapes(pred, drawn, steps, used, config, lanes, progress, cancel_event
 
 
 def step_tests(base_images, step_images, steps, observed, references, redrapes=(), distance=None):
-    """{effect: {statistic, p_value, z, p_value_permutation, step, best_of_k_fall}} from the step drapes (module
+    """{effect: {statistic, p_value, z, p_value_permutation, step, best_of_k_fall, per_step}} from the step drapes (module
     doc, 2b): per step, the change of the draws' mean pixel MSE against every measured, reference and re-drape image
     (draws that failed with the step are left out on both sides), then step_specimen_test (p_value; with fewer than
     three references, step_permutation_test) and, for comparison, step_permutation_test on the measured images and
     references (p_value_permutation). best_of_k_fall is the measured images' mean best-of-K MSE fall the best step
-    makes (positive: closer). `distance(a, q)`: what is compared instead of the pixel MSE (the 3D step test's
+    makes (positive: closer); per_step, every step's statistic and its `change` (the draws' mean distance to the
+    measured images, its change alone: the statistic less the references' change). `distance(a, q)`: what is compared instead of the pixel MSE (the 3D step test's
     feature distance, step_tests_3d; the "images" are then whatever it takes)."""
     distance = distance or measure.pixel_mse
     images = list(observed) + list(references) + list(redrapes)
@@ -1036,6 +1037,7 @@ def step_tests(base_images, step_images, steps, observed, references, redrapes=(
         # per step: the change against the measured images less that against P's own drapes (the statistic the
         # tests take per step; step_direction reads a direction from them)
         per_step = deltas[:, :n].mean(axis=1) - (deltas[:, n:n + j].mean(axis=1) if j else 0.0)
+        change = deltas[:, :n].mean(axis=1)  # the draws' mean distance to the measured images, its change alone
         best, stat, p_perm = step_permutation_test(deltas[:, :n + j], n)
         p, z = p_perm, None  # fewer than three references (their drapes failed): the relabelling test's
         if j >= 3:
@@ -1043,8 +1045,9 @@ def step_tests(base_images, step_images, steps, observed, references, redrapes=(
         out[name] = {"statistic": stat, "p_value": p, "z": z, "p_value_permutation": p_perm,
                      "step": st[best][0], "values": dict(st[best][1]), "best_of_k_fall": falls[best],
                      "per_step": [{"step": label, "values": dict(values),
-                                   "statistic": None if si in failed else float(x)}
-                                  for si, ((label, values), x) in enumerate(zip(st, per_step))]}
+                                   "statistic": None if si in failed else float(x),
+                                   "change": None if si in failed else float(c)}
+                                  for si, ((label, values), x, c) in enumerate(zip(st, per_step, change))]}
     return out
 
 
@@ -1229,7 +1232,7 @@ def step_direction(entry, second, per_step):
             "r2": r2, "used": bool(r2 >= DIRECTION_R2_MIN)}
 
 
-def refit_start(st):
+def refit_start(st, by="statistic"):
     """(values, how, label) where a refit starts from its effect's step test `st` (step_tests' entry, with its
     `direction` where step_direction gave one), or (None, None, None) when no step brought the draws closer to the
     measurements (every step's statistic >= 0). how: "harmonic" (a directional effect whose steps follow a first
@@ -1238,8 +1241,14 @@ def refit_start(st):
     spread and picks the reported step): at seed 761 a prestrain of +0.031 was stepped at +-0.03, the +0.03 step
     changed the draws by -0.043 and the -0.03 one by -0.039 with the smaller p, and the refit that started at -0.03
     stayed on the wrong side (docs/diagnose.md). Without per-step statistics: the reported step when its statistic
-    is negative."""
-    per = [(x["statistic"], i) for i, x in enumerate(st.get("per_step") or []) if x.get("statistic") is not None]
+    is negative. by="change": the step with the most negative `change` instead, and no harmonic (a refit found in
+    3D: refit_order_3d, which chose it by that step)."""
+    per = [(x[by], i) for i, x in enumerate(st.get("per_step") or []) if x.get(by) is not None]
+    if by != "statistic":
+        if not per or min(per)[0] >= 0:
+            return None, None, None
+        i = min(per)[1]
+        return dict(st["per_step"][i]["values"]), by, st["per_step"][i]["step"]
     if not per:
         return (dict(st["values"]), "statistic", st["step"]) if st["statistic"] < 0 else (None, None, None)
     lowest, i = min(per)
@@ -1502,26 +1511,40 @@ def refit_order(entries, threshold=None):
     return sorted(entries, key=lambda e: (rank_p[id(e)] + rank_step[id(e)], rank_step[id(e)]))
 
 
+def change_3d(entry):
+    """The most negative `change` over an entry's 3D steps (step_tests' per_step: the draws' mean fold-feature
+    distance to the measured meshes, its change), or its best step's best-of-K fall, negated, without per-step
+    changes; None without either."""
+    st = entry["step_3d"]
+    changes = [float(x["change"]) for x in st.get("per_step") or []
+               if x.get("change") is not None and math.isfinite(x["change"])]
+    if changes:
+        return min(changes)
+    fall = st.get("best_of_k_fall")
+    return -float(fall) if fall is not None and math.isfinite(fall) else None
+
+
 def refit_order_3d(order, found):
     """`order` (refit_order's) with the entries found in 3D (`found(e)`, found_in_3d's) re-sorted among the places
-    they hold by their 3D step test's best_of_k_fall (the best step's fall of the measured meshes' best-of-K 3D
-    error on the test's draws: what the refit's start does), the largest first, then by the 3D statistic; the
-    others stay where they were (module doc, 3b). Where P is far from the meshes in 3D every step that moves the
-    fold features towards them is rejected with a small p, and the smallest p's go to the most consistent moves,
-    not the largest (fabric 4: tilt's 3D p 1.6e-6 for a fall of 0.77, high_curvature_bending's 7.1e-4 for 2.26; the
-    three refits went to tilt, bending_anisotropy and damping). Nor does the statistic order them: it is the
-    step's change projected on the gap between the meshes and P's drapes, linear in the step, while the 3D error
-    also grows with the step's square (fabric 4: prestrain's statistic -10.9, the largest, for a fall of -2.69,
-    and its refit raised the 3D error from 6.86 to 7.99)."""
+    they hold by change_3d (the step that brings the draws' fold features closest to the measured meshes on
+    average), the most negative first, then by the 3D statistic; the others stay where they were (module doc, 3b).
+    Where P is far from the meshes in 3D every step that moves the fold features towards them is rejected with a
+    small p, and the smallest p's go to the most consistent moves, not the largest (fabric 4: tilt's 3D p 1.6e-6
+    for a best-of-K fall of 0.77, high_curvature_bending's 7.1e-4 for 2.26; the three refits went to tilt,
+    bending_anisotropy and damping). Nor does the statistic order them: it is the step's change projected on the
+    gap between the meshes and P's drapes (the references' change subtracted), linear in the step, while the
+    distance also grows with the step's square (fabric 4: prestrain's statistic -10.9, the largest, for a best-of-K
+    fall of -2.69; its refit raised the 3D error 6.86 -> 7.99). The best-of-K fall itself, on the screen's three
+    draws, put rest_curvature (1.77) before high_curvature_bending (1.57) on fabric 2, and its refit closed 8 % of
+    the gap; the mean change averages over the draws."""
     places = [i for i, e in enumerate(order) if found(e)]
 
     def key(e):
-        st = e["step_3d"]
-        fall = st.get("best_of_k_fall")
-        return (-float(fall) if fall is not None and math.isfinite(fall) else math.inf, float(st["statistic"]))
-    by_fall = sorted((order[i] for i in places), key=key)
+        c = change_3d(e)
+        return (c if c is not None else math.inf, float(e["step_3d"]["statistic"]))
+    by_change = sorted((order[i] for i in places), key=key)
     out = list(order)
-    for i, e in zip(places, by_fall):
+    for i, e in zip(places, by_change):
         out[i] = e
     return out
 
@@ -2139,7 +2162,8 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
             """Refit e's start, refit_start's (values, how, label) from its 3D step test when it was found in 3D, else
             from its step test; (None, None, None) without a step that brought the draws closer."""
             if in_3d(e):
-                return refit_start(e["step_3d"])
+                return refit_start(e["step_3d"], by="change" if any(
+                    x.get("change") is not None for x in e["step_3d"].get("per_step") or []) else "statistic")
             return refit_start(e["step"]) if e.get("step") else (None, None, None)
 
         def start_of(e):
@@ -2255,8 +2279,12 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
             search = None
             grid = grids[entry["effect"]]
             if start is not None and not grid:  # a grid search starts anywhere
-                st = entry["step"]
-                if how == "harmonic":
+                st = entry["step_3d"] if found_3d else entry["step"]
+                if how == "change" and start_step != st["step"]:
+                    entry["explanation"] += (f" The refit starts at the 3D step that brought the draws' fold features "
+                                             f"closest to the meshes on average ({start_step}), not at the step with "
+                                             f"the smallest 3D p ({st['step']}).")
+                elif how == "harmonic":
                     entry["explanation"] += (f" Its steps' statistics follow a first harmonic around their plane (r2 "
                                              f"{st['direction']['r2']:.2f}) pointing at "
                                              f"{math.degrees(st['direction']['direction_rad']):.0f} degrees: the refit "

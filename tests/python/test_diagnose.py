@@ -1195,13 +1195,16 @@ def test_a_candidate_found_in_3d_is_fitted_and_judged_in_3d():
     assert diagnose.recommendable_in_3d(ranking, None, 0.2, 0.030, 0.01, True) == []
 
 
-def test_refit_order_3d_puts_the_largest_3d_falls_first_in_their_places():
+def test_refit_order_3d_puts_the_largest_3d_changes_first_in_their_places():
     # fabric 4 with --meshes (2026-11-30, threshold 9.1e-4): every candidate but the camera, orientation and offset
     # was found in 3D; by p the three refits went to tilt, bending_anisotropy and damping, whose best steps lowered
-    # the 3D error least; by the 3D statistic prestrain went first, and its step raised the 3D error
+    # the 3D error least; by the 3D statistic prestrain went first, and its step raised the 3D error (here each
+    # entry's change is its best-of-K fall, negated, the figures of that run)
     def entry(name, p, stat3, fall, found=True):
         return {"effect": name, "p_value": p, "found": found,
-                "step_3d": {"p_value": p / 3, "statistic": stat3, "best_of_k_fall": fall}}
+                "step_3d": {"p_value": p / 3, "statistic": stat3, "best_of_k_fall": fall,
+                            "per_step": [{"step": "a", "statistic": stat3, "change": -fall},
+                                         {"step": "b", "statistic": 1.0, "change": None}]}}
     order = [entry("tilt", 4.7e-6, -0.58, 0.77), entry("bending_anisotropy", 2e-8, -1.7, 0.96),
              entry("offset", 0.073, -2.9, -4.38, found=False), entry("damping", 2.2e-4, -0.85, 0.41),
              entry("prestrain", 0.0016, -10.9, -2.69), entry("high_curvature_bending", 0.0021, -10.8, 2.26),
@@ -1209,12 +1212,24 @@ def test_refit_order_3d_puts_the_largest_3d_falls_first_in_their_places():
     out = [e["effect"] for e in diagnose.refit_order_3d(order, lambda e: e["found"])]
     assert out == ["high_curvature_bending", "heterogeneity_map", "offset", "bending_anisotropy", "tilt",
                    "damping", "camera", "prestrain"]
-    # equal falls go by the statistic; a missing fall goes last; the entries not found in 3D keep their places;
-    # with none found nothing moves
-    tied = [entry("a", 0.001, -1.0, 0.5), entry("b", 0.002, -2.0, 0.5), entry("c", 0.003, -9.0, None)]
-    assert [e["effect"] for e in diagnose.refit_order_3d(tied, lambda e: True)] == ["b", "a", "c"]
+    # equal changes go by the statistic; without per-step changes the best-of-K fall decides, without either the
+    # entry goes last; the entries not found in 3D keep their places; with none found nothing moves
+    tied = [entry("a", 0.001, -1.0, 0.5), entry("b", 0.002, -2.0, 0.5),
+            {"effect": "c", "p_value": 0.003, "step_3d": {"statistic": -9.0, "p_value": 0.001}},
+            {"effect": "d", "p_value": 0.004, "step_3d": {"statistic": 0.0, "p_value": 0.5, "best_of_k_fall": 0.7}}]
+    assert [e["effect"] for e in diagnose.refit_order_3d(tied, lambda e: True)] == ["d", "b", "a", "c"]
     assert diagnose.refit_order_3d(order, lambda e: False) == order
     assert diagnose.refit_order_3d([], lambda e: True) == []
+
+
+def test_a_refit_found_in_3d_starts_at_the_step_with_the_largest_3d_change():
+    st = {"step": "strain=-0.03", "statistic": -10.9, "values": {"strain": -0.03},
+          "per_step": [{"step": "strain=+0.03", "values": {"strain": 0.03}, "statistic": 1.8, "change": -0.4},
+                       {"step": "strain=-0.03", "values": {"strain": -0.03}, "statistic": -10.9, "change": 2.5}]}
+    assert diagnose.refit_start(st) == ({"strain": -0.03}, "statistic", "strain=-0.03")
+    assert diagnose.refit_start(st, by="change") == ({"strain": 0.03}, "change", "strain=+0.03")
+    worse = {**st, "per_step": [dict(x, change=abs(x["change"])) for x in st["per_step"]]}
+    assert diagnose.refit_start(worse, by="change") == (None, None, None)
 
 
 def test_a_3d_recommendation_says_whether_it_is_significant_itself():
