@@ -1242,3 +1242,29 @@ def test_a_3d_recommendation_says_whether_it_is_significant_itself():
     assert "bending_anisotropy's p = 3.8e-07 < 0.00091" in words
     assert diagnose.why_in_3d(ranking[1], ranking, 0.00091) == \
         "significant (p = 2.2e-05 < 0.00091, by its 3D step test)"
+
+
+def test_the_verdict_names_the_3d_candidates_left_without_a_refit():
+    # fabric 2 with --meshes (2026-11-30, threshold 9.1e-4): only rest_curvature's 3D refit ran; the steps of
+    # heterogeneity_map, density_variation and high_curvature_bending also brought the folds closer on average
+    def entry(name, p3, changes, refit=None, p_score=0.5, p_step=0.3):
+        return {"effect": name, "p_value": min(1.0, 3 * p3), "p_value_score": p_score, "refit": refit,
+                "step": {"p_value": p_step},
+                "step_3d": {"p_value": p3, "statistic": min(changes),
+                            "per_step": [{"step": str(i), "statistic": c, "change": c} for i, c in enumerate(changes)]}}
+    ranking = [entry("rest_curvature", 0.00016, [-3.32, -1.35], refit={"mse": 0.0478, "fitted_in": "3d"}),
+               entry("high_curvature_bending", 0.00065, [-2.38, 4.32]),
+               entry("heterogeneity_map", 0.005, [9.19, -3.08]),
+               entry("density_variation", 0.006, [-2.86, 10.84]),
+               entry("damping", 0.015, [-0.7]),
+               entry("prestrain", 1.6e-5, [-0.26, 6.93]),
+               entry("offset", 0.00072, [0.66, 0.6], p_score=0.0003),  # its silhouettes' test is smaller: not 3D-found
+               entry("tilt", 7.3e-6, [0.28, 0.75])]  # no step brought the folds closer
+    items = diagnose.unrefitted_3d(ranking, 0.00091)
+    assert items == [{"effect": "heterogeneity_map", "change": -3.08}, {"effect": "density_variation", "change": -2.86},
+                     {"effect": "high_curvature_bending", "change": -2.38}]
+    words = diagnose.unrefitted_3d_words(items)
+    assert "--candidates heterogeneity_map,density_variation,high_curvature_bending" in words
+    assert "high_curvature_bending (-2.4)" in words
+    assert diagnose.unrefitted_3d(ranking, 0.00091, limit=5)[-1] == {"effect": "prestrain", "change": -0.26}
+    assert diagnose.unrefitted_3d_words([]) == ""
