@@ -181,7 +181,8 @@
    high_curvature_bending's log_factor to +0.53, the crests' sign opposite). When no refit is recommended by the
    silhouettes, such a refit is (recommendable_in_3d) when something is significant, it lowers the 3D error by
    MIN_MSE_FALL of the base's, MIN_FALL_OF_REDRAPE of its floor and MIN_3D_GAP_SHARE of the gap between them, and
-   the silhouettes' best-of-K MSE stays within ALTERNATIVE_WITHIN of their floor of the base's. The candidates
+   the silhouettes' best-of-K MSE stays within ALTERNATIVE_WITHIN of their floor of the base's and the drape
+   coefficient error within the measured drape coefficients' standard error of the base's. The candidates
    found in 3D that had no refit and whose steps brought the features closer are named in the verdict with a
    --candidates line (unrefitted_3d): on circle3 within 600 s one or two 3D refits run.
 
@@ -1161,19 +1162,34 @@ def found_in_3d(entry, threshold):
             and (not others or combined_p(*others) >= threshold))
 
 
-def recommendable_in_3d(ranking, base_3d, floor_3d, base_mse, redrape, any_significant):
+def dc_standard_error(per_image):
+    """The measured drape coefficients' standard error (their sd over sqrt(n)) from diagnosis per_image entries;
+    None with fewer than two images."""
+    dc = [float(x["drape_coefficient"]["observed"]) for x in per_image or []
+          if (x.get("drape_coefficient") or {}).get("observed") is not None]
+    return float(np.std(dc, ddof=1) / math.sqrt(len(dc))) if len(dc) >= 2 else None
+
+
+def recommendable_in_3d(ranking, base_3d, floor_3d, base_mse, redrape, any_significant, base_dc=None,
+                        dc_within=None):
     """The refits fitted in 3D that may be recommended (module doc, 3b), largest 3D fall first: some candidate is
     significant, the refit lowers the 3D error `base_3d` by at least MIN_MSE_FALL of it, MIN_FALL_OF_REDRAPE of its
     re-drape floor `floor_3d` (fall_3d_of_redrape) and MIN_3D_GAP_SHARE of the gap between them, and its
     silhouettes' best-of-K MSE is at most ALTERNATIVE_WITHIN x their re-drape floor `redrape` above the base's
-    `base_mse` (the outline as good as the base's)."""
+    `base_mse` (the outline as good as the base's), and its drape coefficient error at most `dc_within` (the
+    measured drape coefficients' standard error, dc_standard_error) above the base's `base_dc` (unchecked when
+    either is None). The last since fabric 1: high_curvature_bending's refit brought the crests closer (3D error
+    5.48 -> 3.82) with the MSE within half a floor, but its drape coefficient error rose 0.027 -> 0.069 (standard
+    error 0.007), and on the fabric's unseen photos 0.052 -> 0.080 with the fold-depth bias +1.6 -> +2.5 mm."""
     if not (any_significant and base_3d and floor_3d and base_mse is not None and redrape):
         return []
     ok = [e for e in ranking if (e.get("refit") or {}).get("fitted_in") == "3d"
           and e.get("fall_3d_of_redrape") is not None and e["fall_3d_of_redrape"] >= MIN_FALL_OF_REDRAPE
           and (base_3d - e["refit"]["error_3d"]) / base_3d >= MIN_MSE_FALL
           and base_3d - e["refit"]["error_3d"] >= MIN_3D_GAP_SHARE * (base_3d - floor_3d)
-          and e["refit"]["mse"] <= base_mse + ALTERNATIVE_WITHIN * redrape]
+          and e["refit"]["mse"] <= base_mse + ALTERNATIVE_WITHIN * redrape
+          and (base_dc is None or dc_within is None or e["refit"].get("dc_error") is None
+               or e["refit"]["dc_error"] <= base_dc + dc_within)]
     return sorted(ok, key=lambda e: -e["fall_3d_of_redrape"])
 
 
@@ -2462,8 +2478,9 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
     # the 3D error by MIN_MSE_FALL of it and MIN_FALL_OF_REDRAPE of its re-drape floor, and the silhouettes' best-of-K
     # MSE stays within ALTERNATIVE_WITHIN of their floor (the outline as good as the base's)
     base_3d = judged.get("error_3d")
+    dc_within = dc_standard_error(result.get("per_image"))
     in_3d_gaining = recommendable_in_3d(result["ranking"], base_3d, judged.get("redrape_error_3d"), base_mse, redrape,
-                                        any_significant)
+                                        any_significant, judged.get("dc_error"), dc_within)
     if not gaining and in_3d_gaining:
         best = in_3d_gaining[0]
         result["recommended"] = best["effect"]
@@ -2523,9 +2540,15 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                            f"{e['refit'].get('error_3d') if e['refit'].get('error_3d') is not None else float('nan'):.3g}"
                            + (f" ({fall:.2f} of its re-drape floor)" if fall is not None else "")
                            + f" and the silhouettes' best-of-{k_judged} MSE {base_mse:.4f} -> {e['refit']['mse']:.4f}"
-                           f" (a recommendation needs a 3D fall of {MIN_FALL_OF_REDRAPE:g} floors and "
+                           + (f" and the drape coefficient error {judged['dc_error']:.3f} -> "
+                              f"{e['refit']['dc_error']:.3f}" if judged.get("dc_error") is not None
+                              and e["refit"].get("dc_error") is not None else "")
+                           + f" (a recommendation needs a 3D fall of {MIN_FALL_OF_REDRAPE:g} floors and "
                            f"{100 * MIN_3D_GAP_SHARE:.0f} % of the gap above the 3D floor, with the MSE at most "
-                           f"{ALTERNATIVE_WITHIN:g} of its floor above the base's)")
+                           f"{ALTERNATIVE_WITHIN:g} of its floor above the base's"
+                           + (f" and the drape coefficient error at most {dc_within:.3f} (the measured drape "
+                              "coefficients' standard error) above the base's" if dc_within is not None else "")
+                           + ")")
             if not_run:
                 reason = not_refitted_reason(result["cancelled"], max_refits)
                 why.append(f"{', '.join(not_run)} not refitted ({reason})")
