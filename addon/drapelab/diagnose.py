@@ -1287,20 +1287,16 @@ def refit_start(st, by="statistic"):
     is negative. by="change": the step with the most negative `change` instead, and no harmonic (a refit found in
     3D: refit_order_3d, which chose it by that step)."""
     per = [(x[by], i) for i, x in enumerate(st.get("per_step") or []) if x.get(by) is not None]
-    if by != "statistic":
-        if not per or min(per)[0] >= 0:
-            return None, None, None
-        i = min(per)[1]
-        return dict(st["per_step"][i]["values"]), by, st["per_step"][i]["step"]
     if not per:
-        return (dict(st["values"]), "statistic", st["step"]) if st["statistic"] < 0 else (None, None, None)
+        return ((dict(st["values"]), "statistic", st["step"]) if by == "statistic" and st["statistic"] < 0
+                else (None, None, None))
     lowest, i = min(per)
     if lowest >= 0:
         return None, None, None
     direction = st.get("direction") or {}
-    if direction.get("used"):
+    if by == "statistic" and direction.get("used"):
         return dict(direction["values"]), "harmonic", None
-    return dict(st["per_step"][i]["values"]), "statistic", st["per_step"][i]["step"]
+    return dict(st["per_step"][i]["values"]), by, st["per_step"][i]["step"]
 
 
 def _outside_words(entry):
@@ -2205,8 +2201,7 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
             """Refit e's start, refit_start's (values, how, label) from its 3D step test when it was found in 3D, else
             from its step test; (None, None, None) without a step that brought the draws closer."""
             if in_3d(e):
-                return refit_start(e["step_3d"], by="change" if any(
-                    x.get("change") is not None for x in e["step_3d"].get("per_step") or []) else "statistic")
+                return refit_start(e["step_3d"], by="change")
             return refit_start(e["step"]) if e.get("step") else (None, None, None)
 
         def start_of(e):
@@ -2567,8 +2562,7 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
             if said:
                 why = "; ".join(said) if smallest is None else why + "; " + "; ".join(said)
             result["verdict"] = f"Nothing significant: {why}."
-    if judged.get("error_3d") is not None and any(e["p_value"] is not None and e["p_value"] < threshold
-                                                  for e in result["ranking"]):
+    if judged.get("error_3d") is not None and any_significant:
         result["unrefitted_3d"] = unrefitted_3d(result["ranking"], threshold)
         result["verdict"] += unrefitted_3d_words(result["unrefitted_3d"])
     # every entry measured on these images carries their fingerprint; P's training metrics only when P was
