@@ -1107,6 +1107,46 @@ def test_meshes_on_the_models_topology_get_the_3d_comparison(images, tmp_path):
                           mesh_noise_m=-1e-4)
 
 
+def test_the_3d_shortlist_evaluates_its_candidates_on_common_draws_and_the_winner_refits_first(
+        images, tmp_path, monkeypatch):
+    """The 3D shortlist end to end (module doc, 3b): the candidates found in 3D (here every one: found_in_3d
+    patched) are each evaluated at their best 3D step on the same draws, re-sorted
+    by that 3D error, and the winner's line search reuses its evaluation as its t = 1 point."""
+    preset = infer.load_preset(PRESET)
+    model = sim.ClothModel(sim.cusick_specimen(1), density=preset["density_kg_m2"],
+                           effects={"tilt": {"angle_rad": 0.3, "azimuth_rad": 0.0}})
+    p = model.parameters(stretch=preset["stretch_N_m"], bend=np.exp(np.asarray(preset["posterior"]["bend"]["log_mean"])))
+    v0 = infer.placement_velocities(model.rest_positions, np.random.default_rng([0, 99]), 0.05, 32)
+    mesh = str(tmp_path / "tilt.obj")
+    sim.write_obj(mesh, model.simulate(p, mode="dynamic", record=False, velocities0=v0), model.faces)
+    monkeypatch.setattr(diagnose, "found_in_3d", lambda e, t: e.get("step_3d") is not None)
+    monkeypatch.setattr(diagnose, "REFIT_P_MAX", 1.01)  # every tested candidate may be refitted
+    original = diagnose.refit_start
+
+    def start(st, by="statistic"):  # every 3D step test has a start: its reported step
+        got = original(st, by)
+        return (dict(st["values"]), "change", st["step"]) if by == "change" and got[0] is None else got
+    monkeypatch.setattr(diagnose, "refit_start", start)
+    names = ["tilt", "heterogeneity_map", "density_variation"]
+    d = diagnose.diagnose(PRESET, [images["tilt"]], meshes=[mesh], candidates=",".join(names), samples=4, seed=0,
+                          config=small_config(), mesh_level=1, max_refits=1, threads=1, alpha=0.99)  # threshold 0.33
+    validate(d)
+    assert any(e["p_value"] < d["threshold"] for e in d["ranking"])  # the tilt: something is significant
+    short = d["shortlist_3d"]
+    assert sorted(s["effect"] for s in short) == sorted(names)
+    errors = [s["error_3d"] for s in short]
+    assert all(x is not None and x > 0 for x in errors) and errors == sorted(errors)
+    by_name = {e["effect"]: e for e in d["ranking"]}
+    for s in short:
+        assert "3D shortlist" in by_name[s["effect"]]["explanation"]
+    # the winner takes the first place (the one refit); its line search's t = 1 point is the shortlist's
+    winner = by_name[short[0]["effect"]]
+    assert winner["refit_order"] == 1 and all(by_name[s["effect"]]["refit"] is None for s in short[1:])
+    assert winner["refit"]["fitted_in"] == "3d"
+    t1 = [pt for pt in winner["refit"]["search"]["points"] if pt["t"] == 1.0 and pt["turn_rad"] == 0.0]
+    assert len(t1) == 1 and t1[0]["mse"] == pytest.approx(short[0]["error_3d"], rel=0, abs=0)
+
+
 def test_fold_features_name_every_entry_and_see_a_flat_disk_as_flat():
     model = sim.ClothModel(sim.cusick_specimen(3), density=0.2)
     rest, edges = np.asarray(model.rest_positions), np.asarray(model.bending_edges)
@@ -1220,6 +1260,24 @@ def test_refit_order_3d_puts_the_largest_3d_changes_first_in_their_places():
     assert [e["effect"] for e in diagnose.refit_order_3d(tied, lambda e: True)] == ["d", "b", "a", "c"]
     assert diagnose.refit_order_3d(order, lambda e: False) == order
     assert diagnose.refit_order_3d([], lambda e: True) == []
+
+
+def test_the_3d_shortlist_reorders_its_candidates_among_their_places_by_their_evaluated_3d_error():
+    # fabric 2 (2026-11-30): by the mean change on the screen's draws rest_curvature went first and
+    # high_curvature_bending 4th (behind the silhouettes' significant offset and two other 3D candidates); on
+    # common draws the shortlist's 3D errors put high_curvature_bending into rest_curvature's place
+    order = [{"effect": n} for n in ("rest_curvature", "offset", "heterogeneity_map", "high_curvature_bending",
+                                     "camera")]
+    scored = {"rest_curvature": 9.3, "heterogeneity_map": 9.9, "high_curvature_bending": 6.4}
+    out = [e["effect"] for e in diagnose.shortlist_order(order, scored)]
+    assert out == ["high_curvature_bending", "offset", "rest_curvature", "heterogeneity_map", "camera"]
+    # a shortlisted candidate whose every draw failed (None) or whose error is not finite goes last among them;
+    # the entries not shortlisted keep their places; the input is not changed
+    out = [e["effect"] for e in diagnose.shortlist_order(
+        order, {"rest_curvature": None, "offset": float("nan"), "camera": 1.0})]
+    assert out == ["camera", "rest_curvature", "heterogeneity_map", "high_curvature_bending", "offset"]
+    assert [e["effect"] for e in order][0] == "rest_curvature"
+    assert diagnose.shortlist_order(order, {}) == order
 
 
 def test_a_refit_found_in_3d_starts_at_the_step_with_the_largest_3d_change():
