@@ -1597,6 +1597,16 @@ def refit_order_3d(order, found):
     return out
 
 
+def shortlist_size(candidates, left, evaluation):
+    """How many of `candidates` shortlisted entries the 3D shortlist evaluates with `left` seconds of the budget and
+    evaluations of `evaluation` seconds: as many as the time left pays for with one evaluation more (the winner's
+    refit) and the report's reserve; fewer than two means no shortlist. On fabric 2 at 600 s on circle3 the step
+    test left about 100 s and an evaluation of 16 draws cost 50 s: no shortlist (docs/diagnose.md)."""
+    if evaluation <= 0:
+        return int(candidates)
+    return int(max(0, min(candidates, (left - REPORT_RESERVE_S - evaluation) // evaluation)))
+
+
 def shortlist_order(order, scored):
     """`order` with the shortlisted entries (`scored`: {effect name: the 3D error of its best 3D step on the
     search's K draws, None when they all failed}) re-sorted among the places they hold by that error, the smallest
@@ -2300,13 +2310,16 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
             return searched_3d[key]
 
         # the 3D shortlist (module doc, 3b): the first SHORTLIST_3D candidates found in 3D, each at its best 3D step
-        # on the search's K draws, re-sorted among their places by that 3D error, when the time left pays for it
+        # on the search's K draws, re-sorted among their places by that 3D error, as many as the time left pays for
+        # with one evaluation more (the winner's refit); the refits that no longer fit are dropped below
         short = [e for e in full_order if in_3d(e) and start_of(e) is not None][:SHORTLIST_3D]
         n_short = len(short)
         if n_short >= 2 and time_budget is not None:
             left = float(time_budget) - (time.monotonic() - t0)
-            kept = min(len(full_order), int(max_refits)) + 1  # one evaluation per refit and the comparison's base
-            n_short = min(n_short, int((left - REPORT_RESERVE_S - kept * estimated) // max(estimated, 1e-9)))
+            n_short = shortlist_size(n_short, left, estimated)
+            if n_short < 2:
+                result["shortlist_3d_skipped"] = (f"the time left ({left:.0f} s) did not pay for two evaluations of "
+                                                  f"about {estimated:.0f} s and the refit's")
         if n_short >= 2:
             scored = {}
             for e in short[:n_short]:

@@ -1278,6 +1278,11 @@ def test_the_3d_shortlist_reorders_its_candidates_among_their_places_by_their_ev
     assert out == ["camera", "rest_curvature", "heterogeneity_map", "high_curvature_bending", "offset"]
     assert [e["effect"] for e in order][0] == "rest_curvature"
     assert diagnose.shortlist_order(order, {}) == order
+    # its size: what the time left pays for with the winner's refit evaluation and the report's reserve
+    reserve = diagnose.REPORT_RESERVE_S
+    assert diagnose.shortlist_size(3, 100.0, 50.0) == 0  # fabric 2 at 600 s: no shortlist
+    assert diagnose.shortlist_size(3, 3 * 50.0 + reserve, 50.0) == 2
+    assert diagnose.shortlist_size(3, 1000.0, 50.0) == 3 and diagnose.shortlist_size(2, 1000.0, 0.0) == 2
 
 
 def test_a_refit_found_in_3d_starts_at_the_step_with_the_largest_3d_change():
