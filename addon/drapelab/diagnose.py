@@ -625,14 +625,17 @@ def unrefitted_3d(ranking, threshold, limit=3):
     return sorted(out, key=lambda u: u["change"])[:int(limit)]
 
 
-def unrefitted_3d_words(items):
-    """The verdict's sentence on unrefitted_3d's candidates; empty without any."""
+def unrefitted_3d_words(items, shortlist_skipped=None):
+    """The verdict's sentence on unrefitted_3d's candidates; empty without any. `shortlist_skipped`: why the 3D
+    shortlist did not run (diagnosis.json's shortlist_3d_skipped), said with the remedy."""
     if not items:
         return ""
     names = ",".join(u["effect"] for u in items)
     return (" In 3D the steps of " + ", ".join(f"{u['effect']} ({u['change']:+.2g})" for u in items)
             + " also brought the draws' fold features closer to the meshes on average (their mean distance's change)"
-            f" and had no refit; to refit them, diagnose again with --candidates {names}.")
+            f" and had no refit; to refit them, diagnose again with --candidates {names}"
+            + (f" (the 3D shortlist, which compares such candidates on common draws before the 3D refits, did not run:"
+               f" {shortlist_skipped}; a longer --time-budget runs it)" if shortlist_skipped else "") + ".")
 
 
 def not_refitted_reason(cancelled, max_refits):
@@ -2649,7 +2652,7 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
             result["verdict"] = f"Nothing significant: {why}."
     if judged.get("error_3d") is not None and any_significant:
         result["unrefitted_3d"] = unrefitted_3d(result["ranking"], threshold)
-        result["verdict"] += unrefitted_3d_words(result["unrefitted_3d"])
+        result["verdict"] += unrefitted_3d_words(result["unrefitted_3d"], result.get("shortlist_3d_skipped"))
     # every entry measured on these images carries their fingerprint; P's training metrics only when P was
     # trained on exactly these images
     trained_here = _provenance_key(p) == images_key

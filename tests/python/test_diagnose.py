@@ -1328,6 +1328,8 @@ def test_the_verdict_names_the_3d_candidates_left_without_a_refit():
                      {"effect": "high_curvature_bending", "change": -2.38}]
     words = diagnose.unrefitted_3d_words(items)
     assert "--candidates heterogeneity_map,density_variation,high_curvature_bending" in words
-    assert "high_curvature_bending (-2.4)" in words
+    assert "high_curvature_bending (-2.4)" in words and "shortlist" not in words
+    skipped = diagnose.unrefitted_3d_words(items, "the time left (100 s) did not pay for two evaluations")
+    assert "--candidates heterogeneity_map" in skipped and "(100 s)" in skipped and "longer --time-budget" in skipped
     assert diagnose.unrefitted_3d(ranking, 0.00091, limit=5)[-1] == {"effect": "prestrain", "change": -0.26}
     assert diagnose.unrefitted_3d_words([]) == ""
