@@ -1610,6 +1610,17 @@ def shortlist_size(candidates, left, evaluation):
     return int(max(0, min(candidates, (left - REPORT_RESERVE_S - evaluation) // evaluation)))
 
 
+def shortlist_reserved(tests3d):
+    """How many evaluations a screened step test's confirmation leaves for the 3D shortlist (module doc, 2b, 3b):
+    one per candidate the shortlist may take (at most SHORTLIST_3D), when at least two of the screen's 3D step tests
+    (`tests3d` {effect: step_tests' entry}) have p below SCREEN_P_MAX and a step that brought the draws' fold
+    features closer (change < 0); else 0. Without it the confirmation spends what a longer budget adds (fabric 2 at
+    900 s: confirmed on 4 draws in 606 s of steps, 141 s left for the refits, no shortlist)."""
+    n = sum(1 for st in tests3d.values() if st.get("p_value") is not None and st["p_value"] < SCREEN_P_MAX
+            and (change_3d({"step_3d": st}) or 0.0) < 0)
+    return min(n, SHORTLIST_3D) if n >= 2 else 0
+
+
 def shortlist_order(order, scored):
     """`order` with the shortlisted entries (`scored`: {effect name: the 3D error of its best 3D step on the
     search's K draws, None when they all failed}) re-sorted among the places they hold by that error, the smallest
@@ -2103,13 +2114,17 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                 if k_screen is not None:  # confirm the promising on fresh draws, within the screen's share
                     reserved = refits_reserved({e["effect"]: e["p_value"] for e in result["ranking"]}, threshold,
                                                int(max_refits))
+                    # and the 3D shortlist's evaluations, when the screen's 3D tests promise one (module doc, 3b)
+                    for_shortlist = shortlist_reserved(tests3d) if reserved else 0
+                    reserved += for_shortlist
                     kept_back = REPORT_RESERVE_S + reserved * k * forward_step * EVALUATION_OVERHEAD
                     room = left - (time.monotonic() - ts) - kept_back
                     # the confirmation is chosen by the silhouettes' screen; the 3D step test stays on the screen's
                     # draws for every candidate (its p chooses nothing, so it needs no correction; module doc, 2c)
                     confirmed, m = confirmation_plan(tests, {n: len(v) for n, v in steps.items()}, room, forward_step,
                                                      len(done) - k_screen, k_screen, test_s)
-                    screen_info = {"draws": k_screen, "p_max": SCREEN_P_MAX, "passed": sorted(
+                    screen_info = {"draws": k_screen, "p_max": SCREEN_P_MAX, "shortlist_reserved": for_shortlist,
+                                   "passed": sorted(
                         n for n, st in tests.items() if st["p_value"] < SCREEN_P_MAX), "confirmed": confirmed,
                         "confirmation_draws": m}
                     for st in tests.values():

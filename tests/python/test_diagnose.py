@@ -1278,6 +1278,17 @@ def test_the_3d_shortlist_reorders_its_candidates_among_their_places_by_their_ev
     assert out == ["camera", "rest_curvature", "heterogeneity_map", "high_curvature_bending", "offset"]
     assert [e["effect"] for e in order][0] == "rest_curvature"
     assert diagnose.shortlist_order(order, {}) == order
+    # the step test's confirmation keeps its evaluations back when two or more of the screen's 3D tests promise a
+    # shortlist (p below the screen's line and a step that brought the fold features closer)
+    def st(p, changes):
+        return {"p_value": p, "statistic": -1.0, "per_step": [{"change": c} for c in changes]}
+    screen = {"rest_curvature": st(0.01, [-4.2, 1.0]), "high_curvature_bending": st(0.1, [-2.4]),
+              "heterogeneity_map": st(0.05, [-3.1]), "density_variation": st(0.02, [-2.9]),
+              "tilt": st(0.001, [0.3, 0.7]), "camera": st(0.5, [-1.0])}
+    assert diagnose.shortlist_reserved(screen) == diagnose.SHORTLIST_3D == 3
+    assert diagnose.shortlist_reserved({n: screen[n] for n in ("rest_curvature", "tilt", "camera")}) == 0
+    assert diagnose.shortlist_reserved({n: screen[n] for n in ("rest_curvature", "density_variation")}) == 2
+    assert diagnose.shortlist_reserved({}) == 0
     # its size: what the time left pays for with the winner's refit evaluation and the report's reserve
     reserve = diagnose.REPORT_RESERVE_S
     assert diagnose.shortlist_size(3, 100.0, 50.0) == 0  # fabric 2 at 600 s: no shortlist
