@@ -177,10 +177,11 @@
    alone not significant) is refitted in 3D, such candidates in the order of how much their best 3D step brings the draws' features closer
    to the meshes on average (in the places refit_order gave them: refit_order_3d), not of their 3D p; then, when
    the time left pays for it, the first SHORTLIST_3D of them (the 3D shortlist) are each evaluated at that best
-   step on the same K draws of the search's seed and re-sorted among their places by that best-of-K 3D error
+   step on the same draws of the search's seed and re-sorted among their places by that best-of-K 3D error
    (shortlist_order; the change on the screen's three draws is too noisy to choose between close candidates: on
-   fabric 2 it put rest_curvature first, whose refit closed 8 % of the 3D gap, and high_curvature_bending 4th).
-   The winner's line search reuses its shortlist evaluation as its t = 1 point. Not of their 3D p: the line
+   fabric 2 it put rest_curvature first, whose refit closed 8 % of the 3D gap, and high_curvature_bending 4th),
+   each on SHORTLIST_DRAWS_SHARE of K draws (a screened step test keeps their time back from its confirmation:
+   shortlist_reserved). Not of their 3D p: the line
    search starts at its best 3D step and scores its points by the 3D error, and there are no epochs (the fit's
    epochs follow the pixel loss, which does not see such an effect: a fit on fabric 4's training photo pushed
    high_curvature_bending's log_factor to +0.53, the crests' sign opposite). When no refit is recommended by the
@@ -273,9 +274,11 @@ STEP_FAMILY_DRAWN = (1e-5, 0.05)  # ... drawn only where Bonferroni's p lies abo
 # statistics' variance (a tilt's four steps: 0.99 at seeds 721 and 751; an offset's eight: 0.37-0.38)
 DIRECTION_R2_MIN = 0.8
 # the candidates found in 3D (the first this many in refit_order_3d's order, each with a start) whose best 3D step is
-# evaluated on the search's K draws before the 3D refits are ordered (shortlist_order; fabric 2: the screen's three
-# draws put rest_curvature's step first and high_curvature_bending's, whose refit closes 5x as much of the gap, 4th)
-SHORTLIST_3D = 3
+# evaluated on common draws of the search's seed before the 3D refits are ordered (shortlist_order; fabric 2: the
+# screen's three draws put rest_curvature's step first and high_curvature_bending's, whose refit closes 5x as much of
+# the gap, 4th) ...
+SHORTLIST_3D = 4
+SHORTLIST_DRAWS_SHARE = 0.5  # ... on this share of K draws each (at least MIN_SAMPLES): four cost two evaluations
 MESH_NOISE_STREAM = 43    # the 3D step test's vertex noise streams: [seed, this, kind, draw] (MeshFeatures)
 STEP_PERMUTATIONS_MAX = 20000  # labellings enumerated up to this count (six images, 12 references: 18564), else drawn
                                # (the relabelling test: the fallback without references, and p_value_permutation)
@@ -1602,23 +1605,25 @@ def refit_order_3d(order, found):
 
 def shortlist_size(candidates, left, evaluation):
     """How many of `candidates` shortlisted entries the 3D shortlist evaluates with `left` seconds of the budget and
-    evaluations of `evaluation` seconds: as many as the time left pays for with one evaluation more (the winner's
-    refit) and the report's reserve; fewer than two means no shortlist. On fabric 2 at 600 s on circle3 the step
-    test left about 100 s and an evaluation of 16 draws cost 50 s: no shortlist (docs/diagnose.md)."""
+    evaluations (K draws) of `evaluation` seconds, each candidate on SHORTLIST_DRAWS_SHARE of them: as many as the
+    time left pays for with one evaluation more (the winner's refit) and the report's reserve; fewer than two means
+    no shortlist. On fabric 2 at 600 s on circle3 the step test left about 100 s and an evaluation of 16 draws cost
+    50 s: no shortlist (docs/diagnose.md)."""
     if evaluation <= 0:
         return int(candidates)
-    return int(max(0, min(candidates, (left - REPORT_RESERVE_S - evaluation) // evaluation)))
+    return int(max(0, min(candidates, (left - REPORT_RESERVE_S - evaluation) // (SHORTLIST_DRAWS_SHARE * evaluation))))
 
 
 def shortlist_reserved(tests3d):
-    """How many evaluations a screened step test's confirmation leaves for the 3D shortlist (module doc, 2b, 3b):
-    one per candidate the shortlist may take (at most SHORTLIST_3D), when at least two of the screen's 3D step tests
+    """How many evaluations (K draws) a screened step test's confirmation leaves for the 3D shortlist (module doc,
+    2b, 3b): SHORTLIST_DRAWS_SHARE of one per candidate the shortlist may take (at most SHORTLIST_3D), rounded up,
+    when at least two of the screen's 3D step tests
     (`tests3d` {effect: step_tests' entry}) have p below SCREEN_P_MAX and a step that brought the draws' fold
     features closer (change < 0); else 0. Without it the confirmation spends what a longer budget adds (fabric 2 at
     900 s: confirmed on 4 draws in 606 s of steps, 141 s left for the refits, no shortlist)."""
     n = sum(1 for st in tests3d.values() if st.get("p_value") is not None and st["p_value"] < SCREEN_P_MAX
             and (change_3d({"step_3d": st}) or 0.0) < 0)
-    return min(n, SHORTLIST_3D) if n >= 2 else 0
+    return int(math.ceil(SHORTLIST_DRAWS_SHARE * min(n, SHORTLIST_3D))) if n >= 2 else 0
 
 
 def shortlist_order(order, scored):
@@ -2336,14 +2341,16 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
             left = float(time_budget) - (time.monotonic() - t0)
             n_short = shortlist_size(n_short, left, estimated)
             if n_short < 2:
-                result["shortlist_3d_skipped"] = (f"the time left ({left:.0f} s) did not pay for two evaluations of "
-                                                  f"about {estimated:.0f} s and the refit's")
+                result["shortlist_3d_skipped"] = (f"the time left ({left:.0f} s) did not pay for two candidates' "
+                                                  f"evaluations (about {SHORTLIST_DRAWS_SHARE * estimated:.0f} s "
+                                                  f"each) and the refit's ({estimated:.0f} s)")
         if n_short >= 2:
             scored = {}
+            k_short = max(MIN_SAMPLES, int(round(SHORTLIST_DRAWS_SHARE * k)))
             for e in short[:n_short]:
                 if cancel_event is not None and cancel_event.is_set():
                     break
-                got = search_3d(e["effect"], start_of(e))
+                got = search_3d(e["effect"], start_of(e), k_short)
                 scored[e["effect"]] = None if got is None else got[1].get("error_3d")
                 _progress(progress, "refit", f"3D shortlist {e['effect']} at its best 3D step: " + " ".join(
                     f"{q} {v:+.4g}" for q, v in start_of(e).items()) + (
@@ -2352,14 +2359,14 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
             if len(scored) >= 2:
                 full_order = shortlist_order(full_order, scored)
                 listed = [e for e in full_order if e["effect"] in scored]
-                result["shortlist_3d"] = [{"effect": e["effect"], "values": dict(start_of(e)),
+                result["shortlist_3d"] = [{"effect": e["effect"], "values": dict(start_of(e)), "draws": k_short,
                                            "error_3d": scored[e["effect"]]} for e in listed]
                 words = ", ".join(f"{e['effect']} {scored[e['effect']]:.3g}" if scored[e["effect"]] is not None
                                   else f"{e['effect']} failed" for e in listed)
                 for e in listed:
                     e["explanation"] += (f" 3D shortlist: its best 3D step and the other shortlisted candidates' on the "
-                                         f"same {k} draws of the search's own, by best-of-{k} 3D error ({words}; the "
-                                         f"base {base['error_3d']:.3g} on draws of its own): the 3D refits go in that order.")
+                                         f"same {k_short} draws of the search's own, by best-of-{k_short} 3D error "
+                                         f"({words}): the 3D refits go in that order.")
         promising = full_order[:int(max_refits)]
         for order, e in enumerate(promising):
             e["refit_order"] = order + 1
@@ -2596,7 +2603,7 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                                                 if refit_file else f"set {best['effect']} to its refit's value"))
         result["not_refitted"] = unrefitted(result["ranking"], threshold, exclude=(best["effect"],))
         result["verdict"] += unrefitted_words(result["not_refitted"], best["effect"],
-                                              not_refitted_reason(result["cancelled"], max_refits))
+                                              not_refitted_reason(result["cancelled"], max_refits)) + "."
     elif gaining:
         best = gaining[0]
         result["recommended"] = best["effect"]
@@ -2614,13 +2621,13 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
         result["verdict"] += alternatives_words(result["alternatives"], best["effect"], k_judged)
         result["not_refitted"] = unrefitted(result["ranking"], threshold, exclude=(best["effect"],))
         result["verdict"] += unrefitted_words(result["not_refitted"], best["effect"],
-                                              not_refitted_reason(result["cancelled"], max_refits))
+                                              not_refitted_reason(result["cancelled"], max_refits)) + "."
     else:
         tested = [e for e in result["ranking"] if e["p_value"] is not None]
         significant = [e for e in tested if e["p_value"] < threshold]
         smallest = min((e["p_value"] for e in tested), default=None)
         if significant:
-            in_3d_refits = [e for e in significant if (e["refit"] or {}).get("fitted_in") == "3d"]
+            in_3d_refits = [e for e in tested if (e["refit"] or {}).get("fitted_in") == "3d"]  # significant or not
             refitted = [e["effect"] for e in significant if e["refit"] is not None and e not in small
                         and e not in in_3d_refits]
             not_run = [e["effect"] for e in significant if e["refit"] is None]

@@ -1110,8 +1110,8 @@ def test_meshes_on_the_models_topology_get_the_3d_comparison(images, tmp_path):
 def test_the_3d_shortlist_evaluates_its_candidates_on_common_draws_and_the_winner_refits_first(
         images, tmp_path, monkeypatch):
     """The 3D shortlist end to end (module doc, 3b): the candidates found in 3D (here every one: found_in_3d
-    patched) are each evaluated at their best 3D step on the same draws, re-sorted
-    by that 3D error, and the winner's line search reuses its evaluation as its t = 1 point."""
+    patched) are each evaluated at their best 3D step on the same draws (half of K, at least three), re-sorted by
+    that 3D error, and the winner is refitted first."""
     preset = infer.load_preset(PRESET)
     model = sim.ClothModel(sim.cusick_specimen(1), density=preset["density_kg_m2"],
                            effects={"tilt": {"angle_rad": 0.3, "azimuth_rad": 0.0}})
@@ -1136,15 +1136,15 @@ def test_the_3d_shortlist_evaluates_its_candidates_on_common_draws_and_the_winne
     assert sorted(s["effect"] for s in short) == sorted(names)
     errors = [s["error_3d"] for s in short]
     assert all(x is not None and x > 0 for x in errors) and errors == sorted(errors)
+    assert all(s["draws"] == diagnose.MIN_SAMPLES for s in short)  # half of 4 draws, at least three
     by_name = {e["effect"]: e for e in d["ranking"]}
     for s in short:
         assert "3D shortlist" in by_name[s["effect"]]["explanation"]
-    # the winner takes the first place (the one refit); its line search's t = 1 point is the shortlist's
+    # the winner takes the first place (the one refit), fitted in 3D, and the verdict says what it did
     winner = by_name[short[0]["effect"]]
     assert winner["refit_order"] == 1 and all(by_name[s["effect"]]["refit"] is None for s in short[1:])
-    assert winner["refit"]["fitted_in"] == "3d"
-    t1 = [pt for pt in winner["refit"]["search"]["points"] if pt["t"] == 1.0 and pt["turn_rad"] == 0.0]
-    assert len(t1) == 1 and t1[0]["mse"] == pytest.approx(short[0]["error_3d"], rel=0, abs=0)
+    assert winner["refit"]["fitted_in"] == "3d" and winner["refit"]["search"]["scored_by"] == "error_3d"
+    assert f"the refit with {winner['effect']}, fitted in 3D" in d["verdict"] or d["recommended"] == winner["effect"]
 
 
 def test_fold_features_name_every_entry_and_see_a_flat_disk_as_flat():
@@ -1285,15 +1285,19 @@ def test_the_3d_shortlist_reorders_its_candidates_among_their_places_by_their_ev
     screen = {"rest_curvature": st(0.01, [-4.2, 1.0]), "high_curvature_bending": st(0.1, [-2.4]),
               "heterogeneity_map": st(0.05, [-3.1]), "density_variation": st(0.02, [-2.9]),
               "tilt": st(0.001, [0.3, 0.7]), "camera": st(0.5, [-1.0])}
-    assert diagnose.shortlist_reserved(screen) == diagnose.SHORTLIST_3D == 3
+    # (four candidates on half of K draws each: two evaluations of K)
+    assert diagnose.SHORTLIST_3D == 4 and diagnose.SHORTLIST_DRAWS_SHARE == 0.5
+    assert diagnose.shortlist_reserved(screen) == 2
     assert diagnose.shortlist_reserved({n: screen[n] for n in ("rest_curvature", "tilt", "camera")}) == 0
-    assert diagnose.shortlist_reserved({n: screen[n] for n in ("rest_curvature", "density_variation")}) == 2
+    three = ("rest_curvature", "density_variation", "heterogeneity_map")
+    assert diagnose.shortlist_reserved({n: screen[n] for n in three}) == 2
+    assert diagnose.shortlist_reserved({n: screen[n] for n in three[:2]}) == 1
     assert diagnose.shortlist_reserved({}) == 0
     # its size: what the time left pays for with the winner's refit evaluation and the report's reserve
     reserve = diagnose.REPORT_RESERVE_S
-    assert diagnose.shortlist_size(3, 100.0, 50.0) == 0  # fabric 2 at 600 s: no shortlist
-    assert diagnose.shortlist_size(3, 3 * 50.0 + reserve, 50.0) == 2
-    assert diagnose.shortlist_size(3, 1000.0, 50.0) == 3 and diagnose.shortlist_size(2, 1000.0, 0.0) == 2
+    assert diagnose.shortlist_size(4, 90.0, 50.0) == 1  # fabric 2 at 600 s: no shortlist
+    assert diagnose.shortlist_size(4, 2 * 50.0 + reserve, 50.0) == 2
+    assert diagnose.shortlist_size(4, 1000.0, 50.0) == 4 and diagnose.shortlist_size(2, 1000.0, 0.0) == 2
 
 
 def test_a_refit_found_in_3d_starts_at_the_step_with_the_largest_3d_change():
