@@ -175,13 +175,7 @@
    draws against the re-drapes of P's mean), and each refit its fall in units of that floor (fall_3d_of_redrape).
    A candidate found in 3D only (found_in_3d: its 3D step p the smallest of its tests, its silhouette tests
    alone not significant) is refitted in 3D, such candidates in the order of how much their best 3D step brings the draws' features closer
-   to the meshes on average (in the places refit_order gave them: refit_order_3d), not of their 3D p; then, when
-   the time left pays for it, the first SHORTLIST_3D of them (the 3D shortlist) are each evaluated at that best
-   step on the same draws of the search's seed and re-sorted among their places by that best-of-K 3D error
-   (shortlist_order; the change on the screen's three draws is too noisy to choose between close candidates: on
-   fabric 2 it put rest_curvature first, whose refit closed 8 % of the 3D gap, and high_curvature_bending 4th),
-   each on SHORTLIST_DRAWS_SHARE of K draws (a screened step test keeps their time back from its confirmation:
-   shortlist_reserved). Not of their 3D p: the line
+   to the meshes on average (in the places refit_order gave them: refit_order_3d), not of their 3D p: the line
    search starts at its best 3D step and scores its points by the 3D error, and there are no epochs (the fit's
    epochs follow the pixel loss, which does not see such an effect: a fit on fabric 4's training photo pushed
    high_curvature_bending's log_factor to +0.53, the crests' sign opposite). When no refit is recommended by the
@@ -273,12 +267,6 @@ STEP_FAMILY_DRAWN = (1e-5, 0.05)  # ... drawn only where Bonferroni's p lies abo
 # step_direction: the refit starts along the steps' first harmonic where it explains at least this share of their
 # statistics' variance (a tilt's four steps: 0.99 at seeds 721 and 751; an offset's eight: 0.37-0.38)
 DIRECTION_R2_MIN = 0.8
-# the candidates found in 3D (the first this many in refit_order_3d's order, each with a start) whose best 3D step is
-# evaluated on common draws of the search's seed before the 3D refits are ordered (shortlist_order; fabric 2: the
-# screen's three draws put rest_curvature's step first and high_curvature_bending's, whose refit closes 5x as much of
-# the gap, 4th) ...
-SHORTLIST_3D = 4
-SHORTLIST_DRAWS_SHARE = 0.5  # ... on this share of K draws each (at least MIN_SAMPLES): four cost two evaluations
 MESH_NOISE_STREAM = 43    # the 3D step test's vertex noise streams: [seed, this, kind, draw] (MeshFeatures)
 STEP_PERMUTATIONS_MAX = 20000  # labellings enumerated up to this count (six images, 12 references: 18564), else drawn
                                # (the relabelling test: the fallback without references, and p_value_permutation)
@@ -628,17 +616,14 @@ def unrefitted_3d(ranking, threshold, limit=3):
     return sorted(out, key=lambda u: u["change"])[:int(limit)]
 
 
-def unrefitted_3d_words(items, shortlist_skipped=None):
-    """The verdict's sentence on unrefitted_3d's candidates; empty without any. `shortlist_skipped`: why the 3D
-    shortlist did not run (diagnosis.json's shortlist_3d_skipped), said with the remedy."""
+def unrefitted_3d_words(items):
+    """The verdict's sentence on unrefitted_3d's candidates; empty without any."""
     if not items:
         return ""
     names = ",".join(u["effect"] for u in items)
     return (" In 3D the steps of " + ", ".join(f"{u['effect']} ({u['change']:+.2g})" for u in items)
             + " also brought the draws' fold features closer to the meshes on average (their mean distance's change)"
-            f" and had no refit; to refit them, diagnose again with --candidates {names}"
-            + (f" (the 3D shortlist, which compares such candidates on common draws before the 3D refits, did not run:"
-               f" {shortlist_skipped}; a longer --time-budget runs it)" if shortlist_skipped else "") + ".")
+            f" and had no refit; to refit them, diagnose again with --candidates {names}.")
 
 
 def not_refitted_reason(cancelled, max_refits):
@@ -1603,46 +1588,6 @@ def refit_order_3d(order, found):
     return out
 
 
-def shortlist_size(candidates, left, evaluation):
-    """How many of `candidates` shortlisted entries the 3D shortlist evaluates with `left` seconds of the budget and
-    evaluations (K draws) of `evaluation` seconds, each candidate on SHORTLIST_DRAWS_SHARE of them: as many as the
-    time left pays for with one evaluation more (the winner's refit) and the report's reserve; fewer than two means
-    no shortlist. On fabric 2 at 600 s on circle3 the step test left about 100 s and an evaluation of 16 draws cost
-    50 s: no shortlist (docs/diagnose.md)."""
-    if evaluation <= 0:
-        return int(candidates)
-    return int(max(0, min(candidates, (left - REPORT_RESERVE_S - evaluation) // (SHORTLIST_DRAWS_SHARE * evaluation))))
-
-
-def shortlist_reserved(tests3d):
-    """How many evaluations (K draws) a screened step test's confirmation leaves for the 3D shortlist (module doc,
-    2b, 3b): SHORTLIST_DRAWS_SHARE of one per candidate the shortlist may take (at most SHORTLIST_3D), rounded up,
-    when at least two of the screen's 3D step tests
-    (`tests3d` {effect: step_tests' entry}) have p below SCREEN_P_MAX and a step that brought the draws' fold
-    features closer (change < 0); else 0. Without it the confirmation spends what a longer budget adds (fabric 2 at
-    900 s: confirmed on 4 draws in 606 s of steps, 141 s left for the refits, no shortlist)."""
-    n = sum(1 for st in tests3d.values() if st.get("p_value") is not None and st["p_value"] < SCREEN_P_MAX
-            and (change_3d({"step_3d": st}) or 0.0) < 0)
-    return int(math.ceil(SHORTLIST_DRAWS_SHARE * min(n, SHORTLIST_3D))) if n >= 2 else 0
-
-
-def shortlist_order(order, scored):
-    """`order` with the shortlisted entries (`scored`: {effect name: the 3D error of its best 3D step on the
-    search's K draws, None when they all failed}) re-sorted among the places they hold by that error, the smallest
-    first (None last); the others stay where they were (module doc, 3b). The shortlist's draws are common to its
-    candidates (one seed), so their differences are the steps', not the draws'."""
-    places = [i for i, e in enumerate(order) if e["effect"] in scored]
-
-    def key(e):
-        x = scored[e["effect"]]
-        return math.inf if x is None or not math.isfinite(x) else float(x)
-    by_error = sorted((order[i] for i in places), key=key)
-    out = list(order)
-    for i, e in zip(places, by_error):
-        out[i] = e
-    return out
-
-
 def with_effect_values(preset, name, values):
     """A copy of `preset` with effect `name`'s values set to `values` ({parameter: value}; the others kept), each
     fitted parameter's interval moved with its value and its sd kept: a refit preset taken back to its start."""
@@ -2119,17 +2064,13 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                 if k_screen is not None:  # confirm the promising on fresh draws, within the screen's share
                     reserved = refits_reserved({e["effect"]: e["p_value"] for e in result["ranking"]}, threshold,
                                                int(max_refits))
-                    # and the 3D shortlist's evaluations, when the screen's 3D tests promise one (module doc, 3b)
-                    for_shortlist = shortlist_reserved(tests3d) if reserved else 0
-                    reserved += for_shortlist
                     kept_back = REPORT_RESERVE_S + reserved * k * forward_step * EVALUATION_OVERHEAD
                     room = left - (time.monotonic() - ts) - kept_back
                     # the confirmation is chosen by the silhouettes' screen; the 3D step test stays on the screen's
                     # draws for every candidate (its p chooses nothing, so it needs no correction; module doc, 2c)
                     confirmed, m = confirmation_plan(tests, {n: len(v) for n, v in steps.items()}, room, forward_step,
                                                      len(done) - k_screen, k_screen, test_s)
-                    screen_info = {"draws": k_screen, "p_max": SCREEN_P_MAX, "shortlist_reserved": for_shortlist,
-                                   "passed": sorted(
+                    screen_info = {"draws": k_screen, "p_max": SCREEN_P_MAX, "passed": sorted(
                         n for n, st in tests.items() if st["p_value"] < SCREEN_P_MAX), "confirmed": confirmed,
                         "confirmation_draws": m}
                     for st in tests.values():
@@ -2246,11 +2187,16 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
             """found_in_3d, when the 3D error is measured."""
             return distance_3d is not None and bool(base.get("redrape_error_3d")) and found_in_3d(e, threshold)
 
-        full_order = (refit_order_3d(refit_order([e for e in tested if e["p_value"] < max(threshold, REFIT_P_MAX)],
-                                                 threshold), in_3d)
-                      if any(e["p_value"] < threshold for e in tested) else [])
-        switches = [e for e in result["ranking"] if e["switch"] and explicit_switch(e["effect"])]
-
+        promising = (refit_order_3d(refit_order([e for e in tested if e["p_value"] < max(threshold, REFIT_P_MAX)],
+                                                threshold), in_3d)[:int(max_refits)]
+                     if any(e["p_value"] < threshold for e in tested) else [])
+        for order, e in enumerate(promising):
+            e["refit_order"] = order + 1
+        promising += [e for e in result["ranking"] if e["switch"] and explicit_switch(e["effect"])]
+        if promising:
+            result["material_prior"] = ("the preset's posterior (log_mean, per-entry log_std, global_log_std), held "
+                                        "fixed in the refit (material learning rates x "
+                                        f"{MATERIAL_LEARNING_RATE_FACTOR:g}); only the effect is fitted")
         def start_for(e):
             """Refit e's start, refit_start's (values, how, label) from its 3D step test when it was found in 3D, else
             from its step test; (None, None, None) without a step that brought the draws closer."""
@@ -2261,8 +2207,7 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
         def start_of(e):
             return start_for(e)[0]
 
-        grids = {e["effect"]: [] if in_3d(e) else grid_points(reg[e["effect"]])
-                 for e in full_order + switches}  # [] for a line search
+        grids = {e["effect"]: [] if in_3d(e) else grid_points(reg[e["effect"]]) for e in promising}  # [] for a line search
 
         def searched(e):
             """Whether refit e searches before its epochs: from a step start (line_search), or on its effect's
@@ -2320,61 +2265,6 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
             left = float(time_budget) - (time.monotonic() - t0)
             evaluations = sum(evaluations_of(e, done and i == idx) for i, e in enumerate(promising) if i >= idx)
             return (left - REPORT_RESERVE_S - evaluations) / (len(promising) - idx)
-
-        searched_3d = {}  # (effect, draws, values): a 3D evaluation on the search's draws (the shortlist's, reused)
-
-        def search_3d(name, values, n=k):
-            """(shapes, summary) of P with effect `name` at `values` on n draws of the search's seed with their 3D
-            error, or None: a 3D line search's point, and the shortlist's (its best 3D step is the search's t = 1)."""
-            key = (name, int(n), tuple(sorted((q, round(float(v), 12)) for q, v in values.items())))
-            if key not in searched_3d:
-                searched_3d[key] = evaluate(with_effect(p, name, values), seed + SEARCH_SEED_OFFSET, n, record=n >= k,
-                                            noise_key=(7, names.index(name)))
-            return searched_3d[key]
-
-        # the 3D shortlist (module doc, 3b): the first SHORTLIST_3D candidates found in 3D, each at its best 3D step
-        # on the search's K draws, re-sorted among their places by that 3D error, as many as the time left pays for
-        # with one evaluation more (the winner's refit); the refits that no longer fit are dropped below
-        short = [e for e in full_order if in_3d(e) and start_of(e) is not None][:SHORTLIST_3D]
-        n_short = len(short)
-        if n_short >= 2 and time_budget is not None:
-            left = float(time_budget) - (time.monotonic() - t0)
-            n_short = shortlist_size(n_short, left, estimated)
-            if n_short < 2:
-                result["shortlist_3d_skipped"] = (f"the time left ({left:.0f} s) did not pay for two candidates' "
-                                                  f"evaluations (about {SHORTLIST_DRAWS_SHARE * estimated:.0f} s "
-                                                  f"each) and the refit's ({estimated:.0f} s)")
-        if n_short >= 2:
-            scored = {}
-            k_short = max(MIN_SAMPLES, int(round(SHORTLIST_DRAWS_SHARE * k)))
-            for e in short[:n_short]:
-                if cancel_event is not None and cancel_event.is_set():
-                    break
-                got = search_3d(e["effect"], start_of(e), k_short)
-                scored[e["effect"]] = None if got is None else got[1].get("error_3d")
-                _progress(progress, "refit", f"3D shortlist {e['effect']} at its best 3D step: " + " ".join(
-                    f"{q} {v:+.4g}" for q, v in start_of(e).items()) + (
-                    " failed" if scored[e["effect"]] is None else f", 3D error {scored[e['effect']]:.4g}"),
-                    effect=e["effect"])
-            if len(scored) >= 2:
-                full_order = shortlist_order(full_order, scored)
-                listed = [e for e in full_order if e["effect"] in scored]
-                result["shortlist_3d"] = [{"effect": e["effect"], "values": dict(start_of(e)), "draws": k_short,
-                                           "error_3d": scored[e["effect"]]} for e in listed]
-                words = ", ".join(f"{e['effect']} {scored[e['effect']]:.3g}" if scored[e["effect"]] is not None
-                                  else f"{e['effect']} failed" for e in listed)
-                for e in listed:
-                    e["explanation"] += (f" 3D shortlist: its best 3D step and the other shortlisted candidates' on the "
-                                         f"same {k_short} draws of the search's own, by best-of-{k_short} 3D error "
-                                         f"({words}): the 3D refits go in that order.")
-        promising = full_order[:int(max_refits)]
-        for order, e in enumerate(promising):
-            e["refit_order"] = order + 1
-        promising += switches
-        if promising:
-            result["material_prior"] = ("the preset's posterior (log_mean, per-entry log_std, global_log_std), held "
-                                        "fixed in the refit (material learning rates x "
-                                        f"{MATERIAL_LEARNING_RATE_FACTOR:g}); only the effect is fitted")
 
         if time_budget is not None:  # the least promising go first when the budget cannot pay one evaluation each
             left = float(time_budget) - (time.monotonic() - t0)
@@ -2447,8 +2337,8 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
 
                 def mse_of(values, n=k, name=name, search_seed=search_seed, grid=grid, counter=counter,
                            found_3d=found_3d):
-                    got = (search_3d(name, values, n) if found_3d else
-                           evaluate(with_effect(p, name, values), search_seed, n, record=n >= k))
+                    got = evaluate(with_effect(p, name, values), search_seed, n, record=n >= k,
+                                   noise_key=(7, names.index(name)) if found_3d else None)
                     what = (f"grid search {name} {next(counter)}/{len(grid) + SEARCH_GRID_FINALISTS}" if grid
                             else f"line search {name}" + (" in 3D" if found_3d else ""))
                     _progress(progress, "refit", f"{what}: " + " ".join(f"{q} {v:+.4g}" for q, v in values.items())
@@ -2674,7 +2564,7 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
             result["verdict"] = f"Nothing significant: {why}."
     if judged.get("error_3d") is not None and any_significant:
         result["unrefitted_3d"] = unrefitted_3d(result["ranking"], threshold)
-        result["verdict"] += unrefitted_3d_words(result["unrefitted_3d"], result.get("shortlist_3d_skipped"))
+        result["verdict"] += unrefitted_3d_words(result["unrefitted_3d"])
     # every entry measured on these images carries their fingerprint; P's training metrics only when P was
     # trained on exactly these images
     trained_here = _provenance_key(p) == images_key

@@ -1107,46 +1107,6 @@ def test_meshes_on_the_models_topology_get_the_3d_comparison(images, tmp_path):
                           mesh_noise_m=-1e-4)
 
 
-def test_the_3d_shortlist_evaluates_its_candidates_on_common_draws_and_the_winner_refits_first(
-        images, tmp_path, monkeypatch):
-    """The 3D shortlist end to end (module doc, 3b): the candidates found in 3D (here every one: found_in_3d
-    patched) are each evaluated at their best 3D step on the same draws (half of K, at least three), re-sorted by
-    that 3D error, and the winner is refitted first."""
-    preset = infer.load_preset(PRESET)
-    model = sim.ClothModel(sim.cusick_specimen(1), density=preset["density_kg_m2"],
-                           effects={"tilt": {"angle_rad": 0.3, "azimuth_rad": 0.0}})
-    p = model.parameters(stretch=preset["stretch_N_m"], bend=np.exp(np.asarray(preset["posterior"]["bend"]["log_mean"])))
-    v0 = infer.placement_velocities(model.rest_positions, np.random.default_rng([0, 99]), 0.05, 32)
-    mesh = str(tmp_path / "tilt.obj")
-    sim.write_obj(mesh, model.simulate(p, mode="dynamic", record=False, velocities0=v0), model.faces)
-    monkeypatch.setattr(diagnose, "found_in_3d", lambda e, t: e.get("step_3d") is not None)
-    monkeypatch.setattr(diagnose, "REFIT_P_MAX", 1.01)  # every tested candidate may be refitted
-    original = diagnose.refit_start
-
-    def start(st, by="statistic"):  # every 3D step test has a start: its reported step
-        got = original(st, by)
-        return (dict(st["values"]), "change", st["step"]) if by == "change" and got[0] is None else got
-    monkeypatch.setattr(diagnose, "refit_start", start)
-    names = ["tilt", "heterogeneity_map", "density_variation"]
-    d = diagnose.diagnose(PRESET, [images["tilt"]], meshes=[mesh], candidates=",".join(names), samples=4, seed=0,
-                          config=small_config(), mesh_level=1, max_refits=1, threads=1, alpha=0.99)  # threshold 0.33
-    validate(d)
-    assert any(e["p_value"] < d["threshold"] for e in d["ranking"])  # the tilt: something is significant
-    short = d["shortlist_3d"]
-    assert sorted(s["effect"] for s in short) == sorted(names)
-    errors = [s["error_3d"] for s in short]
-    assert all(x is not None and x > 0 for x in errors) and errors == sorted(errors)
-    assert all(s["draws"] == diagnose.MIN_SAMPLES for s in short)  # half of 4 draws, at least three
-    by_name = {e["effect"]: e for e in d["ranking"]}
-    for s in short:
-        assert "3D shortlist" in by_name[s["effect"]]["explanation"]
-    # the winner takes the first place (the one refit), fitted in 3D, and the verdict says what it did
-    winner = by_name[short[0]["effect"]]
-    assert winner["refit_order"] == 1 and all(by_name[s["effect"]]["refit"] is None for s in short[1:])
-    assert winner["refit"]["fitted_in"] == "3d" and winner["refit"]["search"]["scored_by"] == "error_3d"
-    assert f"the refit with {winner['effect']}, fitted in 3D" in d["verdict"] or d["recommended"] == winner["effect"]
-
-
 def test_fold_features_name_every_entry_and_see_a_flat_disk_as_flat():
     model = sim.ClothModel(sim.cusick_specimen(3), density=0.2)
     rest, edges = np.asarray(model.rest_positions), np.asarray(model.bending_edges)
@@ -1262,44 +1222,6 @@ def test_refit_order_3d_puts_the_largest_3d_changes_first_in_their_places():
     assert diagnose.refit_order_3d([], lambda e: True) == []
 
 
-def test_the_3d_shortlist_reorders_its_candidates_among_their_places_by_their_evaluated_3d_error():
-    # fabric 2 (2026-11-30): by the mean change on the screen's draws rest_curvature went first and
-    # high_curvature_bending 4th (behind the silhouettes' significant offset and two other 3D candidates); on
-    # common draws the shortlist's 3D errors put high_curvature_bending into rest_curvature's place
-    order = [{"effect": n} for n in ("rest_curvature", "offset", "heterogeneity_map", "high_curvature_bending",
-                                     "camera")]
-    scored = {"rest_curvature": 9.3, "heterogeneity_map": 9.9, "high_curvature_bending": 6.4}
-    out = [e["effect"] for e in diagnose.shortlist_order(order, scored)]
-    assert out == ["high_curvature_bending", "offset", "rest_curvature", "heterogeneity_map", "camera"]
-    # a shortlisted candidate whose every draw failed (None) or whose error is not finite goes last among them;
-    # the entries not shortlisted keep their places; the input is not changed
-    out = [e["effect"] for e in diagnose.shortlist_order(
-        order, {"rest_curvature": None, "offset": float("nan"), "camera": 1.0})]
-    assert out == ["camera", "rest_curvature", "heterogeneity_map", "high_curvature_bending", "offset"]
-    assert [e["effect"] for e in order][0] == "rest_curvature"
-    assert diagnose.shortlist_order(order, {}) == order
-    # the step test's confirmation keeps its evaluations back when two or more of the screen's 3D tests promise a
-    # shortlist (p below the screen's line and a step that brought the fold features closer)
-    def st(p, changes):
-        return {"p_value": p, "statistic": -1.0, "per_step": [{"change": c} for c in changes]}
-    screen = {"rest_curvature": st(0.01, [-4.2, 1.0]), "high_curvature_bending": st(0.1, [-2.4]),
-              "heterogeneity_map": st(0.05, [-3.1]), "density_variation": st(0.02, [-2.9]),
-              "tilt": st(0.001, [0.3, 0.7]), "camera": st(0.5, [-1.0])}
-    # (four candidates on half of K draws each: two evaluations of K)
-    assert diagnose.SHORTLIST_3D == 4 and diagnose.SHORTLIST_DRAWS_SHARE == 0.5
-    assert diagnose.shortlist_reserved(screen) == 2
-    assert diagnose.shortlist_reserved({n: screen[n] for n in ("rest_curvature", "tilt", "camera")}) == 0
-    three = ("rest_curvature", "density_variation", "heterogeneity_map")
-    assert diagnose.shortlist_reserved({n: screen[n] for n in three}) == 2
-    assert diagnose.shortlist_reserved({n: screen[n] for n in three[:2]}) == 1
-    assert diagnose.shortlist_reserved({}) == 0
-    # its size: what the time left pays for with the winner's refit evaluation and the report's reserve
-    reserve = diagnose.REPORT_RESERVE_S
-    assert diagnose.shortlist_size(4, 90.0, 50.0) == 1  # fabric 2 at 600 s: no shortlist
-    assert diagnose.shortlist_size(4, 2 * 50.0 + reserve, 50.0) == 2
-    assert diagnose.shortlist_size(4, 1000.0, 50.0) == 4 and diagnose.shortlist_size(2, 1000.0, 0.0) == 2
-
-
 def test_a_refit_found_in_3d_starts_at_the_step_with_the_largest_3d_change():
     st = {"step": "strain=-0.03", "statistic": -10.9, "values": {"strain": -0.03},
           "per_step": [{"step": "strain=+0.03", "values": {"strain": 0.03}, "statistic": 1.8, "change": -0.4},
@@ -1343,8 +1265,6 @@ def test_the_verdict_names_the_3d_candidates_left_without_a_refit():
                      {"effect": "high_curvature_bending", "change": -2.38}]
     words = diagnose.unrefitted_3d_words(items)
     assert "--candidates heterogeneity_map,density_variation,high_curvature_bending" in words
-    assert "high_curvature_bending (-2.4)" in words and "shortlist" not in words
-    skipped = diagnose.unrefitted_3d_words(items, "the time left (100 s) did not pay for two evaluations")
-    assert "--candidates heterogeneity_map" in skipped and "(100 s)" in skipped and "longer --time-budget" in skipped
+    assert "high_curvature_bending (-2.4)" in words
     assert diagnose.unrefitted_3d(ranking, 0.00091, limit=5)[-1] == {"effect": "prestrain", "change": -0.26}
     assert diagnose.unrefitted_3d_words([]) == ""

@@ -68,10 +68,12 @@ def test_the_hidden_effect_is_found_and_its_refit_lowers_the_error(diagnoses, ca
     assert entry["p_value"] < d["threshold"], d["verdict"]  # found, not merely the first of nothing
     assert entry["refit"]["mse"] < d["base"]["mse"], d["verdict"]
     assert d["recommended"] in (case, None), d["verdict"]  # null only when the fall is below the re-drape rule
+    assert d["verdict"].endswith("."), d["verdict"]  # one sentence or more, each ended (with or without a recommendation)
     assert d["step_test"]["draws"] == SAMPLES and d["step_test"]["references"] >= diagnose.STEP_REFERENCES_MIN
 
 
 def test_control_drapes_get_no_recommendation(diagnoses):
     d = diagnoses["control"]
     assert d["recommended"] is None, d["verdict"]
+    assert d["verdict"].endswith("."), d["verdict"]
     assert all(e["p_value"] >= d["threshold"] for e in d["ranking"] if e["p_value"] is not None)
