@@ -2469,9 +2469,9 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
     gaining = [e for e in falling if (any_significant or e["switch"]) and e["mse_fall"] >= MIN_MSE_FALL]
     small = [e for e in gaining if e["fall_of_redrape"] is not None and e["fall_of_redrape"] < MIN_FALL_OF_REDRAPE]
     gaining = [e for e in gaining if e not in small]
-    # found and fitted in 3D (module doc, 3b): recommended when no refit is by the silhouettes, its refit lowers
-    # the 3D error by MIN_MSE_FALL of it and MIN_FALL_OF_REDRAPE of its re-drape floor, and the silhouettes' best-of-K
-    # MSE stays within ALTERNATIVE_WITHIN of their floor (the outline as good as the base's)
+    # found and fitted in 3D (module doc, 3b): recommended when no refit is by the silhouettes and
+    # recommendable_in_3d's conditions hold (the 3D fall, the outline as good as the base's, the drape coefficient
+    # error within the measured drape coefficients' standard error of the base's)
     base_3d = judged.get("error_3d")
     dc_within = dc_standard_error(result.get("per_image"))
     in_3d_gaining = recommendable_in_3d(result["ranking"], base_3d, judged.get("redrape_error_3d"), base_mse, redrape,
@@ -2491,9 +2491,6 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
             f"{best['refit']['mse']:.4f}): " + (f"the refit is {refit_file}; the silhouettes alone do not fit it, so keep "
                                                 f"its value (fit --init {refit_file} fits the material with it fixed)"
                                                 if refit_file else f"set {best['effect']} to its refit's value"))
-        result["not_refitted"] = unrefitted(result["ranking"], threshold, exclude=(best["effect"],))
-        result["verdict"] += unrefitted_words(result["not_refitted"], best["effect"],
-                                              not_refitted_reason(result["cancelled"], max_refits)) + "."
     elif gaining:
         best = gaining[0]
         result["recommended"] = best["effect"]
@@ -2509,9 +2506,6 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
                                 else f"fit --effects {best['effect']}"))
         result["alternatives"] = alternatives([best] + [e for e in falling if e is not best], redrape)
         result["verdict"] += alternatives_words(result["alternatives"], best["effect"], k_judged)
-        result["not_refitted"] = unrefitted(result["ranking"], threshold, exclude=(best["effect"],))
-        result["verdict"] += unrefitted_words(result["not_refitted"], best["effect"],
-                                              not_refitted_reason(result["cancelled"], max_refits)) + "."
     else:
         tested = [e for e in result["ranking"] if e["p_value"] is not None]
         significant = [e for e in tested if e["p_value"] < threshold]
@@ -2562,6 +2556,10 @@ def diagnose(preset, images, meshes=None, candidates=None, time_budget=None, sam
             if said:
                 why = "; ".join(said) if smallest is None else why + "; " + "; ".join(said)
             result["verdict"] = f"Nothing significant: {why}."
+    if result["recommended"] is not None:  # beside either recommendation: what was not refitted that might compete
+        result["not_refitted"] = unrefitted(result["ranking"], threshold, exclude=(result["recommended"],))
+        result["verdict"] += unrefitted_words(result["not_refitted"], result["recommended"],
+                                              not_refitted_reason(result["cancelled"], max_refits)) + "."
     if judged.get("error_3d") is not None and any_significant:
         result["unrefitted_3d"] = unrefitted_3d(result["ranking"], threshold)
         result["verdict"] += unrefitted_3d_words(result["unrefitted_3d"])
