@@ -3,7 +3,7 @@
 
     tools/real_diagnosis.py --out DIR [--fabrics 1,2,3,4,5] [--time-budget 600] [--samples 16] [--seed 0]
                             [--candidates NAME,...] [--count 6]
-    tools/real_diagnosis.py --out DIR --held-out [--fabrics ...] [--eval-samples 100]
+    tools/real_diagnosis.py --out DIR --held-out [--fabrics ...] [--eval-samples 100] [--fit-init [--fit-budget 300]]
 
 For each fabric: the shipped preset assets/presets/fabric_XX_*_bdp.json, diagnosed against the first --count
 capture-1 photos of samples 03 onwards without the preset's training sample (the paper's training samples:
@@ -15,7 +15,9 @@ report compares them in 3D too); DIR/real.json collects one row per fabric
 ranked first ("after", whether or not it was recommended) evaluated best-of-N (`evaluate`, the same seed and
 draws for both) on the fabric's capture-1 test photos the diagnosis did not see (the paper's 11 test samples
 without the --count diagnosed ones), with their meshes: MSE, Hausdorff, drape-coefficient error and fold-depth
-(node amplitude) bias; DIR/held_out.json, and a Markdown table. Needs the full dataset
+(node amplitude) bias; DIR/held_out.json, and a Markdown table. --fit-init: also the verdict's next step and its
+control, `fit --init` on the diagnosed photos (the refit's effect held) from the refit ("after_fit") and from the
+shipped preset ("before_fit"), --fit-budget seconds each (DIR/fabric_XX/fit_init_*.json), evaluated the same way. Needs the full dataset
 (../shared/data/cusick or DRAPELAB_CUSICK_DIR). Run with ./drapelab's environment:
 `PYTHONPATH=addon:build/python OPENBLAS_NUM_THREADS=1 tools/real_diagnosis.py --out out/real`.
 """
@@ -70,8 +72,20 @@ def held_out(args, data, rows):
                  if first and r["refits"].get(first) else None)
         row = {"fabric": r["fabric"], "images": [os.path.basename(p) for p in images], "effect": first,
                "recommended": r["recommended"]}
-        for label, preset in (("before", os.path.join(ROOT, r["preset"])),
-                              ("after", os.path.join(args.out, f"fabric_{r['fabric']:02d}", refit) if refit else None)):
+        folder = os.path.join(args.out, f"fabric_{r['fabric']:02d}")
+        presets = [("before", os.path.join(ROOT, r["preset"])),
+                   ("after", os.path.join(folder, refit) if refit else None)]
+        if args.fit_init:  # the verdict's next step, and its control: fit --init on the diagnosed photos, same budget
+            diagnosed = [os.path.join(data, f"fabric_{r['fabric']:02d}", "silhouettes", name) for name in r["images"]]
+            for label, start in list(presets):
+                path = os.path.join(folder, f"fit_init_{label}.json")
+                if start is not None and not os.path.isfile(path):
+                    t0 = time.monotonic()
+                    infer.fit(diagnosed, init=start, time_budget=args.fit_budget, seed=args.seed, out=path)
+                    print(f"fabric {r['fabric']} fit --init {label}: {time.monotonic() - t0:.0f} s", file=sys.stderr,
+                          flush=True)
+                presets.append((f"{label}_fit", path if start is not None else None))
+        for label, preset in presets:
             if preset is None:
                 row[label] = None
                 continue
@@ -85,14 +99,13 @@ def held_out(args, data, rows):
         with open(out_path + ".tmp", "w") as f:
             json.dump({"rows": done, "samples": args.eval_samples, "seed": args.seed}, f, indent=1)
         os.replace(out_path + ".tmp", out_path)
-    lines = [f"| fabric | held-out photos | ranked first | MSE before / after (best-of-{args.eval_samples}) | "
-             "Hausdorff m before / after | abs DC error before / after | fold-depth bias mm before / after |",
-             "|---|---|---|---|---|---|---|"]
+    labels = ("before", "after", "before_fit", "after_fit") if args.fit_init else ("before", "after")
+    lines = [f"| fabric | held-out photos | ranked first | MSE {' / '.join(labels)} (best-of-{args.eval_samples}) | "
+             "Hausdorff m | abs DC error | fold-depth bias mm |", "|---|---|---|---|---|---|---|"]
     for d in done:
-        b, a = d["before"], d["after"] or {}
-
         def pair(key, scale=1.0, fmt=".4f"):
-            return " / ".join(format(scale * x[key], fmt) if x.get(key) is not None else "-" for x in (b, a))
+            return " / ".join(format(scale * x[key], fmt) if x.get(key) is not None else "-"
+                              for x in (d.get(label) or {} for label in labels))
         lines.append(f"| {d['fabric']} | {len(d['images'])} | {d['effect']} | {pair('mse')} | {pair('hausdorff_m')} | "
                      f"{pair('dc_abs_error', fmt='.3f')} | {pair('amplitude_bias_m', 1000.0, '+.2f')} |")
     print("\n".join(lines))
@@ -142,6 +155,10 @@ def main():
     ap.add_argument("--held-out", action="store_true",
                     help="evaluate before/after on the test photos the diagnoses did not see (after the diagnoses)")
     ap.add_argument("--eval-samples", type=int, default=100)
+    ap.add_argument("--fit-init", action="store_true",
+                    help="--held-out: also fit --init (the effect held) from the shipped preset and from the refit on "
+                         "the diagnosed photos, --fit-budget each, and evaluate both (before_fit, after_fit)")
+    ap.add_argument("--fit-budget", type=float, default=300.0)
     args = ap.parse_args()
     data = paths.cusick_dataset_dir()
     if data is None:
