@@ -17,7 +17,8 @@ Time (fit --time-budget T covers the whole job: set-up, epochs, drape calibratio
     fit's scale is reused), so drapes that get slower during the job (a shared machine) cost accuracy, not time.
     fit --init keeps back START_GUARD_MARGIN x what its start guard needs (two evaluations of start_guard.draws
     draws, estimated from the same measured drapes) from the epochs, as far as they can spare it; the guard runs
-    when its estimate is still left. The epochs stop when the next would not finish in their share (predicted by
+    on the draws whose rounds fit in the time left with START_GUARD_RUN_MARGIN to spare (fewer when it must).
+    The epochs stop when the next would not finish in their share (predicted by
     the longest epoch so far). The job
     thus ends by max(T + the last epoch, end of epochs + the first 3 sets) + the last set.
 Memory:
@@ -47,6 +48,8 @@ EPOCH_DRAPE_FACTOR = 1.5             # an epoch's drape (recorded rollout + adjo
 DEFAULT_CALIBRATION_SHARE = 0.5      # fit.json time_budget.calibration_share when absent
 START_GUARD_MARGIN = 1.25            # fit --init's start guard: kept back x its estimate (it runs when the estimate
 #                                      is left: epochs that end a little past their share must not skip it)
+START_GUARD_RUN_MARGIN = 1.1         # ... and runs on the draws whose rounds fit in the time left with this to spare
+#                                      (drape times vary by about 10 % between runs: the refused budget's margin too)
 
 
 def physical_memory_bytes():

@@ -203,6 +203,38 @@ def test_the_start_guard_is_skipped_when_the_time_left_cannot_pay_for_it():
     assert record["skipped"].startswith("time budget: 3 s left, the start guard needs about 40 s")
 
 
+def test_the_start_guard_runs_on_the_draws_the_time_left_pays_for():
+    p = infer.load_preset(SHIPPED_PRESET)
+    p["simulation"] = dict(p["simulation"], mesh_level=1)
+    end = scaled(p, 30.0)
+    # 10 draws in rounds of 1 estimated at 20 s: 1 s a draw and evaluation; 19 s left pays for 8 draws with the
+    # run margin (19 // (1.1 x 2 x 1 s)), not for 10
+    kept, record = guard(p, end, left=19.0, estimate=20.0, draws=10)
+    assert record["draws"] == 8 and record["draws_planned"] == 10 and "skipped" not in record
+    assert record["kept"] == "start" and {"start_mse", "end_mse"} <= set(record)
+    assert kept["metrics"]["training_image"]["best_of"] == 8
+    # below the fewest draws (min(draws, START_GUARD_MIN_DRAWS)) it is skipped
+    kept, record = guard(p, end, left=15.0, estimate=20.0, draws=10)
+    assert kept is end and record["kept"] == "end" and record["skipped"].startswith("time budget: 15 s left")
+    # the estimate itself left, but not its margin: skipped rather than run past the budget
+    kept, record = guard(p, end, left=20.5, estimate=20.0, draws=2)
+    assert kept is end and "skipped" in record
+
+
+def test_a_calibrated_fit_from_a_preset_keeps_its_start_guard_record(tmp_path):
+    # the drape calibration returns a copy of the preset: the guard's record must reach the one written
+    _, start, cfg = written_start(tmp_path, guard=True)
+    cfg["calibration"] = dict(cfg["calibration"], enabled=True, draws=2, iterations=1,
+                              node_search=dict(cfg["calibration"]["node_search"], enabled=False))
+    out = tmp_path / "calibrated.json"
+    infer.fit([ASSET_IMAGE], None, epochs=1, seed=2, out=str(out), config=cfg, threads=1, mesh_level=1,
+              init=str(start))
+    preset = infer.load_preset(str(out))
+    g = preset["training"]["init"]["start_guard"]
+    assert g["draws"] == 2 and g["kept"] in ("start", "end") and {"start_mse", "end_mse"} <= set(g)
+    assert preset["training"]["init"]["preset"] == str(start)
+
+
 def test_a_fit_from_a_preset_records_its_start_guard(tmp_path, capsys):
     start, out, text = fit_on_the_command_line(tmp_path, capsys, guard=True)
     preset = infer.load_preset(str(out))
