@@ -1001,8 +1001,6 @@ def fit(images, density=None, model=None, epochs=None, time_budget=None, seed=0,
                                                 **{k: v for k, v in options.items()
                                                    if k not in ("config", "effects", "calibration", "init_bend",
                                                                 "init_stretch")}})
-    if init_record is not None:
-        preset["training"]["init"] = init_record
     epochs_end = time.monotonic() - t_start
     if calibrating:
         left = None if time_budget is None else time_budget - epochs_end - (plan.start_guard if guard else 0.0)
@@ -1015,7 +1013,7 @@ def fit(images, density=None, model=None, epochs=None, time_budget=None, seed=0,
         preset, init_record["start_guard"] = _start_guard(
             init_preset, preset, images, guard, seed, job.threads, options.get("template_dir"), job.config,
             cancel_event, left, estimate, guard_progress)
-        # the drape calibration returns a copy of the preset: the record goes on the one written
+    if init_record is not None:  # set on the preset written: the drape calibration returns a copy
         preset["training"]["init"] = init_record
     if time_budget is not None:
         preset["training"]["time_budget"] = dict(plan.as_dict(),
